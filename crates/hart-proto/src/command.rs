@@ -1,0 +1,906 @@
+//! Typed requests and responses of the universal, common-practice and burst commands.
+//!
+//! Each command is one line of the [`commands!`] table below, naming its request and
+//! response layouts; each layout is one [`wire_struct!`](crate::wire_struct) whose field
+//! list drives decoding, encoding, length limits and the field-by-field description
+//! (the annotated view and JSON). Adding a command is one line plus, if needed, one
+//! layout.
+//!
+//! Decoding follows HART's compatibility rules: surplus trailing request bytes are
+//! ignored; trailing fields added by later protocol revisions are `Option`s that are
+//! present only when the data holds them (e.g. the 12-, 17- and 22-byte forms of
+//! command 0); data that is too short is a [`DecodeError`], never a panic.
+
+use core::fmt;
+
+use crate::types::*;
+use crate::wire::{DecodeError, EncodeError, Field, List, Meaning, Reader, Value, Visitor, Wire, Writer};
+use crate::wire_struct;
+
+wire_struct! {
+    /// No data.
+    pub struct Empty {}
+}
+
+wire_struct! {
+    /// Identity: the reply of commands 0, 11, 21 (and 73). HART 5 sends bytes 0–11,
+    /// HART 6 adds 12–16, HART 7 adds 17–21.
+    pub struct Identity {
+        /// Byte 0: always 254.
+        pub expansion_code: u8,
+        /// Bytes 1–2: expanded device type (HART 5/6: manufacturer ID, device type).
+        pub expanded_device_type: u16,
+        /// Byte 3: minimum number of preambles the device needs in requests.
+        pub min_request_preambles: u8,
+        /// Byte 4: HART universal (protocol major) revision.
+        pub universal_revision: u8,
+        /// Byte 5: device revision.
+        pub device_revision: u8,
+        /// Byte 6: software revision.
+        pub software_revision: u8,
+        /// Byte 7: hardware revision (bits 7–3) and physical signaling (2–0).
+        pub hardware: HardwareRevision,
+        /// Byte 8: flags (Common Table 11).
+        pub flags: Flags,
+        /// Bytes 9–11: device ID.
+        pub device_id: DeviceId,
+        /// Byte 12 (HART 6+): minimum preambles the device sends in replies.
+        pub min_response_preambles: Option<u8>,
+        /// Byte 13 (HART 6+): maximum number of device variables.
+        pub max_device_variables: Option<u8>,
+        /// Bytes 14–15 (HART 6+): configuration change counter.
+        pub config_change_counter: Option<u16>,
+        /// Byte 16 (HART 6+): extended field device status.
+        pub extended_status: Option<ExtendedStatus>,
+        /// Bytes 17–18 (HART 7): manufacturer identification code.
+        pub manufacturer_id: Option<u16>,
+        /// Bytes 19–20 (HART 7): private label distributor code.
+        pub private_label_distributor: Option<u16>,
+        /// Byte 21 (HART 7): device profile (Common Table 57).
+        pub device_profile: Option<DeviceProfile>,
+    }
+    describe_extra = identity_legacy_fields;
+}
+
+/// HART 5 and older name bytes 1 and 2 manufacturer ID and device type.
+fn identity_legacy_fields(id: &Identity, offset: usize, v: &mut dyn Visitor) {
+    if id.universal_revision <= 5 {
+        let [mfr, dt] = id.expanded_device_type.to_be_bytes();
+        v.field(Field { name: "manufacturer_id", offset: offset + 1, len: 1, value: Value::Uint(mfr.into()), meaning: Meaning::Plain });
+        v.field(Field { name: "device_type", offset: offset + 2, len: 1, value: Value::Uint(dt.into()), meaning: Meaning::Plain });
+    }
+}
+
+impl Identity {
+    /// The device's unique identifier for long-frame addressing.
+    pub fn unique_id(&self) -> crate::frame::UniqueId {
+        crate::frame::UniqueId::new(self.expanded_device_type, self.device_id.get())
+    }
+}
+
+wire_struct! {
+    /// Command 1 reply.
+    pub struct ReadPvResponse {
+        /// PV units.
+        pub pv_units: UnitCode,
+        /// Primary variable.
+        pub pv: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 2 reply.
+    pub struct ReadLoopCurrentResponse {
+        /// Loop current, mA.
+        pub loop_current: MilliAmps,
+        /// Percent of range (not clamped).
+        pub percent_of_range: Percent,
+    }
+}
+
+wire_struct! {
+    /// A units code and a value.
+    pub struct UnitValue {
+        /// Units code.
+        pub units: UnitCode,
+        /// Value.
+        pub value: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 3 reply: loop current then PV, SV, TV, QV as far as the device has them.
+    pub struct ReadDynamicVariablesResponse {
+        /// Loop current, mA.
+        pub loop_current: MilliAmps,
+        /// PV, SV, TV, QV (0 to 4 of them).
+        pub variables: List<UnitValue, 4>,
+    }
+}
+
+wire_struct! {
+    /// Command 6 request/reply (HART 5 sends only the polling address).
+    pub struct PollingAddress {
+        /// Polling address, 0..=63.
+        pub polling_address: u8,
+        /// Loop current mode (HART 6+).
+        pub loop_current_mode: Option<LoopCurrentMode>,
+    }
+}
+
+wire_struct! {
+    /// Command 7 reply.
+    pub struct LoopConfiguration {
+        /// Polling address.
+        pub polling_address: u8,
+        /// Loop current mode.
+        pub loop_current_mode: LoopCurrentMode,
+    }
+}
+
+wire_struct! {
+    /// Command 8 reply.
+    pub struct DynamicVariableClassifications {
+        /// PV classification.
+        pub pv_classification: Classification,
+        /// SV classification.
+        pub sv_classification: Classification,
+        /// TV classification.
+        pub tv_classification: Classification,
+        /// QV classification.
+        pub qv_classification: Classification,
+    }
+}
+
+wire_struct! {
+    /// Command 9 request: 1 to 8 device variable codes.
+    pub struct ReadDeviceVariablesRequest {
+        /// Requested device variable codes, slot 0 first.
+        pub slots: List<DeviceVariableCode, 8, 1>,
+    }
+}
+
+wire_struct! {
+    /// One slot of the command 9 reply (8 bytes).
+    pub struct VariableSlot {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+        /// Classification.
+        pub classification: Classification,
+        /// Units.
+        pub units: UnitCode,
+        /// Value.
+        pub value: f32,
+        /// Device variable status.
+        pub status: VariableStatus,
+    }
+}
+
+/// The slots of a command 9 reply and the slot-0 time stamp that follows them (HART 7).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SlotsWithTimestamp {
+    /// 1 to 8 slots.
+    pub slots: List<VariableSlot, 8>,
+    /// Slot 0 data time stamp (absent in HART 6 replies).
+    pub timestamp: Option<HartTime>,
+}
+
+impl Wire for SlotsWithTimestamp {
+    const MIN_LEN: usize = 0;
+    const MAX_LEN: usize = 8 * 8 + 4;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        let n = r.remaining();
+        let with_time = n % 8 == 4;
+        let count = (if with_time { n - 4 } else { n } / 8).min(8);
+        let mut slots = List::default();
+        for _ in 0..count {
+            slots.push(VariableSlot::decode(r)?).map_err(|_| DecodeError::Invalid { offset: r.position(), reason: "too many slots" })?;
+        }
+        let timestamp = if r.remaining() >= 4 { Some(HartTime::decode(r)?) } else { None };
+        Ok(SlotsWithTimestamp { slots, timestamp })
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        self.slots.encode(w)?;
+        self.timestamp.encode(w)
+    }
+    fn encoded_len(&self) -> usize {
+        self.slots.encoded_len() + self.timestamp.encoded_len()
+    }
+    fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        self.slots.describe("slots", offset, v);
+        self.timestamp.describe("timestamp", offset + self.slots.encoded_len(), v);
+    }
+}
+
+wire_struct! {
+    /// Command 9 reply.
+    pub struct ReadDeviceVariablesResponse {
+        /// Extended field device status.
+        pub extended_status: ExtendedStatus,
+        /// Slots and time stamp.
+        pub data: SlotsWithTimestamp,
+    }
+}
+
+wire_struct! {
+    /// Commands 11 request: the tag to look for.
+    pub struct TagRequest {
+        /// Tag (8 packed characters).
+        pub tag: PackedString<6>,
+    }
+}
+
+wire_struct! {
+    /// Commands 12 reply / 17 request and reply.
+    pub struct Message {
+        /// Message (32 packed characters).
+        pub message: PackedString<24>,
+    }
+}
+
+wire_struct! {
+    /// Commands 13 reply / 18 request and reply.
+    pub struct TagDescriptorDate {
+        /// Tag (8 packed characters).
+        pub tag: PackedString<6>,
+        /// Descriptor (16 packed characters).
+        pub descriptor: PackedString<12>,
+        /// Date.
+        pub date: Date,
+    }
+}
+
+wire_struct! {
+    /// Command 14 reply.
+    pub struct TransducerInfo {
+        /// Transducer serial number.
+        pub transducer_serial_number: U24,
+        /// Units of the limits and minimum span.
+        pub limits_units: UnitCode,
+        /// Upper transducer limit.
+        pub upper_transducer_limit: f32,
+        /// Lower transducer limit.
+        pub lower_transducer_limit: f32,
+        /// Minimum span.
+        pub minimum_span: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 15 reply.
+    pub struct DeviceInformation {
+        /// PV alarm selection.
+        pub alarm_selection: AlarmSelection,
+        /// PV transfer function.
+        pub transfer_function: TransferFunction,
+        /// Range values units.
+        pub range_units: UnitCode,
+        /// Upper range value.
+        pub upper_range_value: f32,
+        /// Lower range value.
+        pub lower_range_value: f32,
+        /// Damping, s.
+        pub damping: Seconds,
+        /// Write protect code.
+        pub write_protect: WriteProtect,
+        /// HART 6/7: reserved, 250. HART 5: private label distributor.
+        pub reserved: u8,
+        /// PV analog channel flags (HART 6+).
+        pub analog_channel_flags: Option<AnalogChannelFlags>,
+    }
+}
+
+wire_struct! {
+    /// Commands 16 reply / 19 request and reply.
+    pub struct FinalAssemblyNumber {
+        /// Final assembly number.
+        pub final_assembly_number: U24,
+    }
+}
+
+wire_struct! {
+    /// Commands 20 reply, 21 request, 22 request and reply.
+    pub struct LongTag {
+        /// Long tag (32 Latin-1 characters).
+        pub long_tag: Latin1String<32>,
+    }
+}
+
+wire_struct! {
+    /// Command 38 request and reply (the counter is HART 7; older hosts send nothing).
+    pub struct ResetConfigChanged {
+        /// Configuration change counter the master expects.
+        pub config_change_counter: Option<u16>,
+    }
+}
+
+/// Command 48 reply: additional device status (9 to 25 bytes), also shown field by field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct AdditionalStatus(pub Bytes<25>);
+
+impl AdditionalStatus {
+    /// The raw bytes.
+    pub fn as_slice(&self) -> &[u8] {
+        self.0.as_slice()
+    }
+}
+
+impl Wire for AdditionalStatus {
+    const MIN_LEN: usize = 0;
+    const MAX_LEN: usize = 25;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(AdditionalStatus(Bytes::decode(r)?))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        self.0.encode(w)
+    }
+    fn encoded_len(&self) -> usize {
+        self.0.encoded_len()
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        let b = self.as_slice();
+        v.field(Field { name, offset, len: b.len(), value: Value::Hex(b), meaning: Meaning::Plain });
+        let named: [(usize, usize, &'static str, Meaning); 10] = [
+            (0, 6, "device_specific_status", Meaning::Plain),
+            (6, 1, "extended_status", Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS)),
+            (7, 1, "operating_mode", Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE)),
+            (8, 1, "standardized_status_0", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0)),
+            (9, 1, "standardized_status_1", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1)),
+            (10, 1, "analog_channel_saturated", Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED)),
+            (11, 1, "standardized_status_2", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2)),
+            (12, 1, "standardized_status_3", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3)),
+            (13, 1, "analog_channel_fixed", Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED)),
+            (14, 11, "device_specific_status_2", Meaning::Plain),
+        ];
+        for (at, len, name, meaning) in named {
+            let Some(bytes) = b.get(at..(at + len).min(b.len())).filter(|s| !s.is_empty()) else { continue };
+            let value = if len == 1 { Value::Uint(bytes[0].into()) } else { Value::Hex(bytes) };
+            v.field(Field { name, offset: offset + at, len: bytes.len(), value, meaning });
+        }
+    }
+}
+
+wire_struct! {
+    /// Command 48 reply.
+    pub struct ReadAdditionalStatusResponse {
+        /// Additional status bytes.
+        pub additional_status: AdditionalStatus,
+    }
+}
+
+wire_struct! {
+    /// Command 48 request: none (legacy) or the bytes 0–8 of the status last read, to
+    /// acknowledge them (HART 7).
+    pub struct ReadAdditionalStatusRequest {
+        /// Copy of the status bytes being acknowledged (empty for a legacy request).
+        pub status_copy: Bytes<25>,
+    }
+}
+
+wire_struct! {
+    /// Command 33 request: 1 to 4 device variable codes.
+    pub struct ReadVariablesRequest {
+        /// Requested codes.
+        pub slots: List<DeviceVariableCode, 4, 1>,
+    }
+}
+
+wire_struct! {
+    /// One slot of the command 33 reply.
+    pub struct CodeUnitValue {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+        /// Units.
+        pub units: UnitCode,
+        /// Value.
+        pub value: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 33 reply.
+    pub struct ReadVariablesResponse {
+        /// 1 to 4 slots.
+        pub variables: List<CodeUnitValue, 4>,
+    }
+}
+
+wire_struct! {
+    /// Command 34 request and reply.
+    pub struct Damping {
+        /// PV damping, s.
+        pub damping: Seconds,
+    }
+}
+
+wire_struct! {
+    /// Command 35 request and reply (note: upper before lower).
+    pub struct RangeValues {
+        /// Units of the range values.
+        pub range_units: UnitCode,
+        /// Upper range value.
+        pub upper_range_value: f32,
+        /// Lower range value.
+        pub lower_range_value: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 40 request and reply.
+    pub struct FixedCurrent {
+        /// Loop current to hold, mA; 0 leaves fixed current mode.
+        pub loop_current: MilliAmps,
+    }
+}
+
+wire_struct! {
+    /// Command 44 request and reply.
+    pub struct PvUnits {
+        /// PV units.
+        pub pv_units: UnitCode,
+    }
+}
+
+wire_struct! {
+    /// Commands 45/46 request and reply.
+    pub struct TrimCurrent {
+        /// Externally measured loop current, mA.
+        pub measured_current: MilliAmps,
+    }
+}
+
+wire_struct! {
+    /// Command 50 reply.
+    pub struct DynamicVariableAssignments {
+        /// Device variable mapped to PV.
+        pub pv_code: DeviceVariableCode,
+        /// Device variable mapped to SV (250 = none).
+        pub sv_code: Option<DeviceVariableCode>,
+        /// Device variable mapped to TV.
+        pub tv_code: Option<DeviceVariableCode>,
+        /// Device variable mapped to QV.
+        pub qv_code: Option<DeviceVariableCode>,
+    }
+}
+
+wire_struct! {
+    /// Command 53 request and reply.
+    pub struct VariableUnits {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+        /// Units.
+        pub units: UnitCode,
+    }
+}
+
+wire_struct! {
+    /// Command 54 request.
+    pub struct VariableCode {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+    }
+}
+
+wire_struct! {
+    /// Command 54 reply (27 bytes; HART 7 adds the properties byte).
+    pub struct VariableInformation {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+        /// Transducer serial number.
+        pub transducer_serial_number: U24,
+        /// Units of limits and minimum span.
+        pub limits_units: UnitCode,
+        /// Upper transducer limit.
+        pub upper_transducer_limit: f32,
+        /// Lower transducer limit.
+        pub lower_transducer_limit: f32,
+        /// Damping, s.
+        pub damping: Seconds,
+        /// Minimum span.
+        pub minimum_span: f32,
+        /// Classification.
+        pub classification: Classification,
+        /// Device variable family.
+        pub family: VariableFamily,
+        /// Acquisition (update) period.
+        pub acquisition_period: HartTime,
+        /// Device variable properties (HART 7).
+        pub properties: Option<u8>,
+    }
+}
+
+wire_struct! {
+    /// Command 59 request and reply.
+    pub struct ResponsePreambles {
+        /// Preambles the device sends in replies (5..=20).
+        pub response_preambles: u8,
+    }
+}
+
+wire_struct! {
+    /// Command 79 request and reply: simulate a device variable.
+    pub struct WriteDeviceVariable {
+        /// Device variable code.
+        pub code: DeviceVariableCode,
+        /// 0 normal, 1 fixed value.
+        pub write_code: WriteVariableCode,
+        /// Units.
+        pub units: UnitCode,
+        /// Value.
+        pub value: f32,
+        /// Device variable status to report.
+        pub status: VariableStatus,
+    }
+}
+
+wire_struct! {
+    /// Command 90 reply.
+    pub struct RealTimeClock {
+        /// Current date.
+        pub current_date: Date,
+        /// Current time of day.
+        pub current_time: HartTime,
+        /// Date the clock was last set.
+        pub last_set_date: Date,
+        /// Time the clock was last set.
+        pub last_set_time: HartTime,
+        /// Real-time clock flags.
+        pub rtc_flags: u8,
+    }
+}
+
+wire_struct! {
+    /// Command 95 reply.
+    pub struct CommunicationStatistics {
+        /// STX messages received.
+        pub stx_count: u16,
+        /// ACK messages sent.
+        pub ack_count: u16,
+        /// BACK messages sent.
+        pub back_count: u16,
+    }
+}
+
+wire_struct! {
+    /// Command 103 request and reply.
+    pub struct BurstPeriod {
+        /// Burst message number.
+        pub burst_message: u8,
+        /// Update period.
+        pub update_period: HartTime,
+        /// Maximum update period.
+        pub max_update_period: HartTime,
+    }
+}
+
+wire_struct! {
+    /// Command 104 request and reply.
+    pub struct BurstTrigger {
+        /// Burst message number.
+        pub burst_message: u8,
+        /// Trigger mode (Common Table 33).
+        pub trigger_mode: TriggerMode,
+        /// Classification of the trigger value.
+        pub classification: Classification,
+        /// Units of the trigger level.
+        pub units: UnitCode,
+        /// Trigger level.
+        pub trigger_level: f32,
+    }
+}
+
+wire_struct! {
+    /// Command 105 request (HART 7: the message number; legacy: nothing).
+    pub struct BurstMessageSelect {
+        /// Burst message number.
+        pub burst_message: Option<u8>,
+    }
+}
+
+wire_struct! {
+    /// Command 105 reply (HART 7: 29 bytes; older devices stop earlier).
+    pub struct BurstConfiguration {
+        /// Burst mode control code.
+        pub control: BurstModeControl,
+        /// 31 in HART 7 replies; the 8-bit burst command number in legacy replies.
+        pub command_expansion: u8,
+        /// Device variable codes of slots 0–7 (250 = unused).
+        pub slots: List<DeviceVariableCode, 8>,
+        /// Burst message number.
+        pub burst_message: Option<u8>,
+        /// Number of burst messages the device supports.
+        pub max_burst_messages: Option<u8>,
+        /// Burst command number.
+        pub command_number: Option<CommandNumber>,
+        /// Update period.
+        pub update_period: Option<HartTime>,
+        /// Maximum update period.
+        pub max_update_period: Option<HartTime>,
+        /// Trigger mode.
+        pub trigger_mode: Option<TriggerMode>,
+        /// Trigger classification.
+        pub trigger_classification: Option<Classification>,
+        /// Trigger units.
+        pub trigger_units: Option<UnitCode>,
+        /// Trigger level.
+        pub trigger_level: Option<f32>,
+    }
+}
+
+/// Command 107 request and reply: device variables for the burst slots. HART 7 sends 8
+/// codes and the message number; legacy hosts send 1 to 4 codes (message 0).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BurstVariables {
+    /// Slot codes (250 = unused).
+    pub slots: List<DeviceVariableCode, 8, 1>,
+    /// Burst message number (HART 7 form only).
+    pub burst_message: Option<u8>,
+}
+
+impl Wire for BurstVariables {
+    const MIN_LEN: usize = 1;
+    const MAX_LEN: usize = 9;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        if r.remaining() >= 9 {
+            let mut slots = List::default();
+            for _ in 0..8 {
+                let _ = slots.push(DeviceVariableCode::decode(r)?);
+            }
+            Ok(BurstVariables { slots, burst_message: Some(r.u8()?) })
+        } else {
+            Ok(BurstVariables { slots: List::decode(r)?, burst_message: None })
+        }
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        if self.burst_message.is_some() && self.slots.len() != 8 {
+            return Err(EncodeError::Invalid("the HART 7 form of command 107 has exactly 8 slots (use 250 for unused)"));
+        }
+        if self.burst_message.is_none() && self.slots.len() > 4 {
+            return Err(EncodeError::Invalid("the legacy form of command 107 has 1 to 4 slots"));
+        }
+        self.slots.encode(w)?;
+        self.burst_message.encode(w)
+    }
+    fn encoded_len(&self) -> usize {
+        self.slots.encoded_len() + self.burst_message.encoded_len()
+    }
+    fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        self.slots.describe("slots", offset, v);
+        self.burst_message.describe("burst_message", offset + self.slots.encoded_len(), v);
+    }
+}
+
+/// Command 108 request and reply: the command a burst message publishes. HART 7 sends
+/// a 16-bit command number and the message number; legacy hosts one byte.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BurstCommand {
+    /// Command to publish.
+    pub command_number: u16,
+    /// Burst message number (`None` for the legacy one-byte form).
+    pub burst_message: Option<u8>,
+}
+
+impl Wire for BurstCommand {
+    const MIN_LEN: usize = 1;
+    const MAX_LEN: usize = 3;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        if r.remaining() >= 3 {
+            Ok(BurstCommand { command_number: u16::decode(r)?, burst_message: Some(r.u8()?) })
+        } else {
+            Ok(BurstCommand { command_number: r.u8()?.into(), burst_message: None })
+        }
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        match self.burst_message {
+            Some(m) => {
+                self.command_number.encode(w)?;
+                w.u8(m)
+            }
+            None => w.u8(u8::try_from(self.command_number).map_err(|_| EncodeError::Invalid("the legacy form of command 108 carries an 8-bit command number"))?),
+        }
+    }
+    fn encoded_len(&self) -> usize {
+        if self.burst_message.is_some() {
+            3
+        } else {
+            1
+        }
+    }
+    fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        let len = if self.burst_message.is_some() { 2 } else { 1 };
+        v.field(Field { name: "command_number", offset, len, value: Value::Uint(self.command_number.into()), meaning: Meaning::Command });
+        self.burst_message.describe("burst_message", offset + len, v);
+    }
+}
+
+wire_struct! {
+    /// Command 109 request and reply.
+    pub struct BurstModeControlRequest {
+        /// Burst mode control code (0 off, 1 on token-passing...).
+        pub control: BurstModeControl,
+        /// Burst message number (HART 7).
+        pub burst_message: Option<u8>,
+    }
+}
+
+/// The kind of command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommandKind {
+    /// Universal: every device implements it.
+    Universal,
+    /// Common practice: optional, standardised.
+    CommonPractice,
+    /// Burst-mode configuration (common practice).
+    Burst,
+}
+
+/// What the table knows about a command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommandInfo {
+    /// Command number.
+    pub number: u16,
+    /// Type name of the command (the variant of [`Request`]/[`Response`]).
+    pub name: &'static str,
+    /// Title as used in the HART specifications.
+    pub title: &'static str,
+    /// Universal, common practice or burst.
+    pub kind: CommandKind,
+    /// True when the command changes the device (write protection applies).
+    pub writes: bool,
+    /// Fewest request data bytes.
+    pub request_min: usize,
+    /// Most request data bytes the layout uses.
+    pub request_max: usize,
+    /// Fewest reply data bytes (after the status bytes).
+    pub response_min: usize,
+    /// Most reply data bytes.
+    pub response_max: usize,
+}
+
+/// Looks up a command in the table.
+pub fn info(command: u16) -> Option<&'static CommandInfo> {
+    COMMANDS.iter().find(|c| c.number == command)
+}
+
+macro_rules! commands {
+    ( $( $num:literal $variant:ident $kind:ident $rw:ident $title:literal : $req:ty => $resp:ty ; )* ) => {
+        /// A typed request (the data of an STX frame).
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        #[allow(missing_docs)]
+        pub enum Request { $( $variant($req), )* }
+
+        /// A typed reply (the data of an ACK/BACK frame after the status bytes).
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        #[allow(missing_docs)]
+        pub enum Response { $( $variant($resp), )* }
+
+        /// Every command the crate types, in number order.
+        pub static COMMANDS: &[CommandInfo] = &[ $(
+            CommandInfo {
+                number: $num,
+                name: stringify!($variant),
+                title: $title,
+                kind: CommandKind::$kind,
+                writes: commands!(@rw $rw),
+                request_min: <$req as Wire>::MIN_LEN,
+                request_max: <$req as Wire>::MAX_LEN,
+                response_min: <$resp as Wire>::MIN_LEN,
+                response_max: <$resp as Wire>::MAX_LEN,
+            },
+        )* ];
+
+        /// Decodes request data of `command`; `None` for a command the table does not type.
+        pub fn decode_request(command: u16, data: &[u8]) -> Option<Result<Request, DecodeError>> {
+            match command {
+                $( $num => Some(<$req as Wire>::decode(&mut Reader::new(data)).map(Request::$variant)), )*
+                _ => None,
+            }
+        }
+
+        /// Decodes reply data (after the status bytes) of `command`; `None` for a command
+        /// the table does not type.
+        pub fn decode_response(command: u16, data: &[u8]) -> Option<Result<Response, DecodeError>> {
+            match command {
+                $( $num => Some(<$resp as Wire>::decode(&mut Reader::new(data)).map(Response::$variant)), )*
+                _ => None,
+            }
+        }
+
+        impl Request {
+            /// The command number.
+            pub fn command(&self) -> u16 {
+                match self { $( Request::$variant(_) => $num, )* }
+            }
+            /// Encodes the request data.
+            pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+                match self { $( Request::$variant(x) => x.encode(w), )* }
+            }
+            /// Bytes [`Request::encode`] writes.
+            pub fn encoded_len(&self) -> usize {
+                match self { $( Request::$variant(x) => x.encoded_len(), )* }
+            }
+            /// Reports every field to `v`.
+            pub fn describe(&self, v: &mut dyn Visitor) {
+                match self { $( Request::$variant(x) => x.describe("request", 0, v), )* }
+            }
+        }
+
+        impl Response {
+            /// The command number.
+            pub fn command(&self) -> u16 {
+                match self { $( Response::$variant(_) => $num, )* }
+            }
+            /// Encodes the reply data.
+            pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+                match self { $( Response::$variant(x) => x.encode(w), )* }
+            }
+            /// Bytes [`Response::encode`] writes.
+            pub fn encoded_len(&self) -> usize {
+                match self { $( Response::$variant(x) => x.encoded_len(), )* }
+            }
+            /// Reports every field to `v`.
+            pub fn describe(&self, v: &mut dyn Visitor) {
+                match self { $( Response::$variant(x) => x.describe("response", 0, v), )* }
+            }
+        }
+    };
+    (@rw read) => { false };
+    (@rw write) => { true };
+}
+
+commands! {
+    0   ReadUniqueIdentifier Universal read "Read Unique Identifier" : Empty => Identity;
+    1   ReadPrimaryVariable Universal read "Read Primary Variable" : Empty => ReadPvResponse;
+    2   ReadLoopCurrent Universal read "Read Loop Current and Percent of Range" : Empty => ReadLoopCurrentResponse;
+    3   ReadDynamicVariables Universal read "Read Dynamic Variables and Loop Current" : Empty => ReadDynamicVariablesResponse;
+    6   WritePollingAddress Universal write "Write Polling Address" : PollingAddress => PollingAddress;
+    7   ReadLoopConfiguration Universal read "Read Loop Configuration" : Empty => LoopConfiguration;
+    8   ReadDynamicVariableClassifications Universal read "Read Dynamic Variable Classifications" : Empty => DynamicVariableClassifications;
+    9   ReadDeviceVariablesWithStatus Universal read "Read Device Variables with Status" : ReadDeviceVariablesRequest => ReadDeviceVariablesResponse;
+    11  ReadUniqueIdentifierByTag Universal read "Read Unique Identifier Associated With Tag" : TagRequest => Identity;
+    12  ReadMessage Universal read "Read Message" : Empty => Message;
+    13  ReadTagDescriptorDate Universal read "Read Tag, Descriptor, Date" : Empty => TagDescriptorDate;
+    14  ReadPvTransducerInformation Universal read "Read Primary Variable Transducer Information" : Empty => TransducerInfo;
+    15  ReadDeviceInformation Universal read "Read Device Information" : Empty => DeviceInformation;
+    16  ReadFinalAssemblyNumber Universal read "Read Final Assembly Number" : Empty => FinalAssemblyNumber;
+    17  WriteMessage Universal write "Write Message" : Message => Message;
+    18  WriteTagDescriptorDate Universal write "Write Tag, Descriptor, Date" : TagDescriptorDate => TagDescriptorDate;
+    19  WriteFinalAssemblyNumber Universal write "Write Final Assembly Number" : FinalAssemblyNumber => FinalAssemblyNumber;
+    20  ReadLongTag Universal read "Read Long Tag" : Empty => LongTag;
+    21  ReadUniqueIdentifierByLongTag Universal read "Read Unique Identifier Associated With Long Tag" : LongTag => Identity;
+    22  WriteLongTag Universal write "Write Long Tag" : LongTag => LongTag;
+    33  ReadDeviceVariables CommonPractice read "Read Device Variables" : ReadVariablesRequest => ReadVariablesResponse;
+    34  WritePvDamping CommonPractice write "Write Primary Variable Damping Value" : Damping => Damping;
+    35  WritePvRange CommonPractice write "Write Primary Variable Range Values" : RangeValues => RangeValues;
+    36  SetPvUpperRange CommonPractice write "Set Primary Variable Upper Range Value" : Empty => Empty;
+    37  SetPvLowerRange CommonPractice write "Set Primary Variable Lower Range Value" : Empty => Empty;
+    38  ResetConfigurationChanged Universal write "Reset Configuration Changed Flag" : ResetConfigChanged => ResetConfigChanged;
+    40  EnterExitFixedCurrent CommonPractice write "Enter/Exit Fixed Current Mode" : FixedCurrent => FixedCurrent;
+    41  PerformSelfTest CommonPractice read "Perform Self Test" : Empty => Empty;
+    42  PerformDeviceReset CommonPractice read "Perform Device Reset" : Empty => Empty;
+    43  SetPvZero CommonPractice write "Set Primary Variable Zero" : Empty => Empty;
+    44  WritePvUnits CommonPractice write "Write Primary Variable Units" : PvUnits => PvUnits;
+    45  TrimLoopCurrentZero CommonPractice write "Trim Loop Current Zero" : TrimCurrent => TrimCurrent;
+    46  TrimLoopCurrentGain CommonPractice write "Trim Loop Current Gain" : TrimCurrent => TrimCurrent;
+    48  ReadAdditionalStatus Universal read "Read Additional Device Status" : ReadAdditionalStatusRequest => ReadAdditionalStatusResponse;
+    50  ReadDynamicVariableAssignments CommonPractice read "Read Dynamic Variable Assignments" : Empty => DynamicVariableAssignments;
+    51  WriteDynamicVariableAssignments CommonPractice write "Write Dynamic Variable Assignments" : DynamicVariableAssignments => DynamicVariableAssignments;
+    53  WriteDeviceVariableUnits CommonPractice write "Write Device Variable Units" : VariableUnits => VariableUnits;
+    54  ReadDeviceVariableInformation CommonPractice read "Read Device Variable Information" : VariableCode => VariableInformation;
+    59  WriteResponsePreambles CommonPractice write "Write Number of Response Preambles" : ResponsePreambles => ResponsePreambles;
+    79  WriteDeviceVariable CommonPractice write "Write Device Variable" : WriteDeviceVariable => WriteDeviceVariable;
+    90  ReadRealTimeClock CommonPractice read "Read Real-Time Clock" : Empty => RealTimeClock;
+    95  ReadCommunicationStatistics CommonPractice read "Read Device Communications Statistics" : Empty => CommunicationStatistics;
+    103 WriteBurstPeriod Burst write "Write Burst Period" : BurstPeriod => BurstPeriod;
+    104 WriteBurstTrigger Burst write "Write Burst Trigger" : BurstTrigger => BurstTrigger;
+    105 ReadBurstConfiguration Burst read "Read Burst Mode Configuration" : BurstMessageSelect => BurstConfiguration;
+    107 WriteBurstDeviceVariables Burst write "Write Burst Device Variables" : BurstVariables => BurstVariables;
+    108 WriteBurstCommandNumber Burst write "Write Burst Mode Command Number" : BurstCommand => BurstCommand;
+    109 BurstModeControl Burst write "Burst Mode Control" : BurstModeControlRequest => BurstModeControlRequest;
+}
+
+impl fmt::Display for CommandInfo {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {}", self.number, self.title)
+    }
+}

@@ -1,0 +1,508 @@
+//! The field layer shared by every command layout: a bounds-checked [`Reader`] and
+//! [`Writer`], the [`Wire`] trait each field type implements, and the [`Visitor`]
+//! through which a decoded value describes itself field by field (used for the
+//! annotated frame view and for JSON, so both always agree with the codec).
+
+use core::fmt;
+
+use crate::tables::{BitTable, CodeTable};
+
+/// Reads fields from a byte slice; every read is bounds-checked.
+#[derive(Debug, Clone)]
+pub struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    /// Starts reading at the beginning of `buf`.
+    pub fn new(buf: &'a [u8]) -> Self {
+        Reader { buf, pos: 0 }
+    }
+
+    /// Bytes consumed so far.
+    pub fn position(&self) -> usize {
+        self.pos
+    }
+
+    /// Bytes not yet consumed.
+    pub fn remaining(&self) -> usize {
+        self.buf.len() - self.pos
+    }
+
+    /// The unconsumed bytes.
+    pub fn rest(&self) -> &'a [u8] {
+        &self.buf[self.pos..]
+    }
+
+    /// Takes the next `n` bytes, or reports how many were missing.
+    pub fn take(&mut self, n: usize) -> Result<&'a [u8], DecodeError> {
+        if self.remaining() < n {
+            return Err(DecodeError::TooShort {
+                offset: self.pos,
+                needed: n,
+                available: self.remaining(),
+            });
+        }
+        let s = &self.buf[self.pos..self.pos + n];
+        self.pos += n;
+        Ok(s)
+    }
+
+    /// Takes exactly `N` bytes as an array.
+    pub fn array<const N: usize>(&mut self) -> Result<[u8; N], DecodeError> {
+        let s = self.take(N)?;
+        let mut a = [0u8; N];
+        a.copy_from_slice(s);
+        Ok(a)
+    }
+
+    /// Takes one byte.
+    pub fn u8(&mut self) -> Result<u8, DecodeError> {
+        Ok(self.take(1)?[0])
+    }
+}
+
+/// Writes fields into a caller-provided buffer; every write is bounds-checked.
+#[derive(Debug)]
+pub struct Writer<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+}
+
+impl<'a> Writer<'a> {
+    /// Starts writing at the beginning of `buf`.
+    pub fn new(buf: &'a mut [u8]) -> Self {
+        Writer { buf, pos: 0 }
+    }
+
+    /// Bytes written so far.
+    pub fn position(&self) -> usize {
+        self.pos
+    }
+
+    /// The bytes written so far.
+    pub fn written(&self) -> &[u8] {
+        &self.buf[..self.pos]
+    }
+
+    /// Appends bytes.
+    pub fn put(&mut self, bytes: &[u8]) -> Result<(), EncodeError> {
+        let end = self.pos + bytes.len();
+        if end > self.buf.len() {
+            return Err(EncodeError::BufferTooSmall {
+                needed: end,
+                capacity: self.buf.len(),
+            });
+        }
+        self.buf[self.pos..end].copy_from_slice(bytes);
+        self.pos = end;
+        Ok(())
+    }
+
+    /// Appends one byte.
+    pub fn u8(&mut self, b: u8) -> Result<(), EncodeError> {
+        self.put(&[b])
+    }
+}
+
+/// Why a field or a command body could not be decoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DecodeError {
+    /// The data ended before a field was complete.
+    TooShort {
+        /// Offset (within the data) of the incomplete field.
+        offset: usize,
+        /// Bytes the field needs.
+        needed: usize,
+        /// Bytes that were left.
+        available: usize,
+    },
+    /// A field holds a value its type cannot represent.
+    Invalid {
+        /// Offset (within the data) of the field.
+        offset: usize,
+        /// What was wrong.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DecodeError::TooShort { offset, needed, available } => write!(
+                f,
+                "truncated at data byte {offset}: expected {needed} more byte(s), got {available}"
+            ),
+            DecodeError::Invalid { offset, reason } => write!(f, "invalid value at data byte {offset}: {reason}"),
+        }
+    }
+}
+
+/// Why a value could not be encoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EncodeError {
+    /// The output buffer is too small.
+    BufferTooSmall {
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes available.
+        capacity: usize,
+    },
+    /// A value does not fit its field.
+    Invalid(&'static str),
+}
+
+impl fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            EncodeError::BufferTooSmall { needed, capacity } => {
+                write!(f, "output buffer too small: need {needed} bytes, have {capacity}")
+            }
+            EncodeError::Invalid(why) => f.write_str(why),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for DecodeError {}
+#[cfg(feature = "std")]
+impl std::error::Error for EncodeError {}
+
+/// A field value as seen by a [`Visitor`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Value<'a> {
+    /// An unsigned integer (8 to 32 bits).
+    Uint(u32),
+    /// An IEEE 754 single-precision float (may be NaN or infinite).
+    Float(f32),
+    /// Text (already decoded from packed ASCII or Latin-1, trailing padding removed).
+    Str(&'a str),
+    /// Raw bytes, shown as hexadecimal.
+    Hex(&'a [u8]),
+    /// A HART date.
+    Date(crate::types::Date),
+    /// A flag.
+    Bool(bool),
+}
+
+/// How to explain a field's value to a person.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Meaning {
+    /// Nothing beyond the value.
+    Plain,
+    /// An engineering unit code (Common Table 2).
+    Unit,
+    /// A code from an enumerated table.
+    Code(&'static CodeTable),
+    /// A bit field.
+    Bits(&'static BitTable),
+    /// A device variable status byte.
+    VariableStatus,
+    /// A HART time (1/32 ms units).
+    Time,
+    /// A float in a known unit (e.g. "mA", "s", "%").
+    Quantity(&'static str),
+    /// A command number.
+    Command,
+}
+
+/// One decoded field.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Field<'a> {
+    /// Field name, `snake_case`; also the JSON key.
+    pub name: &'static str,
+    /// Offset of the field's first byte within the command data.
+    pub offset: usize,
+    /// Number of bytes the field occupies.
+    pub len: usize,
+    /// The value.
+    pub value: Value<'a>,
+    /// How to explain the value.
+    pub meaning: Meaning,
+}
+
+/// Receives the fields of a decoded value in wire order.
+///
+/// Lists (e.g. the variables of command 3) are bracketed by [`Visitor::begin_list`] /
+/// [`Visitor::end_list`], each element by [`Visitor::begin_item`] / [`Visitor::end_item`].
+pub trait Visitor {
+    /// A scalar field.
+    fn field(&mut self, field: Field<'_>);
+    /// Start of a list named `name`.
+    fn begin_list(&mut self, name: &'static str);
+    /// Start of element `index` of the current list.
+    fn begin_item(&mut self, index: usize);
+    /// End of the current element.
+    fn end_item(&mut self);
+    /// End of the current list.
+    fn end_list(&mut self);
+}
+
+/// A type with a fixed wire layout: decode, encode and describe derive from one place.
+pub trait Wire: Sized {
+    /// Fewest bytes a complete value occupies.
+    const MIN_LEN: usize;
+    /// Most bytes a value occupies.
+    const MAX_LEN: usize;
+
+    /// Reads a value.
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError>;
+    /// Writes the value.
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError>;
+    /// Bytes [`Wire::encode`] writes for this value.
+    fn encoded_len(&self) -> usize;
+    /// Reports the value to `v` as field `name` starting at `offset`.
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor);
+}
+
+impl Wire for u8 {
+    const MIN_LEN: usize = 1;
+    const MAX_LEN: usize = 1;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        r.u8()
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.u8(*self)
+    }
+    fn encoded_len(&self) -> usize {
+        1
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field { name, offset, len: 1, value: Value::Uint((*self).into()), meaning: Meaning::Plain });
+    }
+}
+
+impl Wire for u16 {
+    const MIN_LEN: usize = 2;
+    const MAX_LEN: usize = 2;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(u16::from_be_bytes(r.array()?))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.put(&self.to_be_bytes())
+    }
+    fn encoded_len(&self) -> usize {
+        2
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field { name, offset, len: 2, value: Value::Uint((*self).into()), meaning: Meaning::Plain });
+    }
+}
+
+impl Wire for u32 {
+    const MIN_LEN: usize = 4;
+    const MAX_LEN: usize = 4;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(u32::from_be_bytes(r.array()?))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.put(&self.to_be_bytes())
+    }
+    fn encoded_len(&self) -> usize {
+        4
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field { name, offset, len: 4, value: Value::Uint(*self), meaning: Meaning::Plain });
+    }
+}
+
+impl Wire for f32 {
+    const MIN_LEN: usize = 4;
+    const MAX_LEN: usize = 4;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(f32::from_bits(u32::from_be_bytes(r.array()?)))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.put(&self.to_bits().to_be_bytes())
+    }
+    fn encoded_len(&self) -> usize {
+        4
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field { name, offset, len: 4, value: Value::Float(*self), meaning: Meaning::Plain });
+    }
+}
+
+/// An optional trailing field: decoded when the data still holds a complete value,
+/// absent otherwise (how HART 6/7 extend HART 5 layouts). Encoding writes nothing
+/// for `None`; once one optional field is `None`, the later ones should be too.
+impl<T: Wire> Wire for Option<T> {
+    const MIN_LEN: usize = 0;
+    const MAX_LEN: usize = T::MAX_LEN;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        if r.remaining() < T::MIN_LEN || r.remaining() == 0 {
+            return Ok(None);
+        }
+        let mut probe = r.clone();
+        match T::decode(&mut probe) {
+            Ok(v) => {
+                *r = probe;
+                Ok(Some(v))
+            }
+            Err(DecodeError::TooShort { .. }) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        match self {
+            Some(v) => v.encode(w),
+            None => Ok(()),
+        }
+    }
+    fn encoded_len(&self) -> usize {
+        self.as_ref().map_or(0, Wire::encoded_len)
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        if let Some(x) = self {
+            x.describe(name, offset, v);
+        }
+    }
+}
+
+/// Up to `N` repetitions of `T`, as many as the data holds (at least `MIN`).
+///
+/// Used for the repeated groups of commands 3, 9, 33 and for lists of device
+/// variable codes. Storage is inline; nothing is allocated.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct List<T: Copy + Default, const N: usize, const MIN: usize = 0> {
+    items: [T; N],
+    len: usize,
+}
+
+impl<T: Copy + Default, const N: usize, const MIN: usize> Default for List<T, N, MIN> {
+    fn default() -> Self {
+        List { items: [T::default(); N], len: 0 }
+    }
+}
+
+impl<T: Copy + Default + fmt::Debug, const N: usize, const MIN: usize> fmt::Debug for List<T, N, MIN> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_list().entries(self.as_slice()).finish()
+    }
+}
+
+impl<T: Copy + Default, const N: usize, const MIN: usize> List<T, N, MIN> {
+    /// Builds a list from a slice; fails when it has more than `N` or fewer than `MIN` items.
+    pub fn from_slice(items: &[T]) -> Result<Self, EncodeError> {
+        if items.len() > N {
+            return Err(EncodeError::Invalid("too many list items for this command"));
+        }
+        if items.len() < MIN {
+            return Err(EncodeError::Invalid("too few list items for this command"));
+        }
+        let mut l = Self::default();
+        l.items[..items.len()].copy_from_slice(items);
+        l.len = items.len();
+        Ok(l)
+    }
+
+    /// The items.
+    pub fn as_slice(&self) -> &[T] {
+        &self.items[..self.len]
+    }
+
+    /// Number of items.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// True when the list is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Adds an item; fails when the list is full.
+    pub fn push(&mut self, item: T) -> Result<(), EncodeError> {
+        if self.len == N {
+            return Err(EncodeError::Invalid("list is full"));
+        }
+        self.items[self.len] = item;
+        self.len += 1;
+        Ok(())
+    }
+}
+
+impl<T: Copy + Default + Wire, const N: usize, const MIN: usize> Wire for List<T, N, MIN> {
+    const MIN_LEN: usize = T::MIN_LEN * MIN;
+    const MAX_LEN: usize = T::MAX_LEN * N;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        let mut l = Self::default();
+        while l.len < N && r.remaining() >= T::MIN_LEN.max(1) {
+            l.items[l.len] = T::decode(r)?;
+            l.len += 1;
+        }
+        if l.len < MIN {
+            return Err(DecodeError::TooShort {
+                offset: r.position(),
+                needed: T::MIN_LEN * (MIN - l.len),
+                available: r.remaining(),
+            });
+        }
+        Ok(l)
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        self.as_slice().iter().try_for_each(|i| i.encode(w))
+    }
+    fn encoded_len(&self) -> usize {
+        self.as_slice().iter().map(Wire::encoded_len).sum()
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.begin_list(name);
+        let mut off = offset;
+        for (i, item) in self.as_slice().iter().enumerate() {
+            v.begin_item(i);
+            item.describe("item", off, v);
+            off += item.encoded_len();
+            v.end_item();
+        }
+        v.end_list();
+    }
+}
+
+/// Defines a struct whose fields are laid out on the wire in declaration order and
+/// derives [`Wire`] for it: decoding, encoding, its length and its description all
+/// come from the single field list. An optional `describe_extra` function adds
+/// derived fields to the description (e.g. the HART 5 reading of command 0).
+#[macro_export]
+macro_rules! wire_struct {
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $( $(#[$fmeta:meta])* pub $field:ident : $ty:ty ),* $(,)?
+        }
+        $(describe_extra = $extra:path;)?
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Default)]
+        pub struct $name {
+            $( $(#[$fmeta])* pub $field: $ty, )*
+        }
+
+        impl $crate::wire::Wire for $name {
+            const MIN_LEN: usize = 0 $( + <$ty as $crate::wire::Wire>::MIN_LEN )*;
+            const MAX_LEN: usize = 0 $( + <$ty as $crate::wire::Wire>::MAX_LEN )*;
+            #[allow(unused_variables)]
+            fn decode(r: &mut $crate::wire::Reader<'_>) -> Result<Self, $crate::wire::DecodeError> {
+                Ok($name { $( $field: <$ty as $crate::wire::Wire>::decode(r)?, )* })
+            }
+            #[allow(unused_variables)]
+            fn encode(&self, w: &mut $crate::wire::Writer<'_>) -> Result<(), $crate::wire::EncodeError> {
+                $( $crate::wire::Wire::encode(&self.$field, w)?; )*
+                Ok(())
+            }
+            fn encoded_len(&self) -> usize {
+                0 $( + $crate::wire::Wire::encoded_len(&self.$field) )*
+            }
+            #[allow(unused_variables, unused_mut, unused_assignments)]
+            fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn $crate::wire::Visitor) {
+                let mut off = offset;
+                $(
+                    $crate::wire::Wire::describe(&self.$field, stringify!($field), off, v);
+                    off += $crate::wire::Wire::encoded_len(&self.$field);
+                )*
+                $( $extra(self, offset, v); )?
+            }
+        }
+    };
+}

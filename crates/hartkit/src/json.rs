@@ -1,0 +1,141 @@
+//! The `--json` view of a frame. Field names are a contract other tools read; see
+//! `docs/frame-json.md`.
+
+use hart_proto::frame::{Address, Frame};
+use hart_proto::wire::{Field, Value, Visitor};
+use serde_json::{json, Map, Value as Json};
+
+use crate::hex;
+
+/// A float as JSON: the shortest decimal that reads back as the same `f32`
+/// (so 23.4 stays 23.4), `null` when not finite (e.g. the HART NaN 0x7FA00000).
+pub fn float(x: f32) -> Json {
+    if !x.is_finite() {
+        return Json::Null;
+    }
+    let shortest: f64 = format!("{x}").parse().unwrap_or(f64::from(x));
+    serde_json::Number::from_f64(shortest).map_or(Json::Null, Json::Number)
+}
+
+/// The address object.
+pub fn address(a: &Address) -> Json {
+    match a {
+        Address::Short(s) => json!({
+            "type": "short",
+            "master": s.master.name(),
+            "burst": s.burst,
+            "polling_address": s.polling_address,
+        }),
+        Address::Long(l) => json!({
+            "type": "long",
+            "master": l.master.name(),
+            "burst": l.burst,
+            "unique_id": l.id.to_string(),
+            "expanded_device_type": l.id.expanded_device_type,
+            "device_id": format!("{:06X}", l.id.device_id),
+            "broadcast": l.id.is_broadcast(),
+        }),
+    }
+}
+
+/// The whole frame as one JSON object.
+pub fn frame(f: &Frame<'_>) -> Json {
+    let mut m = Map::new();
+    m.insert("preambles".into(), json!(f.preambles));
+    m.insert("delimiter".into(), json!(f.delimiter_byte));
+    m.insert("frame_type".into(), json!(f.frame_type().name()));
+    m.insert("address".into(), address(&f.address));
+    m.insert("expansion".into(), json!(hex::compact(f.expansion)));
+    m.insert("command".into(), json!(f.command));
+    if f.command_byte == hart_proto::frame::EXTENDED_COMMAND {
+        m.insert("command_byte".into(), json!(f.command_byte));
+    }
+    m.insert("byte_count".into(), json!(f.byte_count));
+    if let (Some(rc), Some(ds)) = (f.response_code, f.device_status) {
+        m.insert("response_code".into(), json!(rc));
+        m.insert("device_status".into(), json!(ds));
+        m.insert("communication_error".into(), json!(f.is_communication_error()));
+    }
+    m.insert("data".into(), json!(hex::compact(f.data)));
+    m.insert("checksum_ok".into(), json!(f.checksum_ok()));
+    m.insert("trailing".into(), json!(hex::compact(f.trailing)));
+    match crate::decode_body(f) {
+        Some(Ok(d)) => {
+            let mut v = JsonVisitor::default();
+            d.describe(&mut v);
+            m.insert("decoded".into(), v.finish());
+        }
+        Some(Err(e)) => {
+            m.insert("decode_error".into(), json!(e.to_string()));
+        }
+        None => {}
+    }
+    Json::Object(m)
+}
+
+/// Builds a JSON object from a [`Visitor`] walk.
+#[derive(Default)]
+pub struct JsonVisitor {
+    /// Open containers: the root object, lists, list items.
+    stack: Vec<Open>,
+    root: Map<String, Json>,
+}
+
+enum Open {
+    List(&'static str, Vec<Json>),
+    Item(Map<String, Json>),
+}
+
+/// A field value as JSON.
+pub fn value(v: &Value<'_>) -> Json {
+    match v {
+        Value::Uint(u) => json!(u),
+        Value::Float(x) => float(*x),
+        Value::Str(s) => json!(s),
+        Value::Hex(b) => json!(hex::compact(b)),
+        Value::Date(d) => json!(d.to_string()),
+        Value::Bool(b) => json!(b),
+    }
+}
+
+impl JsonVisitor {
+    /// The finished object.
+    pub fn finish(self) -> Json {
+        Json::Object(self.root)
+    }
+
+    fn current(&mut self) -> &mut Map<String, Json> {
+        match self.stack.last_mut() {
+            Some(Open::Item(m)) => m,
+            _ => &mut self.root,
+        }
+    }
+}
+
+impl Visitor for JsonVisitor {
+    fn field(&mut self, f: Field<'_>) {
+        let v = value(&f.value);
+        self.current().insert(f.name.to_string(), v);
+    }
+    fn begin_list(&mut self, name: &'static str) {
+        self.stack.push(Open::List(name, Vec::new()));
+    }
+    fn begin_item(&mut self, _index: usize) {
+        self.stack.push(Open::Item(Map::new()));
+    }
+    fn end_item(&mut self) {
+        if let Some(Open::Item(mut m)) = self.stack.pop() {
+            // A list of scalars (e.g. device variable codes) describes each element as one
+            // field named "item": store the bare value.
+            let item = if m.len() == 1 && m.contains_key("item") { m.remove("item").unwrap_or(Json::Null) } else { Json::Object(m) };
+            if let Some(Open::List(_, items)) = self.stack.last_mut() {
+                items.push(item);
+            }
+        }
+    }
+    fn end_list(&mut self) {
+        if let Some(Open::List(name, items)) = self.stack.pop() {
+            self.current().insert(name.to_string(), Json::Array(items));
+        }
+    }
+}
