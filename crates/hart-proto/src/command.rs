@@ -14,7 +14,9 @@
 use core::fmt;
 
 use crate::types::*;
-use crate::wire::{DecodeError, EncodeError, Field, List, Meaning, Reader, Value, Visitor, Wire, Writer};
+use crate::wire::{
+    DecodeError, EncodeError, Field, List, Meaning, Reader, Value, Visitor, Wire, Writer,
+};
 use crate::wire_struct;
 
 wire_struct! {
@@ -66,8 +68,20 @@ wire_struct! {
 fn identity_legacy_fields(id: &Identity, offset: usize, v: &mut dyn Visitor) {
     if id.universal_revision <= 5 {
         let [mfr, dt] = id.expanded_device_type.to_be_bytes();
-        v.field(Field { name: "manufacturer_id", offset: offset + 1, len: 1, value: Value::Uint(mfr.into()), meaning: Meaning::Plain });
-        v.field(Field { name: "device_type", offset: offset + 2, len: 1, value: Value::Uint(dt.into()), meaning: Meaning::Plain });
+        v.field(Field {
+            name: "manufacturer_id",
+            offset: offset + 1,
+            len: 1,
+            value: Value::Uint(mfr.into()),
+            meaning: Meaning::Plain,
+        });
+        v.field(Field {
+            name: "device_type",
+            offset: offset + 2,
+            len: 1,
+            value: Value::Uint(dt.into()),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -194,9 +208,18 @@ impl Wire for SlotsWithTimestamp {
         let count = (if with_time { n - 4 } else { n } / 8).min(8);
         let mut slots = List::default();
         for _ in 0..count {
-            slots.push(VariableSlot::decode(r)?).map_err(|_| DecodeError::Invalid { offset: r.position(), reason: "too many slots" })?;
+            slots
+                .push(VariableSlot::decode(r)?)
+                .map_err(|_| DecodeError::Invalid {
+                    offset: r.position(),
+                    reason: "too many slots",
+                })?;
         }
-        let timestamp = if r.remaining() >= 4 { Some(HartTime::decode(r)?) } else { None };
+        let timestamp = if r.remaining() >= 4 {
+            Some(HartTime::decode(r)?)
+        } else {
+            None
+        };
         Ok(SlotsWithTimestamp { slots, timestamp })
     }
     fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
@@ -208,7 +231,8 @@ impl Wire for SlotsWithTimestamp {
     }
     fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
         self.slots.describe("slots", offset, v);
-        self.timestamp.describe("timestamp", offset + self.slots.encoded_len(), v);
+        self.timestamp
+            .describe("timestamp", offset + self.slots.encoded_len(), v);
     }
 }
 
@@ -314,9 +338,10 @@ wire_struct! {
     }
 }
 
-/// Command 48 reply: additional device status (9 to 25 bytes), also shown field by field.
+/// Command 48 reply: additional device status (HART 7 defines 9 to 25 bytes; anything a
+/// device sends beyond that is kept as received), also shown field by field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct AdditionalStatus(pub Bytes<25>);
+pub struct AdditionalStatus(pub Bytes<253>);
 
 impl AdditionalStatus {
     /// The raw bytes.
@@ -326,9 +351,16 @@ impl AdditionalStatus {
 }
 
 impl Wire for AdditionalStatus {
-    const MIN_LEN: usize = 0;
-    const MAX_LEN: usize = 25;
+    const MIN_LEN: usize = 1;
+    const MAX_LEN: usize = 253;
     fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        if r.remaining() == 0 {
+            return Err(DecodeError::TooShort {
+                offset: r.position(),
+                needed: 1,
+                available: 0,
+            });
+        }
         Ok(AdditionalStatus(Bytes::decode(r)?))
     }
     fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
@@ -339,23 +371,81 @@ impl Wire for AdditionalStatus {
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
         let b = self.as_slice();
-        v.field(Field { name, offset, len: b.len(), value: Value::Hex(b), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: b.len(),
+            value: Value::Hex(b),
+            meaning: Meaning::Plain,
+        });
         let named: [(usize, usize, &'static str, Meaning); 10] = [
             (0, 6, "device_specific_status", Meaning::Plain),
-            (6, 1, "extended_status", Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS)),
-            (7, 1, "operating_mode", Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE)),
-            (8, 1, "standardized_status_0", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0)),
-            (9, 1, "standardized_status_1", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1)),
-            (10, 1, "analog_channel_saturated", Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED)),
-            (11, 1, "standardized_status_2", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2)),
-            (12, 1, "standardized_status_3", Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3)),
-            (13, 1, "analog_channel_fixed", Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED)),
+            (
+                6,
+                1,
+                "extended_status",
+                Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS),
+            ),
+            (
+                7,
+                1,
+                "operating_mode",
+                Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE),
+            ),
+            (
+                8,
+                1,
+                "standardized_status_0",
+                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0),
+            ),
+            (
+                9,
+                1,
+                "standardized_status_1",
+                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1),
+            ),
+            (
+                10,
+                1,
+                "analog_channel_saturated",
+                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED),
+            ),
+            (
+                11,
+                1,
+                "standardized_status_2",
+                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2),
+            ),
+            (
+                12,
+                1,
+                "standardized_status_3",
+                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3),
+            ),
+            (
+                13,
+                1,
+                "analog_channel_fixed",
+                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED),
+            ),
             (14, 11, "device_specific_status_2", Meaning::Plain),
         ];
         for (at, len, name, meaning) in named {
-            let Some(bytes) = b.get(at..(at + len).min(b.len())).filter(|s| !s.is_empty()) else { continue };
-            let value = if len == 1 { Value::Uint(bytes[0].into()) } else { Value::Hex(bytes) };
-            v.field(Field { name, offset: offset + at, len: bytes.len(), value, meaning });
+            let Some(bytes) = b.get(at..(at + len).min(b.len())).filter(|s| !s.is_empty()) else {
+                continue;
+            };
+            let value = if len == 1 {
+                Value::Uint(bytes[0].into())
+            } else {
+                Value::Hex(bytes)
+            };
+            v.field(Field {
+                name,
+                offset: offset + at,
+                len: bytes.len(),
+                value,
+                meaning,
+            });
         }
     }
 }
@@ -641,22 +731,39 @@ impl Wire for BurstVariables {
     const MIN_LEN: usize = 1;
     const MAX_LEN: usize = 9;
     fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        if r.remaining() >= 9 {
-            let mut slots = List::default();
-            for _ in 0..8 {
-                let _ = slots.push(DeviceVariableCode::decode(r)?);
+        match r.remaining() {
+            n if n >= 9 => {
+                let mut slots = List::default();
+                for _ in 0..8 {
+                    let _ = slots.push(DeviceVariableCode::decode(r)?);
+                }
+                Ok(BurstVariables {
+                    slots,
+                    burst_message: Some(r.u8()?),
+                })
             }
-            Ok(BurstVariables { slots, burst_message: Some(r.u8()?) })
-        } else {
-            Ok(BurstVariables { slots: List::decode(r)?, burst_message: None })
+            1..=4 => Ok(BurstVariables {
+                slots: List::decode(r)?,
+                burst_message: None,
+            }),
+            // 5 to 8 bytes: neither form; a device answers "too few data bytes".
+            n => Err(DecodeError::TooShort {
+                offset: r.position(),
+                needed: if n == 0 { 1 } else { 9 },
+                available: n,
+            }),
         }
     }
     fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
         if self.burst_message.is_some() && self.slots.len() != 8 {
-            return Err(EncodeError::Invalid("the HART 7 form of command 107 has exactly 8 slots (use 250 for unused)"));
+            return Err(EncodeError::Invalid(
+                "the HART 7 form of command 107 has exactly 8 slots (use 250 for unused)",
+            ));
         }
         if self.burst_message.is_none() && self.slots.len() > 4 {
-            return Err(EncodeError::Invalid("the legacy form of command 107 has 1 to 4 slots"));
+            return Err(EncodeError::Invalid(
+                "the legacy form of command 107 has 1 to 4 slots",
+            ));
         }
         self.slots.encode(w)?;
         self.burst_message.encode(w)
@@ -666,7 +773,8 @@ impl Wire for BurstVariables {
     }
     fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
         self.slots.describe("slots", offset, v);
-        self.burst_message.describe("burst_message", offset + self.slots.encoded_len(), v);
+        self.burst_message
+            .describe("burst_message", offset + self.slots.encoded_len(), v);
     }
 }
 
@@ -685,9 +793,15 @@ impl Wire for BurstCommand {
     const MAX_LEN: usize = 3;
     fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
         if r.remaining() >= 3 {
-            Ok(BurstCommand { command_number: u16::decode(r)?, burst_message: Some(r.u8()?) })
+            Ok(BurstCommand {
+                command_number: u16::decode(r)?,
+                burst_message: Some(r.u8()?),
+            })
         } else {
-            Ok(BurstCommand { command_number: r.u8()?.into(), burst_message: None })
+            Ok(BurstCommand {
+                command_number: r.u8()?.into(),
+                burst_message: None,
+            })
         }
     }
     fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
@@ -696,7 +810,11 @@ impl Wire for BurstCommand {
                 self.command_number.encode(w)?;
                 w.u8(m)
             }
-            None => w.u8(u8::try_from(self.command_number).map_err(|_| EncodeError::Invalid("the legacy form of command 108 carries an 8-bit command number"))?),
+            None => w.u8(u8::try_from(self.command_number).map_err(|_| {
+                EncodeError::Invalid(
+                    "the legacy form of command 108 carries an 8-bit command number",
+                )
+            })?),
         }
     }
     fn encoded_len(&self) -> usize {
@@ -708,8 +826,15 @@ impl Wire for BurstCommand {
     }
     fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
         let len = if self.burst_message.is_some() { 2 } else { 1 };
-        v.field(Field { name: "command_number", offset, len, value: Value::Uint(self.command_number.into()), meaning: Meaning::Command });
-        self.burst_message.describe("burst_message", offset + len, v);
+        v.field(Field {
+            name: "command_number",
+            offset,
+            len,
+            value: Value::Uint(self.command_number.into()),
+            meaning: Meaning::Command,
+        });
+        self.burst_message
+            .describe("burst_message", offset + len, v);
     }
 }
 

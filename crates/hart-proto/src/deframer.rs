@@ -31,7 +31,11 @@ pub struct UartFlags {
 
 impl UartFlags {
     /// No error.
-    pub const OK: UartFlags = UartFlags { parity: false, framing: false, overrun: false };
+    pub const OK: UartFlags = UartFlags {
+        parity: false,
+        framing: false,
+        overrun: false,
+    };
 
     /// True when any error flag is set.
     pub fn any(self) -> bool {
@@ -50,7 +54,11 @@ impl UartFlags {
     }
 
     fn from_bits(b: u8) -> Self {
-        UartFlags { parity: b & 1 != 0, framing: b & 2 != 0, overrun: b & 4 != 0 }
+        UartFlags {
+            parity: b & 1 != 0,
+            framing: b & 2 != 0,
+            overrun: b & 4 != 0,
+        }
     }
 }
 
@@ -67,7 +75,10 @@ pub struct DeframerConfig {
 
 impl Default for DeframerConfig {
     fn default() -> Self {
-        DeframerConfig { min_preambles: crate::frame::MIN_RX_PREAMBLES, max_byte_count: 255 }
+        DeframerConfig {
+            min_preambles: crate::frame::MIN_RX_PREAMBLES,
+            max_byte_count: 255,
+        }
     }
 }
 
@@ -210,7 +221,12 @@ impl Deframer {
     }
 
     /// Feeds one byte with its UART flags.
-    pub fn push(&mut self, byte: u8, flags: UartFlags, on_event: &mut impl FnMut(DeframerEvent<'_>)) {
+    pub fn push(
+        &mut self,
+        byte: u8,
+        flags: UartFlags,
+        on_event: &mut impl FnMut(DeframerEvent<'_>),
+    ) {
         self.step(byte, flags.to_bits(), on_event);
         self.drain_replay(on_event);
     }
@@ -220,7 +236,10 @@ impl Deframer {
     pub fn abort(&mut self, on_event: &mut impl FnMut(DeframerEvent<'_>)) {
         if self.state == State::Frame {
             self.stats.aborted += 1;
-            on_event(DeframerEvent::Aborted { received: self.len, expected: self.expected });
+            on_event(DeframerEvent::Aborted {
+                received: self.len,
+                expected: self.expected,
+            });
             self.schedule_replay();
             self.drain_replay(on_event);
             // Whatever is left incomplete after the replay is abandoned too, silently.
@@ -244,7 +263,9 @@ impl Deframer {
     fn flush_garbage(&mut self, on_event: &mut impl FnMut(DeframerEvent<'_>)) {
         if self.garbage > 0 {
             self.stats.garbage_bytes += self.garbage as u64;
-            on_event(DeframerEvent::Garbage { bytes: self.garbage });
+            on_event(DeframerEvent::Garbage {
+                bytes: self.garbage,
+            });
             self.garbage = 0;
         }
     }
@@ -281,8 +302,12 @@ impl Deframer {
                     self.garbage += preambles + 1;
                     self.state = State::Hunt { preambles: 0 };
                 } else if byte == PREAMBLE {
-                    self.state = State::Hunt { preambles: preambles.saturating_add(1) };
-                } else if preambles >= self.config.min_preambles && Delimiter::from_byte(byte).is_some() {
+                    self.state = State::Hunt {
+                        preambles: preambles.saturating_add(1),
+                    };
+                } else if preambles >= self.config.min_preambles
+                    && Delimiter::from_byte(byte).is_some()
+                {
                     self.flush_garbage(on_event);
                     self.reset_frame();
                     self.preambles = preambles;
@@ -321,7 +346,9 @@ impl Deframer {
         if self.expected.is_some() {
             return;
         }
-        let Some(d) = Delimiter::from_byte(self.buf[0]) else { return };
+        let Some(d) = Delimiter::from_byte(self.buf[0]) else {
+            return;
+        };
         let bc_pos = 1 + d.address_len() + usize::from(d.expansion_len) + 1;
         if self.len > bc_pos {
             let bc = self.buf[bc_pos];
@@ -362,7 +389,9 @@ impl Deframer {
                 let clean_until = self.first_error.unwrap_or(usize::MAX);
                 let address = (clean_until >= addr_end && pdu.len() >= addr_end)
                     .then(|| Address::read(delimiter.long_address, &pdu[1..addr_end]));
-                let command_byte = (clean_until > cmd_pos).then(|| pdu.get(cmd_pos).copied()).flatten();
+                let command_byte = (clean_until > cmd_pos)
+                    .then(|| pdu.get(cmd_pos).copied())
+                    .flatten();
                 self.stats.damaged += 1;
                 on_event(DeframerEvent::Damaged(Damaged {
                     errors: errors | comm_error::FLAG,

@@ -103,7 +103,10 @@ impl Delimiter {
 
     /// Encodes the delimiter byte.
     pub fn to_byte(self) -> u8 {
-        (u8::from(self.long_address) << 7) | ((self.expansion_len & 3) << 5) | ((self.physical_layer & 3) << 3) | self.frame_type.bits()
+        (u8::from(self.long_address) << 7)
+            | ((self.expansion_len & 3) << 5)
+            | ((self.physical_layer & 3) << 3)
+            | self.frame_type.bits()
     }
 
     /// Length of the address field (1 or 5).
@@ -186,16 +189,25 @@ pub struct UniqueId {
 
 impl UniqueId {
     /// The broadcast identifier (all 38 bits zero).
-    pub const BROADCAST: UniqueId = UniqueId { expanded_device_type: 0, device_id: 0 };
+    pub const BROADCAST: UniqueId = UniqueId {
+        expanded_device_type: 0,
+        device_id: 0,
+    };
 
     /// Builds an identifier; extra high bits are masked off (14 and 24 bits kept).
     pub fn new(expanded_device_type: u16, device_id: u32) -> Self {
-        UniqueId { expanded_device_type: expanded_device_type & 0x3FFF, device_id: device_id & 0x00FF_FFFF }
+        UniqueId {
+            expanded_device_type: expanded_device_type & 0x3FFF,
+            device_id: device_id & 0x00FF_FFFF,
+        }
     }
 
     /// From HART 5/6 identity fields: manufacturer ID (low 6 bits used) and device type.
     pub fn from_manufacturer(manufacturer_id: u8, device_type: u8, device_id: u32) -> Self {
-        Self::new(u16::from(manufacturer_id & 0x3F) << 8 | u16::from(device_type), device_id)
+        Self::new(
+            u16::from(manufacturer_id & 0x3F) << 8 | u16::from(device_type),
+            device_id,
+        )
     }
 
     /// From the 5 address bytes; the master and burst bits of the first byte are ignored.
@@ -209,7 +221,13 @@ impl UniqueId {
     /// The 5 address bytes with master and burst bits clear.
     pub fn to_bytes(self) -> [u8; 5] {
         let d = self.device_id.to_be_bytes();
-        [(self.expanded_device_type >> 8) as u8 & 0x3F, self.expanded_device_type as u8, d[1], d[2], d[3]]
+        [
+            (self.expanded_device_type >> 8) as u8 & 0x3F,
+            self.expanded_device_type as u8,
+            d[1],
+            d[2],
+            d[3],
+        ]
     }
 
     /// The low 6 bits of the manufacturer ID (HART 5/6 reading of the first byte).
@@ -236,7 +254,9 @@ impl UniqueId {
             if c == ' ' || c == ':' || c == '-' {
                 continue;
             }
-            let v = c.to_digit(16).ok_or("unique ID must be 10 hexadecimal digits")? as u8;
+            let v = c
+                .to_digit(16)
+                .ok_or("unique ID must be 10 hexadecimal digits")? as u8;
             match hi.take() {
                 None => hi = Some(v),
                 Some(h) => {
@@ -291,12 +311,20 @@ pub enum Address {
 impl Address {
     /// Short address `polling_address` from the primary master.
     pub fn short(polling_address: u8) -> Self {
-        Address::Short(ShortAddress { master: MasterKind::Primary, burst: false, polling_address: polling_address & 0x3F })
+        Address::Short(ShortAddress {
+            master: MasterKind::Primary,
+            burst: false,
+            polling_address: polling_address & 0x3F,
+        })
     }
 
     /// Long address of `id` from the primary master.
     pub fn long(id: UniqueId) -> Self {
-        Address::Long(LongAddress { master: MasterKind::Primary, burst: false, id })
+        Address::Long(LongAddress {
+            master: MasterKind::Primary,
+            burst: false,
+            id,
+        })
     }
 
     /// The master bit.
@@ -371,9 +399,17 @@ impl Address {
         let master = MasterKind::from_byte(b[0]);
         let burst = b[0] & 0x40 != 0;
         if long {
-            Address::Long(LongAddress { master, burst, id: UniqueId::from_bytes([b[0], b[1], b[2], b[3], b[4]]) })
+            Address::Long(LongAddress {
+                master,
+                burst,
+                id: UniqueId::from_bytes([b[0], b[1], b[2], b[3], b[4]]),
+            })
         } else {
-            Address::Short(ShortAddress { master, burst, polling_address: b[0] & 0x3F })
+            Address::Short(ShortAddress {
+                master,
+                burst,
+                polling_address: b[0] & 0x3F,
+            })
         }
     }
 }
@@ -385,7 +421,12 @@ impl fmt::Display for Address {
             Address::Long(a) if a.id.is_broadcast() => f.write_str("broadcast")?,
             Address::Long(a) => write!(f, "unique ID {}", a.id)?,
         }
-        write!(f, " ({} master{})", self.master().name(), if self.burst() { ", burst" } else { "" })
+        write!(
+            f,
+            " ({} master{})",
+            self.master().name(),
+            if self.burst() { ", burst" } else { "" }
+        )
     }
 }
 
@@ -536,14 +577,23 @@ impl<'a> Frame<'a> {
         let need = |offset: usize, field: &'static str, expected: usize| {
             let available = bytes.len().saturating_sub(offset);
             if available < expected {
-                Err(FrameError::Truncated { offset, field, expected, available })
+                Err(FrameError::Truncated {
+                    offset,
+                    field,
+                    expected,
+                    available,
+                })
             } else {
                 Ok(())
             }
         };
         need(0, "delimiter", 1)?;
         let delimiter_byte = bytes[0];
-        let delimiter = Delimiter::from_byte(delimiter_byte).ok_or(FrameError::InvalidDelimiter { offset: 0, value: delimiter_byte })?;
+        let delimiter =
+            Delimiter::from_byte(delimiter_byte).ok_or(FrameError::InvalidDelimiter {
+                offset: 0,
+                value: delimiter_byte,
+            })?;
         let alen = delimiter.address_len();
         need(1, "address", alen)?;
         let address = Address::read(delimiter.long_address, &bytes[1..1 + alen]);
@@ -588,7 +638,11 @@ impl<'a> Frame<'a> {
                 // (response code 5) or a communication-error reply: status only.
                 0 if delimiter.frame_type.has_status() => (31, false, rest),
                 _ => {
-                    let minimum = if delimiter.frame_type.has_status() { 4 } else { 2 };
+                    let minimum = if delimiter.frame_type.has_status() {
+                        4
+                    } else {
+                        2
+                    };
                     return Err(FrameError::ByteCountTooSmall {
                         offset: bc_offset,
                         byte_count,
@@ -633,7 +687,8 @@ impl<'a> Frame<'a> {
 
     /// True for an ACK/BACK whose first status byte is a communication-error summary.
     pub fn is_communication_error(&self) -> bool {
-        self.response_code.is_some_and(|rc| rc & comm_error::FLAG != 0)
+        self.response_code
+            .is_some_and(|rc| rc & comm_error::FLAG != 0)
     }
 
     /// Offset of the data within [`Frame::pdu`].
@@ -645,14 +700,35 @@ impl<'a> Frame<'a> {
 impl FrameError {
     fn shifted(self, by: usize) -> Self {
         match self {
-            FrameError::TooFewPreambles { offset } => FrameError::TooFewPreambles { offset: offset + by },
-            FrameError::InvalidDelimiter { offset, value } => FrameError::InvalidDelimiter { offset: offset + by, value },
-            FrameError::Truncated { offset, field, expected, available } => {
-                FrameError::Truncated { offset: offset + by, field, expected, available }
-            }
-            FrameError::ByteCountTooSmall { offset, byte_count, minimum, reason } => {
-                FrameError::ByteCountTooSmall { offset: offset + by, byte_count, minimum, reason }
-            }
+            FrameError::TooFewPreambles { offset } => FrameError::TooFewPreambles {
+                offset: offset + by,
+            },
+            FrameError::InvalidDelimiter { offset, value } => FrameError::InvalidDelimiter {
+                offset: offset + by,
+                value,
+            },
+            FrameError::Truncated {
+                offset,
+                field,
+                expected,
+                available,
+            } => FrameError::Truncated {
+                offset: offset + by,
+                field,
+                expected,
+                available,
+            },
+            FrameError::ByteCountTooSmall {
+                offset,
+                byte_count,
+                minimum,
+                reason,
+            } => FrameError::ByteCountTooSmall {
+                offset: offset + by,
+                byte_count,
+                minimum,
+                reason,
+            },
             e => e,
         }
     }
@@ -699,8 +775,18 @@ impl<'a> FrameSpec<'a> {
     }
 
     /// A reply (ACK) with default preambles.
-    pub fn reply(address: Address, command: u16, response_code: u8, device_status: u8, data: &'a [u8]) -> Self {
-        FrameSpec { frame_type: FrameType::Ack, status: Some((response_code, device_status)), ..Self::request(address, command, data) }
+    pub fn reply(
+        address: Address,
+        command: u16,
+        response_code: u8,
+        device_status: u8,
+        data: &'a [u8],
+    ) -> Self {
+        FrameSpec {
+            frame_type: FrameType::Ack,
+            status: Some((response_code, device_status)),
+            ..Self::request(address, command, data)
+        }
     }
 
     /// Bytes [`FrameSpec::encode`] writes.
@@ -713,7 +799,9 @@ impl<'a> FrameSpec<'a> {
     }
 
     fn body_len(&self) -> usize {
-        usize::from(self.frame_type.has_status()) * 2 + usize::from(self.is_extended()) * 2 + self.data.len()
+        usize::from(self.frame_type.has_status()) * 2
+            + usize::from(self.is_extended()) * 2
+            + self.data.len()
     }
 
     /// Writes the frame into `out`, returning its length.
@@ -722,7 +810,11 @@ impl<'a> FrameSpec<'a> {
             return Err(EncodeError::Invalid("at most 3 expansion bytes"));
         }
         let body_len = self.body_len();
-        let byte_count = u8::try_from(body_len).map_err(|_| EncodeError::Invalid("data too long: the byte count (status, extended command and data) is at most 255"))?;
+        let byte_count = u8::try_from(body_len).map_err(|_| {
+            EncodeError::Invalid(
+                "data too long: the byte count (status, extended command and data) is at most 255",
+            )
+        })?;
         if let Address::Short(a) = self.address {
             if a.polling_address > 63 {
                 return Err(EncodeError::Invalid("polling address must be 0..=63"));
@@ -730,7 +822,10 @@ impl<'a> FrameSpec<'a> {
         }
         let total = self.encoded_len();
         if out.len() < total {
-            return Err(EncodeError::BufferTooSmall { needed: total, capacity: out.len() });
+            return Err(EncodeError::BufferTooSmall {
+                needed: total,
+                capacity: out.len(),
+            });
         }
         out[..self.preambles].fill(PREAMBLE);
         let start = self.preambles;
@@ -746,7 +841,11 @@ impl<'a> FrameSpec<'a> {
         p += self.address.write(&mut out[p..]);
         out[p..p + self.expansion.len()].copy_from_slice(self.expansion);
         p += self.expansion.len();
-        out[p] = if self.is_extended() { EXTENDED_COMMAND } else { self.command as u8 };
+        out[p] = if self.is_extended() {
+            EXTENDED_COMMAND
+        } else {
+            self.command as u8
+        };
         out[p + 1] = byte_count;
         p += 2;
         if self.frame_type.has_status() {
@@ -776,14 +875,24 @@ pub struct FrameBuf {
 impl FrameBuf {
     /// Encodes `spec` without its preambles.
     pub fn encode(spec: &FrameSpec<'_>) -> Result<Self, EncodeError> {
-        let mut fb = FrameBuf { buf: [0; MAX_PDU_LEN], len: 0 };
-        fb.len = FrameSpec { preambles: 0, ..*spec }.encode(&mut fb.buf)?;
+        let mut fb = FrameBuf {
+            buf: [0; MAX_PDU_LEN],
+            len: 0,
+        };
+        fb.len = FrameSpec {
+            preambles: 0,
+            ..*spec
+        }
+        .encode(&mut fb.buf)?;
         Ok(fb)
     }
 
     /// Copies a PDU (delimiter through check byte).
     pub fn from_pdu(pdu: &[u8]) -> Option<Self> {
-        let mut fb = FrameBuf { buf: [0; MAX_PDU_LEN], len: pdu.len() };
+        let mut fb = FrameBuf {
+            buf: [0; MAX_PDU_LEN],
+            len: pdu.len(),
+        };
         fb.buf.get_mut(..pdu.len())?.copy_from_slice(pdu);
         Some(fb)
     }

@@ -34,4 +34,7 @@ pub mod wire;
 
 pub use command::{decode_request, decode_response, CommandInfo, Request, Response};
 pub use deframer::{Deframer, DeframerEvent, UartFlags};
-pub use frame::{Address, Frame, FrameError, FrameSpec, FrameType, LongAddress, MasterKind, ShortAddress, UniqueId};
+pub use frame::{
+    Address, Frame, FrameError, FrameSpec, FrameType, LongAddress, MasterKind, ShortAddress,
+    UniqueId,
+};

@@ -65,7 +65,9 @@ pub mod packed_ascii {
             let mut bits = 0u32;
             for _ in 0..4 {
                 let v = match chars.next() {
-                    Some(c) => encode_char(c).ok_or("character not in the packed-ASCII set (space to '_', letters upper-cased)")?,
+                    Some(c) => encode_char(c).ok_or(
+                        "character not in the packed-ASCII set (space to '_', letters upper-cased)",
+                    )?,
                     None => 0x20,
                 };
                 bits = bits << 6 | u32::from(v);
@@ -77,7 +79,10 @@ pub mod packed_ascii {
 }
 
 fn trim_padding(s: &[u8]) -> &[u8] {
-    let end = s.iter().rposition(|&b| b != b' ' && b != 0).map_or(0, |i| i + 1);
+    let end = s
+        .iter()
+        .rposition(|&b| b != b' ' && b != 0)
+        .map_or(0, |i| i + 1);
     &s[..end]
 }
 
@@ -148,7 +153,15 @@ impl<const N: usize> Wire for PackedString<N> {
         N
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        self.with_str(|s| v.field(Field { name, offset, len: N, value: Value::Str(s), meaning: Meaning::Plain }));
+        self.with_str(|s| {
+            v.field(Field {
+                name,
+                offset,
+                len: N,
+                value: Value::Str(s),
+                meaning: Meaning::Plain,
+            })
+        });
     }
 }
 
@@ -166,14 +179,11 @@ impl<const N: usize> Latin1String<N> {
     /// Encodes `text` (characters up to U+00FF), padding with NUL.
     pub fn new(text: &str) -> Result<Self, EncodeError> {
         let mut s = Latin1String([0; N]);
-        let mut n = 0;
-        for c in text.chars() {
-            let b = u8::try_from(u32::from(c)).map_err(|_| EncodeError::Invalid("character outside ISO 8859-1 (Latin-1)"))?;
-            if n == N {
-                return Err(EncodeError::Invalid("text too long for this Latin-1 field"));
-            }
-            s.0[n] = b;
-            n += 1;
+        for (n, c) in text.chars().enumerate() {
+            let b = u8::try_from(u32::from(c))
+                .map_err(|_| EncodeError::Invalid("character outside ISO 8859-1 (Latin-1)"))?;
+            *s.0.get_mut(n)
+                .ok_or(EncodeError::Invalid("text too long for this Latin-1 field"))? = b;
         }
         Ok(s)
     }
@@ -218,7 +228,15 @@ impl<const N: usize> Wire for Latin1String<N> {
         N
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        self.with_str(|s| v.field(Field { name, offset, len: N, value: Value::Str(s), meaning: Meaning::Plain }));
+        self.with_str(|s| {
+            v.field(Field {
+                name,
+                offset,
+                len: N,
+                value: Value::Str(s),
+                meaning: Meaning::Plain,
+            })
+        });
     }
 }
 
@@ -237,8 +255,15 @@ pub struct Date {
 impl Date {
     /// Builds a date from a calendar year (1900..=2155), month and day.
     pub fn new(year: u16, month: u8, day: u8) -> Result<Self, EncodeError> {
-        let y = year.checked_sub(1900).and_then(|y| u8::try_from(y).ok()).ok_or(EncodeError::Invalid("year must be 1900..=2155"))?;
-        let d = Date { day, month, year_since_1900: y };
+        let y = year
+            .checked_sub(1900)
+            .and_then(|y| u8::try_from(y).ok())
+            .ok_or(EncodeError::Invalid("year must be 1900..=2155"))?;
+        let d = Date {
+            day,
+            month,
+            year_since_1900: y,
+        };
         if d.is_valid() {
             Ok(d)
         } else {
@@ -278,7 +303,11 @@ impl Wire for Date {
     const MAX_LEN: usize = 3;
     fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
         let [day, month, year_since_1900] = r.array()?;
-        Ok(Date { day, month, year_since_1900 })
+        Ok(Date {
+            day,
+            month,
+            year_since_1900,
+        })
     }
     fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
         w.put(&[self.day, self.month, self.year_since_1900])
@@ -287,7 +316,13 @@ impl Wire for Date {
         3
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 3, value: Value::Date(*self), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 3,
+            value: Value::Date(*self),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -322,7 +357,14 @@ impl fmt::Display for HartTime {
         let ms = self.as_millis();
         let frac = (self.0 % 32) * 1000 / 32;
         if ms < 86_400_000 {
-            write!(f, "{:02}:{:02}:{:02}.{:03}", ms / 3_600_000, ms / 60_000 % 60, ms / 1000 % 60, ms % 1000)?;
+            write!(
+                f,
+                "{:02}:{:02}:{:02}.{:03}",
+                ms / 3_600_000,
+                ms / 60_000 % 60,
+                ms / 1000 % 60,
+                ms % 1000
+            )?;
             if frac != 0 {
                 write!(f, "+{frac}µs")?;
             }
@@ -346,7 +388,13 @@ impl Wire for HartTime {
         4
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 4, value: Value::Uint(self.0), meaning: Meaning::Time });
+        v.field(Field {
+            name,
+            offset,
+            len: 4,
+            value: Value::Uint(self.0),
+            meaning: Meaning::Time,
+        });
     }
 }
 
@@ -395,7 +443,13 @@ impl Wire for U24 {
         3
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 3, value: Value::Uint(self.0), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 3,
+            value: Value::Uint(self.0),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -434,7 +488,13 @@ impl Wire for DeviceId {
         3
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 3, value: Value::Hex(&self.0), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 3,
+            value: Value::Hex(&self.0),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -448,7 +508,10 @@ pub struct Bytes<const N: usize> {
 
 impl<const N: usize> Default for Bytes<N> {
     fn default() -> Self {
-        Bytes { buf: [0; N], len: 0 }
+        Bytes {
+            buf: [0; N],
+            len: 0,
+        }
     }
 }
 
@@ -496,7 +559,13 @@ impl<const N: usize> Wire for Bytes<N> {
         self.len
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: self.len, value: Value::Hex(self.as_slice()), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: self.len,
+            value: Value::Hex(self.as_slice()),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -709,7 +778,13 @@ impl Wire for HardwareRevision {
         1
     }
     fn describe(&self, _name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name: "hardware_revision", offset, len: 1, value: Value::Uint(self.revision().into()), meaning: Meaning::Plain });
+        v.field(Field {
+            name: "hardware_revision",
+            offset,
+            len: 1,
+            value: Value::Uint(self.revision().into()),
+            meaning: Meaning::Plain,
+        });
         v.field(Field {
             name: "physical_signaling",
             offset,
@@ -779,7 +854,13 @@ impl Wire for CommandNumber {
         2
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 2, value: Value::Uint(self.0.into()), meaning: Meaning::Command });
+        v.field(Field {
+            name,
+            offset,
+            len: 2,
+            value: Value::Uint(self.0.into()),
+            meaning: Meaning::Command,
+        });
     }
 }
 
@@ -790,11 +871,23 @@ mod tests {
     #[test]
     fn packed_ascii_reference_examples() {
         // hart-reference.md §10.1 examples.
-        assert_eq!(PackedString::<6>::new("").unwrap().0, [0x82, 0x08, 0x20, 0x82, 0x08, 0x20]);
-        assert_eq!(PackedString::<6>::new("ABCDEFGH").unwrap().0, [0x04, 0x20, 0xC4, 0x14, 0x61, 0xC8]);
-        assert_eq!(PackedString::<6>::new("PT-101").unwrap().0, [0x41, 0x4B, 0x71, 0xC3, 0x18, 0x20]);
+        assert_eq!(
+            PackedString::<6>::new("").unwrap().0,
+            [0x82, 0x08, 0x20, 0x82, 0x08, 0x20]
+        );
+        assert_eq!(
+            PackedString::<6>::new("ABCDEFGH").unwrap().0,
+            [0x04, 0x20, 0xC4, 0x14, 0x61, 0xC8]
+        );
+        assert_eq!(
+            PackedString::<6>::new("PT-101").unwrap().0,
+            [0x41, 0x4B, 0x71, 0xC3, 0x18, 0x20]
+        );
         assert_eq!(PackedString::<6>::new("????????").unwrap().0, [0xFF; 6]);
-        assert_eq!(PackedString::<6>::new("pt-101").unwrap(), PackedString::<6>::new("PT-101").unwrap());
+        assert_eq!(
+            PackedString::<6>::new("pt-101").unwrap(),
+            PackedString::<6>::new("PT-101").unwrap()
+        );
         assert!(PackedString::<6>::new("TOO LONG!").is_err());
         assert!(PackedString::<6>::new("a~").is_err());
         let s = PackedString([0x41, 0x4B, 0x71, 0xC3, 0x18, 0x20]);
@@ -812,11 +905,25 @@ mod tests {
 
     #[test]
     fn date_and_time() {
-        let d = Date { day: 21, month: 11, year_since_1900: 125 };
+        let d = Date {
+            day: 21,
+            month: 11,
+            year_since_1900: 125,
+        };
         assert_eq!(std::format!("{d}"), "2025-11-21");
         assert!(d.is_valid());
-        assert!(!Date { day: 29, month: 2, year_since_1900: 125 }.is_valid());
-        assert!(Date { day: 29, month: 2, year_since_1900: 100 }.is_valid());
+        assert!(!Date {
+            day: 29,
+            month: 2,
+            year_since_1900: 125
+        }
+        .is_valid());
+        assert!(Date {
+            day: 29,
+            month: 2,
+            year_since_1900: 100
+        }
+        .is_valid());
         assert_eq!(HartTime(0x5265_C000).as_millis(), 12 * 3_600_000);
         assert_eq!(std::format!("{}", HartTime(0x5265_C000)), "12:00:00.000");
     }

@@ -130,11 +130,17 @@ pub enum DecodeError {
 impl fmt::Display for DecodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            DecodeError::TooShort { offset, needed, available } => write!(
+            DecodeError::TooShort {
+                offset,
+                needed,
+                available,
+            } => write!(
                 f,
                 "truncated at data byte {offset}: expected {needed} more byte(s), got {available}"
             ),
-            DecodeError::Invalid { offset, reason } => write!(f, "invalid value at data byte {offset}: {reason}"),
+            DecodeError::Invalid { offset, reason } => {
+                write!(f, "invalid value at data byte {offset}: {reason}")
+            }
         }
     }
 }
@@ -157,7 +163,10 @@ impl fmt::Display for EncodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             EncodeError::BufferTooSmall { needed, capacity } => {
-                write!(f, "output buffer too small: need {needed} bytes, have {capacity}")
+                write!(
+                    f,
+                    "output buffer too small: need {needed} bytes, have {capacity}"
+                )
             }
             EncodeError::Invalid(why) => f.write_str(why),
         }
@@ -269,7 +278,13 @@ impl Wire for u8 {
         1
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 1, value: Value::Uint((*self).into()), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 1,
+            value: Value::Uint((*self).into()),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -286,7 +301,13 @@ impl Wire for u16 {
         2
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 2, value: Value::Uint((*self).into()), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 2,
+            value: Value::Uint((*self).into()),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -303,7 +324,13 @@ impl Wire for u32 {
         4
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 4, value: Value::Uint(*self), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 4,
+            value: Value::Uint(*self),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -320,7 +347,13 @@ impl Wire for f32 {
         4
     }
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field { name, offset, len: 4, value: Value::Float(*self), meaning: Meaning::Plain });
+        v.field(Field {
+            name,
+            offset,
+            len: 4,
+            value: Value::Float(*self),
+            meaning: Meaning::Plain,
+        });
     }
 }
 
@@ -372,11 +405,16 @@ pub struct List<T: Copy + Default, const N: usize, const MIN: usize = 0> {
 
 impl<T: Copy + Default, const N: usize, const MIN: usize> Default for List<T, N, MIN> {
     fn default() -> Self {
-        List { items: [T::default(); N], len: 0 }
+        List {
+            items: [T::default(); N],
+            len: 0,
+        }
     }
 }
 
-impl<T: Copy + Default + fmt::Debug, const N: usize, const MIN: usize> fmt::Debug for List<T, N, MIN> {
+impl<T: Copy + Default + fmt::Debug, const N: usize, const MIN: usize> fmt::Debug
+    for List<T, N, MIN>
+{
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_list().entries(self.as_slice()).finish()
     }

@@ -5,7 +5,10 @@ use std::fmt::Write as _;
 
 use hart_proto::command;
 use hart_proto::frame::{Address, Frame};
-use hart_proto::tables::{self, response_class, response_code_name, ResponseClass, COMMUNICATION_ERROR, FIELD_DEVICE_STATUS, LIMIT_STATUS, PROCESS_DATA_STATUS};
+use hart_proto::tables::{
+    self, response_class, response_code_name, ResponseClass, COMMUNICATION_ERROR,
+    FIELD_DEVICE_STATUS, LIMIT_STATUS, PROCESS_DATA_STATUS,
+};
 use hart_proto::types::HartTime;
 use hart_proto::wire::{Field, Meaning, Value, Visitor};
 
@@ -27,7 +30,14 @@ impl Lines<'_> {
             bytes.truncate(20);
             bytes.push_str("...");
         }
-        let _ = writeln!(self.out, "{:>4}  {:<23}  {:<26} {}", self.base + offset, bytes, name, meaning);
+        let _ = writeln!(
+            self.out,
+            "{:>4}  {:<23}  {:<26} {}",
+            self.base + offset,
+            bytes,
+            name,
+            meaning
+        );
     }
 }
 
@@ -63,7 +73,9 @@ pub fn meaning(f: &Field<'_>) -> String {
             match tables::unit(code) {
                 Some(unit) if unit.symbol == unit.name => format!("{u} ({})", unit.name),
                 Some(unit) => format!("{u} ({}, {})", unit.symbol, unit.name),
-                None if tables::is_manufacturer_specific_unit(code) => format!("{u} (manufacturer specific)"),
+                None if tables::is_manufacturer_specific_unit(code) => {
+                    format!("{u} (manufacturer specific)")
+                }
                 None => format!("{u} (unknown unit)"),
             }
         }
@@ -76,7 +88,11 @@ pub fn meaning(f: &Field<'_>) -> String {
             let s = u as u8;
             let pd = PROCESS_DATA_STATUS.name(s >> 6).unwrap_or("?");
             let lim = LIMIT_STATUS.name((s >> 4) & 3).unwrap_or("?");
-            let more = if s & 0x08 != 0 { ", more status available" } else { "" };
+            let more = if s & 0x08 != 0 {
+                ", more status available"
+            } else {
+                ""
+            };
             format!("0x{s:02X} {pd}, {lim}{more}")
         }
         (Value::Uint(u), Meaning::Time) => format!("{} ({u} × 1/32 ms)", HartTime(u)),
@@ -103,9 +119,14 @@ struct DataRows<'a, 'b> {
 
 impl Visitor for DataRows<'_, '_> {
     fn field(&mut self, f: Field<'_>) {
-        let name = if f.name == "item" { self.prefix.join("") } else { format!("{}{}", self.prefix.join(""), f.name) };
+        let name = if f.name == "item" {
+            self.prefix.join("")
+        } else {
+            format!("{}{}", self.prefix.join(""), f.name)
+        };
         let m = meaning(&f);
-        self.lines.row(self.data_offset + f.offset, f.len, &name, &m);
+        self.lines
+            .row(self.data_offset + f.offset, f.len, &name, &m);
     }
     fn begin_list(&mut self, name: &'static str) {
         self.prefix.push(name.to_string());
@@ -123,9 +144,15 @@ impl Visitor for DataRows<'_, '_> {
 
 /// Renders `frame` (parsed from `input`) as an annotated listing.
 pub fn frame(f: &Frame<'_>) -> String {
-    let mut l = Lines { out: String::new(), pdu: f.pdu, base: f.preambles };
+    let mut l = Lines {
+        out: String::new(),
+        pdu: f.pdu,
+        base: f.preambles,
+    };
     let ft = f.frame_type();
-    let title = command::info(f.command).map(|i| i.title).unwrap_or("unknown command");
+    let title = command::info(f.command)
+        .map(|i| i.title)
+        .unwrap_or("unknown command");
     let _ = writeln!(
         l.out,
         "HART {} frame: command {} ({}), {}, {} preamble(s), {}-byte PDU{}",
@@ -135,11 +162,30 @@ pub fn frame(f: &Frame<'_>) -> String {
         f.address,
         f.preambles,
         f.pdu.len(),
-        if f.trailing.is_empty() { String::new() } else { format!(", {} trailing byte(s)", f.trailing.len()) }
+        if f.trailing.is_empty() {
+            String::new()
+        } else {
+            format!(", {} trailing byte(s)", f.trailing.len())
+        }
     );
-    let _ = writeln!(l.out, "{:>4}  {:<23}  {:<26} {}", "off", "bytes", "field", "meaning");
+    let _ = writeln!(
+        l.out,
+        "{:>4}  {:<23}  {:<26} meaning",
+        "off", "bytes", "field"
+    );
     if f.preambles > 0 {
-        let _ = writeln!(l.out, "{:>4}  {:<23}  {:<26} {} × 0xFF", 0, if f.preambles <= 7 { hex::spaced(&vec![0xFF; f.preambles]) } else { "FF FF FF ...".into() }, "preamble", f.preambles);
+        let _ = writeln!(
+            l.out,
+            "{:>4}  {:<23}  {:<26} {} × 0xFF",
+            0,
+            if f.preambles <= 7 {
+                hex::spaced(&vec![0xFF; f.preambles])
+            } else {
+                "FF FF FF ...".into()
+            },
+            "preamble",
+            f.preambles
+        );
     }
     let d = f.delimiter;
     let phys = match d.physical_layer {
@@ -147,7 +193,17 @@ pub fn frame(f: &Frame<'_>) -> String {
         1 => "synchronous physical layer (PSK)",
         _ => "reserved physical layer bits",
     };
-    l.row(0, 1, "delimiter", &format!("{}, {} address, {} expansion byte(s), {phys}", ft.name(), if d.long_address { "long" } else { "short" }, d.expansion_len));
+    l.row(
+        0,
+        1,
+        "delimiter",
+        &format!(
+            "{}, {} address, {} expansion byte(s), {phys}",
+            ft.name(),
+            if d.long_address { "long" } else { "short" },
+            d.expansion_len
+        ),
+    );
     let addr = match f.address {
         Address::Short(_) => f.address.to_string(),
         Address::Long(a) => format!(
@@ -162,10 +218,19 @@ pub fn frame(f: &Frame<'_>) -> String {
     l.row(1, f.address.len(), "address", &addr);
     let mut p = 1 + f.address.len();
     if !f.expansion.is_empty() {
-        l.row(p, f.expansion.len(), "expansion", "expansion bytes (no use defined)");
+        l.row(
+            p,
+            f.expansion.len(),
+            "expansion",
+            "expansion bytes (no use defined)",
+        );
         p += f.expansion.len();
     }
-    let cmd_text = if f.command_byte == hart_proto::frame::EXTENDED_COMMAND { "31 (extended command follows)".to_string() } else { format!("{} ({title})", f.command) };
+    let cmd_text = if f.command_byte == hart_proto::frame::EXTENDED_COMMAND {
+        "31 (extended command follows)".to_string()
+    } else {
+        format!("{} ({title})", f.command)
+    };
     l.row(p, 1, "command", &cmd_text);
     p += 1;
     let mut parts = vec![];
@@ -176,11 +241,19 @@ pub fn frame(f: &Frame<'_>) -> String {
         parts.push("2 command".to_string());
     }
     parts.push(format!("{} data", f.data.len()));
-    l.row(p, 1, "byte count", &format!("{} ({})", f.byte_count, parts.join(" + ")));
+    l.row(
+        p,
+        1,
+        "byte count",
+        &format!("{} ({})", f.byte_count, parts.join(" + ")),
+    );
     p += 1;
     if let (Some(rc), Some(ds)) = (f.response_code, f.device_status) {
         let rc_text = if f.is_communication_error() {
-            format!("communication error: {}", bits(&COMMUNICATION_ERROR, rc & 0x7F))
+            format!(
+                "communication error: {}",
+                bits(&COMMUNICATION_ERROR, rc & 0x7F)
+            )
         } else {
             let class = match response_class(rc) {
                 ResponseClass::Success => "success",
@@ -198,19 +271,33 @@ pub fn frame(f: &Frame<'_>) -> String {
         p += 2;
     }
     if f.extended {
-        l.row(p, 2, "extended command", &format!("{} ({title})", f.command));
+        l.row(
+            p,
+            2,
+            "extended command",
+            &format!("{} ({title})", f.command),
+        );
         p += 2;
     }
     match crate::decode_body(f) {
         Some(Ok(decoded)) => {
-            let mut rows = DataRows { lines: &mut l, data_offset: p, prefix: vec![] };
+            let mut rows = DataRows {
+                lines: &mut l,
+                data_offset: p,
+                prefix: vec![],
+            };
             decoded.describe(&mut rows);
             let used = match decoded {
                 crate::Decoded::Request(r) => r.encoded_len(),
                 crate::Decoded::Response(r) => r.encoded_len(),
             };
             if used < f.data.len() {
-                l.row(p + used, f.data.len() - used, "surplus data", "not used by this command's layout (ignored)");
+                l.row(
+                    p + used,
+                    f.data.len() - used,
+                    "surplus data",
+                    "not used by this command's layout (ignored)",
+                );
             }
         }
         Some(Err(e)) => {
@@ -223,10 +310,21 @@ pub fn frame(f: &Frame<'_>) -> String {
         None if !f.data.is_empty() => l.row(p, f.data.len(), "data", "not decoded"),
         None => {}
     }
-    let ck = if f.checksum_ok() { "ok".to_string() } else { format!("BAD, expected 0x{:02X}", f.expected_check_byte) };
+    let ck = if f.checksum_ok() {
+        "ok".to_string()
+    } else {
+        format!("BAD, expected 0x{:02X}", f.expected_check_byte)
+    };
     l.row(f.pdu.len() - 1, 1, "check byte", &ck);
     if !f.trailing.is_empty() {
-        let _ = writeln!(l.out, "{:>4}  {:<23}  {:<26} {} byte(s) after the check byte, not part of this frame", l.base + f.pdu.len(), hex::spaced(&f.trailing[..f.trailing.len().min(7)]), "trailing", f.trailing.len());
+        let _ = writeln!(
+            l.out,
+            "{:>4}  {:<23}  {:<26} {} byte(s) after the check byte, not part of this frame",
+            l.base + f.pdu.len(),
+            hex::spaced(&f.trailing[..f.trailing.len().min(7)]),
+            "trailing",
+            f.trailing.len()
+        );
     }
     l.out
 }

@@ -54,7 +54,10 @@ pub fn frame(f: &Frame<'_>) -> Json {
     if let (Some(rc), Some(ds)) = (f.response_code, f.device_status) {
         m.insert("response_code".into(), json!(rc));
         m.insert("device_status".into(), json!(ds));
-        m.insert("communication_error".into(), json!(f.is_communication_error()));
+        m.insert(
+            "communication_error".into(),
+            json!(f.is_communication_error()),
+        );
     }
     m.insert("data".into(), json!(hex::compact(f.data)));
     m.insert("checksum_ok".into(), json!(f.checksum_ok()));
@@ -127,7 +130,11 @@ impl Visitor for JsonVisitor {
         if let Some(Open::Item(mut m)) = self.stack.pop() {
             // A list of scalars (e.g. device variable codes) describes each element as one
             // field named "item": store the bare value.
-            let item = if m.len() == 1 && m.contains_key("item") { m.remove("item").unwrap_or(Json::Null) } else { Json::Object(m) };
+            let item = if m.len() == 1 && m.contains_key("item") {
+                m.remove("item").unwrap_or(Json::Null)
+            } else {
+                Json::Object(m)
+            };
             if let Some(Open::List(_, items)) = self.stack.last_mut() {
                 items.push(item);
             }

@@ -11,6 +11,8 @@ use hart_proto::tables::{response_class, ResponseClass};
 use hart_proto::{decode_request, decode_response, wire};
 
 /// The typed body of a frame, when the command is known and the data long enough.
+// Short-lived value, built once per frame shown: the size difference does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Decoded {
     /// A request.
@@ -36,10 +38,14 @@ impl Decoded {
 /// `Some(Err)` when the data is too short for the command's layout.
 pub fn decode_body(frame: &Frame<'_>) -> Option<Result<Decoded, wire::DecodeError>> {
     match frame.frame_type() {
-        FrameType::Stx => decode_request(frame.command, frame.data).map(|r| r.map(Decoded::Request)),
+        FrameType::Stx => {
+            decode_request(frame.command, frame.data).map(|r| r.map(Decoded::Request))
+        }
         FrameType::Ack | FrameType::Back => {
             let rc = frame.response_code.unwrap_or(0);
-            if frame.is_communication_error() || (response_class(rc) == ResponseClass::Error && frame.data.is_empty()) {
+            if frame.is_communication_error()
+                || (response_class(rc) == ResponseClass::Error && frame.data.is_empty())
+            {
                 return None;
             }
             decode_response(frame.command, frame.data).map(|r| r.map(Decoded::Response))

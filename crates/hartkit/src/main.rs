@@ -3,7 +3,9 @@
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
-use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, LongAddress, MasterKind, ShortAddress, UniqueId};
+use hart_proto::frame::{
+    Address, Frame, FrameSpec, FrameType, LongAddress, MasterKind, ShortAddress, UniqueId,
+};
 use hartkit::{annotate, hex, json};
 
 /// HART toolkit: decode, encode and (in later releases) talk HART.
@@ -39,7 +41,12 @@ enum FrameCmd {
 #[derive(Args)]
 struct EncodeArgs {
     /// Short frame to this polling address (0-63).
-    #[arg(long, value_name = "N", conflicts_with = "long", required_unless_present = "long")]
+    #[arg(
+        long,
+        value_name = "N",
+        conflicts_with = "long",
+        required_unless_present = "long"
+    )]
     short: Option<u8>,
     /// Long frame to this unique ID (10 hex digits, e.g. 264E0000D2; 0000000000 = broadcast).
     #[arg(long, value_name = "HEX")]
@@ -98,15 +105,27 @@ fn optional_hex(s: &str) -> Result<Vec<u8>, String> {
 }
 
 fn encode(a: &EncodeArgs) -> Result<String, String> {
-    let master = if a.secondary { MasterKind::Secondary } else { MasterKind::Primary };
+    let master = if a.secondary {
+        MasterKind::Secondary
+    } else {
+        MasterKind::Primary
+    };
     let address = match (&a.short, &a.long) {
         (Some(p), _) => {
             if *p > 63 {
                 return Err(format!("--short {p}: polling address must be 0-63"));
             }
-            Address::Short(ShortAddress { master, burst: a.burst, polling_address: *p })
+            Address::Short(ShortAddress {
+                master,
+                burst: a.burst,
+                polling_address: *p,
+            })
         }
-        (None, Some(id)) => Address::Long(LongAddress { master, burst: a.burst, id: UniqueId::parse_hex(id).map_err(|e| format!("--long {id}: {e}"))? }),
+        (None, Some(id)) => Address::Long(LongAddress {
+            master,
+            burst: a.burst,
+            id: UniqueId::parse_hex(id).map_err(|e| format!("--long {id}: {e}"))?,
+        }),
         (None, None) => return Err("give --short N or --long HEX".into()),
     };
     let data = optional_hex(&a.data).map_err(|e| format!("--data: {e}"))?;

@@ -1,0 +1,250 @@
+//! The `hartkit frame` command line as a user runs it: output, JSON contract, exit codes.
+
+use std::process::Command;
+
+use serde_json::Value;
+
+fn hartkit(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn decode_json(hex: &str) -> Value {
+    let (code, out, err) = hartkit(&["frame", "decode", "--json", hex]);
+    assert_eq!(code, 0, "{err}");
+    serde_json::from_str(&out).unwrap()
+}
+
+#[test]
+fn decode_json_hart7_cmd0_reply() {
+    let v = decode_json("FF FF FF FF FF 06 80 00 18 00 00 FE 26 06 05 07 01 02 18 00 12 34 56 05 04 00 01 00 00 26 00 26 01 28");
+    assert_eq!(v["preambles"], 5);
+    assert_eq!(v["delimiter"], 6);
+    assert_eq!(v["frame_type"], "ACK");
+    assert_eq!(
+        v["address"],
+        serde_json::json!({"type": "short", "master": "primary", "burst": false, "polling_address": 0})
+    );
+    assert_eq!(v["expansion"], "");
+    assert_eq!(v["command"], 0);
+    assert_eq!(v["byte_count"], 24);
+    assert_eq!(v["response_code"], 0);
+    assert_eq!(v["device_status"], 0);
+    assert_eq!(v["communication_error"], false);
+    assert_eq!(v["checksum_ok"], true);
+    assert_eq!(v["trailing"], "");
+    let d = &v["decoded"];
+    for (k, want) in [
+        ("expanded_device_type", 0x2606),
+        ("min_request_preambles", 5),
+        ("universal_revision", 7),
+        ("device_revision", 1),
+        ("software_revision", 2),
+        ("hardware_revision", 3),
+        ("physical_signaling", 0),
+        ("flags", 0),
+        ("min_response_preambles", 5),
+        ("max_device_variables", 4),
+        ("config_change_counter", 1),
+        ("extended_status", 0),
+        ("manufacturer_id", 0x26),
+        ("private_label_distributor", 0x26),
+        ("device_profile", 1),
+    ] {
+        assert_eq!(d[k], want, "{k}");
+    }
+    assert_eq!(d["device_id"], "123456");
+}
+
+#[test]
+fn decode_json_hart5_cmd0_reply_names_manufacturer_and_device_type() {
+    let v = decode_json("FF FF FF FF FF 06 80 00 0E 00 00 FE 26 06 05 05 01 02 03 00 12 34 56 26");
+    let d = &v["decoded"];
+    assert_eq!(d["universal_revision"], 5);
+    assert_eq!(d["manufacturer_id"], 0x26);
+    assert_eq!(d["device_type"], 6);
+    assert!(d.get("min_response_preambles").is_none());
+}
+
+#[test]
+fn decode_json_long_frame_nan_and_trailing() {
+    let v = decode_json("FF FF FF FF 86 A6 06 12 34 56 03 1A 00 00 41 40 00 00 06 42 48 00 00 21 42 91 00 00 FA 7F A0 00 00 FA 7F A0 00 00 B0 00 13");
+    assert_eq!(v["preambles"], 4);
+    assert_eq!(v["address"]["unique_id"], "2606123456");
+    assert_eq!(v["address"]["expanded_device_type"], 0x2606);
+    assert_eq!(v["address"]["device_id"], "123456");
+    assert_eq!(v["address"]["broadcast"], false);
+    assert_eq!(v["trailing"], "0013");
+    let vars = v["decoded"]["variables"].as_array().unwrap();
+    assert_eq!(v["decoded"]["loop_current"], 12.0);
+    assert_eq!(vars[1], serde_json::json!({"units": 33, "value": 72.5}));
+    assert_eq!(vars[2]["value"], Value::Null, "HART NaN is null");
+}
+
+#[test]
+fn decode_json_requests_and_extended_commands() {
+    let v = decode_json("FF FF FF FF FF 82 A6 06 12 34 56 09 02 00 F5 AC");
+    assert_eq!(v["decoded"]["slots"], serde_json::json!([0, 245]));
+    let v = decode_json("82 80 00 00 00 00 0B 06 41 4B 71 C3 18 20 8F");
+    assert_eq!(v["preambles"], 0);
+    assert_eq!(v["address"]["broadcast"], true);
+    assert_eq!(v["decoded"]["tag"], "PT-101");
+    let v = decode_json("FF:FF:FF:FF:FF:82:A6:06:12:34:56:06:02:03:00:55");
+    assert_eq!(
+        v["decoded"],
+        serde_json::json!({"polling_address": 3, "loop_current_mode": 0})
+    );
+    let v = decode_json("FF FF FF FF FF 86 A6 06 12 34 56 1F 05 00 00 04 00 AA E2");
+    assert_eq!(
+        (
+            v["command"].as_u64(),
+            v["command_byte"].as_u64(),
+            v["data"].as_str()
+        ),
+        (Some(1024), Some(31), Some("AA"))
+    );
+    let v = decode_json("FF FF FF FF FF 86 A6 06 12 34 56 0D 17 00 00 41 4B 71 C3 18 20 08 F2 4C 15 28 06 14 51 20 41 53 50 15 0B 7D 05");
+    assert_eq!(
+        v["decoded"],
+        serde_json::json!({"tag": "PT-101", "descriptor": "BOILER FEED PUMP", "date": "2025-11-21"})
+    );
+    let v = decode_json("FF FF FF FF FF 86 A6 06 12 34 56 01 02 88 00 DD");
+    assert_eq!(v["communication_error"], true);
+    assert!(v.get("decoded").is_none());
+}
+
+#[test]
+fn annotated_view_names_every_field() {
+    let (code, out, _) = hartkit(&[
+        "frame",
+        "decode",
+        "FF FF FF FF FF 86 A6 06 12 34 56 01 07 00 00 06 41 48 00 00 5F",
+    ]);
+    assert_eq!(code, 0);
+    for needle in [
+        "delimiter",
+        "ACK, long address",
+        "unique ID 2606123456",
+        "byte count",
+        "pv_units",
+        "psi",
+        "12.5",
+        "check byte",
+        "ok",
+    ] {
+        assert!(out.contains(needle), "missing {needle:?} in:\n{out}");
+    }
+}
+
+#[test]
+fn bad_input_is_one_line_exit_2_no_panic() {
+    for (args, needle) in [
+        (
+            vec!["frame", "decode", "FF FF FF FF FF 02 80 00 05 01"],
+            "truncated",
+        ),
+        (
+            vec!["frame", "decode", "FF FF 03 80 00 00 83"],
+            "delimiter at byte 2",
+        ),
+        (vec!["frame", "decode", "FF 02 80 00 00 82"], "preamble"),
+        (vec!["frame", "decode", "02 8"], "odd number"),
+        (vec!["frame", "decode", "GG"], "not a hex digit"),
+        (vec!["frame", "decode", "FF FF FF"], "no delimiter"),
+        (
+            vec!["frame", "decode", "FF FF 06 80 00 01 00 87"],
+            "byte count at byte 5",
+        ),
+        (
+            vec!["frame", "encode", "--short", "64", "--command", "0"],
+            "0-63",
+        ),
+        (
+            vec!["frame", "encode", "--long", "XYZ", "--command", "0"],
+            "--long",
+        ),
+    ] {
+        let (code, out, err) = hartkit(&args);
+        assert_eq!(code, 2, "{args:?}: {out}{err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn encode_examples() {
+    let enc = |args: &[&str]| {
+        let mut a = vec!["frame", "encode"];
+        a.extend_from_slice(args);
+        let (code, out, err) = hartkit(&a);
+        assert_eq!(code, 0, "{err}");
+        out.trim().to_string()
+    };
+    assert_eq!(
+        enc(&["--short", "0", "--command", "0"]),
+        "FF FF FF FF FF 02 80 00 00 82"
+    );
+    assert_eq!(
+        enc(&["--short", "0", "--command", "0", "--secondary"]),
+        "FF FF FF FF FF 02 00 00 00 02"
+    );
+    assert_eq!(
+        enc(&["--long", "264E0000D2", "--command", "3"]),
+        "FF FF FF FF FF 82 A6 4E 00 00 D2 03 00 BB"
+    );
+    assert_eq!(
+        enc(&["--long", "2606123456", "--command", "9", "--data", "00 F5"]),
+        "FF FF FF FF FF 82 A6 06 12 34 56 09 02 00 F5 AC"
+    );
+    assert_eq!(
+        enc(&[
+            "--long",
+            "2606123456",
+            "--command",
+            "35",
+            "--ack",
+            "--rc",
+            "9",
+            "--status",
+            "64"
+        ]),
+        "FF FF FF FF FF 86 A6 06 12 34 56 23 02 09 40 3E"
+    );
+    assert_eq!(
+        enc(&[
+            "--long",
+            "2606123456",
+            "--command",
+            "1",
+            "--back",
+            "--secondary",
+            "--burst",
+            "--data",
+            "0641480000"
+        ]),
+        "FF FF FF FF FF 81 66 06 12 34 56 01 07 00 00 06 41 48 00 00 98"
+    );
+    assert_eq!(
+        enc(&[
+            "--long",
+            "2606123456",
+            "--command",
+            "1024",
+            "--preambles",
+            "0"
+        ]),
+        "82 A6 06 12 34 56 1F 02 04 00 4B"
+    );
+    assert_eq!(
+        enc(&["--short", "5", "--command", "0", "--preambles", "2"]),
+        "FF FF 02 85 00 00 87"
+    );
+}

@@ -1,0 +1,87 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use serde_json::Value;
+
+/// Compares `expected` against `actual`: every key of an expected object must be present
+/// with an equal value (extra keys in `actual` are fine); floats are compared as `f32`;
+/// the string "nan" or a NaN float expects `null` (non-finite floats are JSON null).
+pub fn subset(expected: &Value, actual: &Value, path: &str) -> Result<(), String> {
+    match (expected, actual) {
+        (Value::Object(e), Value::Object(a)) => {
+            for (k, ev) in e {
+                let av = a
+                    .get(k)
+                    .ok_or_else(|| format!("{path}.{k}: missing (got {actual})"))?;
+                subset(ev, av, &format!("{path}.{k}"))?;
+            }
+            Ok(())
+        }
+        (Value::Array(e), Value::Array(a)) => {
+            if e.len() != a.len() {
+                return Err(format!(
+                    "{path}: expected {} items, got {}",
+                    e.len(),
+                    a.len()
+                ));
+            }
+            e.iter()
+                .zip(a)
+                .enumerate()
+                .try_for_each(|(i, (e, a))| subset(e, a, &format!("{path}[{i}]")))
+        }
+        (Value::Number(e), Value::Number(a)) if e.is_f64() || a.is_f64() => {
+            let (e, a) = (
+                e.as_f64().unwrap_or(f64::NAN),
+                a.as_f64().unwrap_or(f64::NAN),
+            );
+            if e as f32 == a as f32 || (e - a).abs() <= 1e-6 * e.abs().max(1.0) {
+                Ok(())
+            } else {
+                Err(format!("{path}: expected {e}, got {a}"))
+            }
+        }
+        (Value::String(s), Value::Null) if s.eq_ignore_ascii_case("nan") => Ok(()),
+        (Value::String(e), Value::String(a))
+            if e.eq_ignore_ascii_case(a) && path.ends_with("data") =>
+        {
+            Ok(())
+        }
+        _ if expected == actual => Ok(()),
+        _ => Err(format!("{path}: expected {expected}, got {actual}")),
+    }
+}
+
+/// Converts a TOML value to JSON (NaN floats become the string "nan").
+pub fn toml_to_json(v: &toml::Value) -> Value {
+    match v {
+        toml::Value::String(s) => Value::String(s.clone()),
+        toml::Value::Integer(i) => Value::from(*i),
+        toml::Value::Float(f) if f.is_nan() => Value::String("nan".into()),
+        toml::Value::Float(f) => {
+            serde_json::Number::from_f64(*f).map_or(Value::Null, Value::Number)
+        }
+        toml::Value::Boolean(b) => Value::Bool(*b),
+        toml::Value::Datetime(d) => Value::String(d.to_string()),
+        toml::Value::Array(a) => Value::Array(a.iter().map(toml_to_json).collect()),
+        toml::Value::Table(t) => Value::Object(
+            t.iter()
+                .map(|(k, v)| (k.clone(), toml_to_json(v)))
+                .collect(),
+        ),
+    }
+}
+
+/// The public vectors file.
+pub fn public_vectors() -> Vec<toml::Value> {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../hart-proto/tests/vectors/public.toml"
+    );
+    let text = std::fs::read_to_string(path).expect("public.toml");
+    let doc: toml::Value = toml::from_str(&text).expect("public.toml parses");
+    doc.get("vector")
+        .and_then(|v| v.as_array())
+        .cloned()
+        .unwrap_or_default()
+}
