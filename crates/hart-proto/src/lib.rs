@@ -18,6 +18,25 @@
 //!
 //! The crate is `no_std` and never allocates; every decoder returns a typed error
 //! instead of panicking on untrusted input.
+//!
+//! ```
+//! use hart_proto::{decode_response, Address, Frame, FrameSpec, Response};
+//!
+//! // A command 1 reply with 2 preambles: PV = 12.5 psi.
+//! let bytes = [0xFF, 0xFF, 0x86, 0xA6, 0x06, 0x12, 0x34, 0x56, 0x01, 0x07,
+//!              0x00, 0x00, 0x06, 0x41, 0x48, 0x00, 0x00, 0x5F];
+//! let frame = Frame::parse(&bytes).unwrap();
+//! assert!(frame.checksum_ok());
+//! let Some(Ok(Response::ReadPrimaryVariable(r))) = decode_response(frame.command, frame.data) else {
+//!     panic!("not a command 1 reply");
+//! };
+//! assert_eq!((r.pv_units.0, r.pv), (6, 12.5));
+//!
+//! // Build a command 0 request to polling address 0.
+//! let mut out = [0u8; 16];
+//! let n = FrameSpec::request(Address::short(0), 0, &[]).encode(&mut out).unwrap();
+//! assert_eq!(&out[..n], &[0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0x02, 0x80, 0x00, 0x00, 0x82]);
+//! ```
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
