@@ -86,6 +86,36 @@ fn trim_padding(s: &[u8]) -> &[u8] {
     &s[..end]
 }
 
+/// Implements [`Wire`] for a fixed-size text type over `[u8; N]` with `with_str`.
+macro_rules! text_wire {
+    ($name:ident) => {
+        impl<const N: usize> Wire for $name<N> {
+            const MIN_LEN: usize = N;
+            const MAX_LEN: usize = N;
+            fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+                Ok($name(r.array()?))
+            }
+            fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+                w.put(&self.0)
+            }
+            fn encoded_len(&self) -> usize {
+                N
+            }
+            fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+                self.with_str(|s| {
+                    v.field(Field {
+                        name,
+                        offset,
+                        len: N,
+                        value: Value::Str(s),
+                        meaning: Meaning::Plain,
+                    })
+                });
+            }
+        }
+    };
+}
+
 /// A fixed-size packed-ASCII string of `N` bytes (`N / 3 * 4` characters): tag (6 bytes),
 /// descriptor (12), message (24).
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
@@ -140,30 +170,7 @@ impl<T: fmt::Display> fmt::Debug for DisplayStr<'_, T> {
     }
 }
 
-impl<const N: usize> Wire for PackedString<N> {
-    const MIN_LEN: usize = N;
-    const MAX_LEN: usize = N;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(PackedString(r.array()?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.put(&self.0)
-    }
-    fn encoded_len(&self) -> usize {
-        N
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        self.with_str(|s| {
-            v.field(Field {
-                name,
-                offset,
-                len: N,
-                value: Value::Str(s),
-                meaning: Meaning::Plain,
-            })
-        });
-    }
-}
+text_wire!(PackedString);
 
 /// A fixed-size ISO 8859-1 (Latin-1) string of `N` bytes, e.g. the 32-byte long tag.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
@@ -215,30 +222,7 @@ impl<const N: usize> fmt::Debug for Latin1String<N> {
     }
 }
 
-impl<const N: usize> Wire for Latin1String<N> {
-    const MIN_LEN: usize = N;
-    const MAX_LEN: usize = N;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(Latin1String(r.array()?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.put(&self.0)
-    }
-    fn encoded_len(&self) -> usize {
-        N
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        self.with_str(|s| {
-            v.field(Field {
-                name,
-                offset,
-                len: N,
-                value: Value::Str(s),
-                meaning: Meaning::Plain,
-            })
-        });
-    }
-}
+text_wire!(Latin1String);
 
 /// A HART date: day, month, year − 1900 (3 bytes). Values are kept as received, so an
 /// invalid date (e.g. day 0) still round-trips; [`Date::is_valid`] checks it.
@@ -375,28 +359,7 @@ impl fmt::Display for HartTime {
     }
 }
 
-impl Wire for HartTime {
-    const MIN_LEN: usize = 4;
-    const MAX_LEN: usize = 4;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(HartTime(u32::decode(r)?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        self.0.encode(w)
-    }
-    fn encoded_len(&self) -> usize {
-        4
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 4,
-            value: Value::Uint(self.0),
-            meaning: Meaning::Time,
-        });
-    }
-}
+crate::newtype_wire!(HartTime, u32, 4, Value::Uint, Meaning::Time);
 
 /// An unsigned 24-bit integer (e.g. final assembly number, transducer serial number).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, PartialOrd, Ord)]
@@ -576,22 +539,7 @@ macro_rules! code_type {
         #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, PartialOrd, Ord)]
         pub struct $name(pub u8);
 
-        impl Wire for $name {
-            const MIN_LEN: usize = 1;
-            const MAX_LEN: usize = 1;
-            fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-                Ok($name(r.u8()?))
-            }
-            fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-                w.u8(self.0)
-            }
-            fn encoded_len(&self) -> usize {
-                1
-            }
-            fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-                v.field(Field { name, offset, len: 1, value: Value::Uint(self.0.into()), meaning: $meaning });
-            }
-        }
+        crate::newtype_wire!($name, u8, 1, |x| Value::Uint(x.into()), $meaning);
 
         impl From<u8> for $name {
             fn from(v: u8) -> Self {
@@ -802,22 +750,7 @@ macro_rules! quantity_type {
         #[derive(Debug, Clone, Copy, PartialEq, Default)]
         pub struct $name(pub f32);
 
-        impl Wire for $name {
-            const MIN_LEN: usize = 4;
-            const MAX_LEN: usize = 4;
-            fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-                Ok($name(f32::decode(r)?))
-            }
-            fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-                self.0.encode(w)
-            }
-            fn encoded_len(&self) -> usize {
-                4
-            }
-            fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-                v.field(Field { name, offset, len: 4, value: Value::Float(self.0), meaning: Meaning::Quantity($unit) });
-            }
-        }
+        crate::newtype_wire!($name, f32, 4, Value::Float, Meaning::Quantity($unit));
     };
 }
 
@@ -841,28 +774,13 @@ quantity_type!(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub struct CommandNumber(pub u16);
 
-impl Wire for CommandNumber {
-    const MIN_LEN: usize = 2;
-    const MAX_LEN: usize = 2;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(CommandNumber(u16::decode(r)?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        self.0.encode(w)
-    }
-    fn encoded_len(&self) -> usize {
-        2
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 2,
-            value: Value::Uint(self.0.into()),
-            meaning: Meaning::Command,
-        });
-    }
-}
+crate::newtype_wire!(
+    CommandNumber,
+    u16,
+    2,
+    |x| Value::Uint(x.into()),
+    Meaning::Command
+);
 
 #[cfg(test)]
 mod tests {

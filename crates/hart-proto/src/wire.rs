@@ -265,96 +265,79 @@ pub trait Wire: Sized {
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor);
 }
 
-impl Wire for u8 {
-    const MIN_LEN: usize = 1;
-    const MAX_LEN: usize = 1;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        r.u8()
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.u8(*self)
-    }
-    fn encoded_len(&self) -> usize {
-        1
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 1,
-            value: Value::Uint((*self).into()),
-            meaning: Meaning::Plain,
-        });
-    }
+/// Implements [`Wire`] for a big-endian number type.
+macro_rules! number_wire {
+    ($t:ty, $len:expr, $value:expr) => {
+        impl Wire for $t {
+            const MIN_LEN: usize = $len;
+            const MAX_LEN: usize = $len;
+            fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+                Ok(<$t>::from_be_bytes(r.array()?))
+            }
+            fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+                w.put(&self.to_be_bytes())
+            }
+            fn encoded_len(&self) -> usize {
+                $len
+            }
+            fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+                let value: fn($t) -> Value<'static> = $value;
+                v.field(Field {
+                    name,
+                    offset,
+                    len: $len,
+                    value: value(*self),
+                    meaning: Meaning::Plain,
+                });
+            }
+        }
+    };
 }
 
-impl Wire for u16 {
-    const MIN_LEN: usize = 2;
-    const MAX_LEN: usize = 2;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(u16::from_be_bytes(r.array()?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.put(&self.to_be_bytes())
-    }
-    fn encoded_len(&self) -> usize {
-        2
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 2,
-            value: Value::Uint((*self).into()),
-            meaning: Meaning::Plain,
-        });
-    }
-}
+number_wire!(u8, 1, |x| Value::Uint(x.into()));
+number_wire!(u16, 2, |x| Value::Uint(x.into()));
+number_wire!(u32, 4, Value::Uint);
+// Floats keep their bit pattern (NaN payloads such as the HART NaN survive).
+number_wire!(f32, 4, Value::Float);
 
-impl Wire for u32 {
-    const MIN_LEN: usize = 4;
-    const MAX_LEN: usize = 4;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(u32::from_be_bytes(r.array()?))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.put(&self.to_be_bytes())
-    }
-    fn encoded_len(&self) -> usize {
-        4
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 4,
-            value: Value::Uint(*self),
-            meaning: Meaning::Plain,
-        });
-    }
-}
-
-impl Wire for f32 {
-    const MIN_LEN: usize = 4;
-    const MAX_LEN: usize = 4;
-    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
-        Ok(f32::from_bits(u32::from_be_bytes(r.array()?)))
-    }
-    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
-        w.put(&self.to_bits().to_be_bytes())
-    }
-    fn encoded_len(&self) -> usize {
-        4
-    }
-    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
-        v.field(Field {
-            name,
-            offset,
-            len: 4,
-            value: Value::Float(*self),
-            meaning: Meaning::Plain,
-        });
-    }
+/// Implements [`Wire`] for a newtype over a fixed-size [`Wire`] value, described with
+/// its own [`Meaning`] (units, code tables, times, quantities...).
+#[macro_export]
+#[doc(hidden)]
+macro_rules! newtype_wire {
+    ($name:ident, $inner:ty, $len:expr, $value:expr, $meaning:expr) => {
+        impl $crate::wire::Wire for $name {
+            const MIN_LEN: usize = $len;
+            const MAX_LEN: usize = $len;
+            fn decode(r: &mut $crate::wire::Reader<'_>) -> Result<Self, $crate::wire::DecodeError> {
+                Ok($name(<$inner as $crate::wire::Wire>::decode(r)?))
+            }
+            fn encode(
+                &self,
+                w: &mut $crate::wire::Writer<'_>,
+            ) -> Result<(), $crate::wire::EncodeError> {
+                $crate::wire::Wire::encode(&self.0, w)
+            }
+            fn encoded_len(&self) -> usize {
+                $len
+            }
+            fn describe(
+                &self,
+                name: &'static str,
+                offset: usize,
+                v: &mut dyn $crate::wire::Visitor,
+            ) {
+                let value: fn($inner) -> $crate::wire::Value<'static> = $value;
+                v.field($crate::wire::Field {
+                    name,
+                    offset,
+                    len: $len,
+                    value: value(self.0),
+                    meaning: $meaning,
+                });
+            }
+        }
+    };
 }
 
 /// An optional trailing field: decoded when the data still holds a complete value,
