@@ -1,0 +1,739 @@
+//! # hart-sim
+//!
+//! A deterministic discrete-event simulation of one shared HART line, character by
+//! character, in virtual time: one or two [`hart_link::Master`]s, N
+//! [`hart_link::Slave`]s with minimal responders ([`device::SimpleDevice`]), an optional
+//! burst device. Overlapping transmissions collide and every receiver sees damaged
+//! characters; bit errors are injected per receiver; devices can fall silent or answer
+//! slowly. A seeded generator makes every run reproducible bit for bit.
+//!
+//! The masters run a fixed script: the primary discovers the devices with command 0 in
+//! short frames, then polls them round-robin with a chosen command in long frames; an
+//! optional secondary does the same with command 1.
+
+pub mod device;
+pub mod rng;
+
+use hart_link::master::{MasterOutput, RetryPolicy, MAX_TX_LEN};
+use hart_link::slave::{BurstConfig, Slave, SlaveConfig};
+use hart_link::{Master, Micros, TimingProfile};
+use hart_proto::command::Identity;
+use hart_proto::deframer::UartFlags;
+use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, MasterKind, UniqueId};
+use hart_proto::wire::{Reader, Wire};
+
+use device::SimpleDevice;
+use rng::Rng;
+
+/// Faults to inject.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Faults {
+    /// This polling address stops answering at this time.
+    pub silent_device: Option<(u8, Micros)>,
+    /// This polling address answers after this delay instead of HOLD.
+    pub slow_device: Option<(u8, Micros)>,
+}
+
+/// What to simulate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimConfig {
+    /// Physical layer timing.
+    pub profile: TimingProfile,
+    /// Number of devices (polling addresses 1..=N, at most 63).
+    pub devices: u8,
+    /// Add a secondary master polling command 1.
+    pub secondary: bool,
+    /// Put device 1 in burst mode with this period, publishing command 3.
+    pub burst_period: Option<Micros>,
+    /// Command the primary polls (default 3).
+    pub command: u16,
+    /// Virtual time to simulate.
+    pub duration: Micros,
+    /// Bit error rate at every receiver.
+    pub ber: f64,
+    /// Seed of the random generator.
+    pub seed: u64,
+    /// Record every transmission.
+    pub trace: bool,
+    /// Faults.
+    pub faults: Faults,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            profile: TimingProfile::fsk(),
+            devices: 15,
+            secondary: false,
+            burst_period: None,
+            command: 3,
+            duration: 60_000_000,
+            ber: 0.0,
+            seed: 1,
+            trace: false,
+            faults: Faults::default(),
+        }
+    }
+}
+
+/// Who sent a transmission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// The primary master.
+    Primary,
+    /// The secondary master.
+    Secondary,
+    /// The device with this polling address.
+    Device(u8),
+}
+
+impl core::fmt::Display for Source {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Source::Primary => f.write_str("primary"),
+            Source::Secondary => f.write_str("secondary"),
+            Source::Device(p) => write!(f, "dev:{p}"),
+        }
+    }
+}
+
+/// One transmission on the line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TraceRecord {
+    /// Start of the first bit.
+    pub t0_us: Micros,
+    /// End of the last bit.
+    pub t1_us: Micros,
+    /// Sender.
+    pub src: Source,
+    /// Everything sent, preambles included.
+    pub bytes: Vec<u8>,
+    /// True when it overlapped another transmission.
+    pub collided: bool,
+}
+
+/// Results of a run.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SimReport {
+    /// Virtual time simulated, s.
+    pub virtual_seconds: f64,
+    /// Completed transactions of the primary master.
+    pub transactions_primary: u64,
+    /// Completed transactions of the secondary master.
+    pub transactions_secondary: u64,
+    /// BACK frames sent.
+    pub burst_frames: u64,
+    /// Transactions that failed after all retries.
+    pub failed: u64,
+    /// Repeated transmissions.
+    pub retries: u64,
+    /// Transmissions that overlapped another.
+    pub collisions: u64,
+    /// Replies accepted by a master whose bytes differ from what the device sent.
+    pub wrong_data: u64,
+    /// Fraction of the time a carrier was on the line.
+    pub line_utilization: f64,
+    /// Transactions per second if no time were lost beyond frames and mandatory silences.
+    pub theoretical_transactions_per_s: f64,
+    /// Achieved / theoretical.
+    pub efficiency: f64,
+    /// Devices found by the primary's scan.
+    pub devices_found: u64,
+    /// Mean time between BACK frames, s (0 without burst).
+    pub burst_mean_period_s: f64,
+    /// True when every BACK carried the other master bit than the one before.
+    pub burst_alternates: bool,
+    /// Every transmission, when tracing.
+    pub trace: Vec<TraceRecord>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    Scan(u8),
+    Poll(usize),
+    Done,
+}
+
+struct MasterStation {
+    m: Master,
+    role: Source,
+    command: u16,
+    scan_last: u8,
+    phase: Phase,
+    found: Vec<(u8, UniqueId)>,
+    completed: u64,
+    failed: u64,
+}
+
+struct SlaveStation {
+    s: Slave,
+    dev: SimpleDevice,
+    last_reply: Vec<u8>,
+}
+
+enum Kind {
+    Master(Box<MasterStation>),
+    Slave(Box<SlaveStation>),
+}
+
+struct Station {
+    kind: Kind,
+    deadline: Option<Micros>,
+    dirty: bool,
+    bits_to_error: u64,
+}
+
+/// A transmission as the access rules see it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    /// A request from this master.
+    Stx(MasterKind),
+    /// A reply to this master.
+    Ack(MasterKind),
+    /// A burst frame granting the line to this master.
+    Back(MasterKind),
+    /// Anything else.
+    Other,
+}
+
+struct Tx {
+    src: usize,
+    t0: Micros,
+    bytes: [u8; MAX_TX_LEN],
+    len: usize,
+    next: usize,
+    overlaps: Vec<(Micros, Micros)>,
+    kind: FrameKind,
+}
+
+struct Sent {
+    t0: Micros,
+    t1: Micros,
+    kind: FrameKind,
+}
+
+/// Runs a simulation.
+pub fn run(config: &SimConfig) -> SimReport {
+    Sim::new(config).run()
+}
+
+struct Sim<'a> {
+    cfg: &'a SimConfig,
+    stations: Vec<Station>,
+    txs: Vec<Tx>,
+    rng: Rng,
+    report: SimReport,
+    sent: Vec<Sent>,
+    carrier_until: Micros,
+    carrier_time: Micros,
+    backs: Vec<(Micros, MasterKind)>,
+}
+
+fn frame_kind(bytes: &[u8]) -> FrameKind {
+    match Frame::parse(bytes) {
+        Ok(f) => match f.frame_type() {
+            FrameType::Stx => FrameKind::Stx(f.address.master()),
+            FrameType::Ack => FrameKind::Ack(f.address.master()),
+            FrameType::Back => FrameKind::Back(f.address.master()),
+        },
+        Err(_) => FrameKind::Other,
+    }
+}
+
+impl<'a> Sim<'a> {
+    fn new(cfg: &'a SimConfig) -> Self {
+        let mut rng = Rng::new(cfg.seed);
+        let p = cfg.profile;
+        let mut stations = vec![];
+        let scan_last = if cfg.devices > 15 { 63 } else { 15 };
+        let mut masters = vec![(MasterKind::Primary, Source::Primary, cfg.command)];
+        if cfg.secondary {
+            masters.push((MasterKind::Secondary, Source::Secondary, 1));
+        }
+        for (kind, role, command) in masters {
+            // A short scan: one retry per polling address.
+            let m = Master::new(
+                kind,
+                p,
+                RetryPolicy {
+                    retries: 1,
+                    ..RetryPolicy::default()
+                },
+                0,
+            );
+            stations.push(Station {
+                kind: Kind::Master(Box::new(MasterStation {
+                    m,
+                    role,
+                    command,
+                    scan_last,
+                    phase: Phase::Scan(0),
+                    found: vec![],
+                    completed: 0,
+                    failed: 0,
+                })),
+                deadline: Some(0),
+                dirty: true,
+                bits_to_error: rng.bits_to_next_error(cfg.ber),
+            });
+        }
+        for poll in 1..=cfg.devices.min(63) {
+            let dev = SimpleDevice::new(poll);
+            let reply_delay = cfg
+                .faults
+                .slow_device
+                .filter(|(a, _)| *a == poll)
+                .map(|(_, d)| d);
+            let mut s = Slave::new(
+                SlaveConfig {
+                    polling_address: poll,
+                    unique_id: dev.unique_id(),
+                    reply_delay,
+                    response_preambles: 5,
+                },
+                p,
+                0,
+            );
+            if poll == 1 {
+                if let Some(period) = cfg.burst_period {
+                    s.set_burst(Some(BurstConfig { period }), period);
+                }
+            }
+            stations.push(Station {
+                kind: Kind::Slave(Box::new(SlaveStation {
+                    s,
+                    dev,
+                    last_reply: vec![],
+                })),
+                deadline: Some(0),
+                dirty: true,
+                bits_to_error: rng.bits_to_next_error(cfg.ber),
+            });
+        }
+        Sim {
+            cfg,
+            stations,
+            txs: vec![],
+            rng,
+            report: SimReport::default(),
+            sent: vec![],
+            carrier_until: 0,
+            carrier_time: 0,
+            backs: vec![],
+        }
+    }
+
+    fn run(mut self) -> SimReport {
+        let ct = self.cfg.profile.char_time;
+        let end = self.cfg.duration;
+        loop {
+            let t_char = self
+                .txs
+                .iter()
+                .map(|t| t.t0 + (t.next as Micros + 1) * ct)
+                .min();
+            let t_station = self.stations.iter().filter_map(|s| s.deadline).min();
+            let now = match (t_char, t_station) {
+                (Some(a), Some(b)) => a.min(b),
+                (a, b) => match a.or(b) {
+                    Some(t) => t,
+                    None => break,
+                },
+            };
+            if now > end {
+                break;
+            }
+            self.deliver(now);
+            self.poll_stations(now);
+        }
+        self.finish(end)
+    }
+
+    /// Delivers every character that finishes at `now`.
+    fn deliver(&mut self, now: Micros) {
+        let ct = self.cfg.profile.char_time;
+        let mut i = 0;
+        while i < self.txs.len() {
+            let tx = &self.txs[i];
+            let char_end = tx.t0 + (tx.next as Micros + 1) * ct;
+            if char_end != now {
+                i += 1;
+                continue;
+            }
+            let start = char_end - ct;
+            let collided = tx.overlaps.iter().any(|&(a, b)| a < char_end && b > start);
+            let byte = tx.bytes[tx.next];
+            let src = tx.src;
+            for (k, st) in self.stations.iter_mut().enumerate() {
+                if k == src {
+                    continue;
+                }
+                let (b, flags) = corrupt(
+                    byte,
+                    collided,
+                    &mut st.bits_to_error,
+                    &mut self.rng,
+                    self.cfg.ber,
+                );
+                match &mut st.kind {
+                    Kind::Master(m) => m.m.receive(b, flags, now),
+                    Kind::Slave(s) => {
+                        if !is_silent(self.cfg, s.dev.polling_address, now) {
+                            s.s.receive(b, flags, now, &mut s.dev)
+                        }
+                    }
+                }
+                st.dirty = true;
+            }
+            let tx = &mut self.txs[i];
+            tx.next += 1;
+            if tx.next == tx.len {
+                let tx = self.txs.swap_remove(i);
+                self.finished(tx, now);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    fn finished(&mut self, tx: Tx, now: Micros) {
+        let st = &mut self.stations[tx.src];
+        st.dirty = true;
+        let collided = !tx.overlaps.is_empty();
+        if collided {
+            self.report.collisions += 1;
+        }
+        let src = match &mut st.kind {
+            Kind::Master(m) => {
+                m.m.transmitted(now);
+                m.role
+            }
+            Kind::Slave(s) => {
+                s.s.transmitted(now);
+                Source::Device(s.dev.polling_address)
+            }
+        };
+        if let FrameKind::Back(to) = tx.kind {
+            self.report.burst_frames += 1;
+            self.backs.push((tx.t0, to));
+        }
+        self.sent.push(Sent {
+            t0: tx.t0,
+            t1: now,
+            kind: tx.kind,
+        });
+        if self.cfg.trace {
+            self.report.trace.push(TraceRecord {
+                t0_us: tx.t0,
+                t1_us: now,
+                src,
+                bytes: tx.bytes[..tx.len].to_vec(),
+                collided,
+            });
+        }
+    }
+
+    fn start_tx(&mut self, src: usize, bytes: &[u8], now: Micros) {
+        let ct = self.cfg.profile.char_time;
+        let mut tx = Tx {
+            src,
+            t0: now,
+            bytes: [0; MAX_TX_LEN],
+            len: bytes.len().min(MAX_TX_LEN),
+            next: 0,
+            overlaps: vec![],
+            kind: FrameKind::Other,
+        };
+        tx.bytes[..tx.len].copy_from_slice(&bytes[..tx.len]);
+        tx.kind = frame_kind(&tx.bytes[..tx.len]);
+        let end = now + tx.len as Micros * ct;
+        for other in &mut self.txs {
+            let other_end = other.t0 + other.len as Micros * ct;
+            let overlap = (now, end.min(other_end));
+            other.overlaps.push(overlap);
+            tx.overlaps.push(overlap);
+        }
+        // Carrier time: union of transmissions (starts come in time order).
+        if now >= self.carrier_until {
+            self.carrier_time += end - now;
+        } else if end > self.carrier_until {
+            self.carrier_time += end - self.carrier_until;
+        }
+        self.carrier_until = self.carrier_until.max(end);
+        self.txs.push(tx);
+    }
+
+    fn poll_stations(&mut self, now: Micros) {
+        for i in 0..self.stations.len() {
+            let due = self.stations[i].deadline.is_some_and(|d| d <= now);
+            if !(due || self.stations[i].dirty) {
+                continue;
+            }
+            self.stations[i].dirty = false;
+            self.poll_station(i, now);
+            let st = &mut self.stations[i];
+            st.deadline = match &st.kind {
+                Kind::Master(m) => m.m.next_deadline(),
+                Kind::Slave(s) => s.s.next_deadline(),
+            }
+            .map(|d| d.max(now + 1));
+            if let Kind::Master(m) = &st.kind {
+                if !m.m.is_busy() && m.phase != Phase::Done {
+                    st.deadline = Some(now + 1);
+                }
+            }
+        }
+    }
+
+    fn poll_station(&mut self, i: usize, now: Micros) {
+        let cfg = self.cfg;
+        let mut to_send: Option<Vec<u8>> = None;
+        let mut replies: Vec<Vec<u8>> = vec![];
+        match &mut self.stations[i].kind {
+            Kind::Master(ms) => {
+                if !ms.m.is_busy() {
+                    next_request(ms, now);
+                }
+                while let Some(out) = ms.m.poll(now) {
+                    match out {
+                        MasterOutput::Transmit(frame, preambles) => {
+                            let mut buf = vec![0xFF; preambles];
+                            buf.extend_from_slice(frame.as_slice());
+                            to_send = Some(buf);
+                            break;
+                        }
+                        MasterOutput::Done(result) => {
+                            let reply = result.ok();
+                            if let Some(r) = &reply {
+                                ms.completed += 1;
+                                replies.push(r.as_slice().to_vec());
+                            } else if matches!(ms.phase, Phase::Poll(_)) {
+                                // An empty polling address during the scan is no failure.
+                                ms.failed += 1;
+                            }
+                            request_done(ms, reply.as_ref().map(|r| r.as_slice()), now);
+                        }
+                        MasterOutput::Burst(_) => {}
+                    }
+                }
+            }
+            Kind::Slave(ss) => {
+                if !is_silent(cfg, ss.dev.polling_address, now) {
+                    if let Some(t) = ss.s.poll(now, &mut ss.dev) {
+                        if !t.burst {
+                            let pre = t.bytes.iter().take_while(|&&b| b == 0xFF).count();
+                            ss.last_reply = t.bytes[pre..].to_vec();
+                        }
+                        to_send = Some(t.bytes.to_vec());
+                    }
+                }
+            }
+        }
+        for r in replies {
+            if !self.reply_matches_device(&r) {
+                self.report.wrong_data += 1;
+            }
+        }
+        if let Some(bytes) = to_send {
+            self.start_tx(i, &bytes, now);
+        }
+    }
+
+    /// True when a reply a master accepted is byte for byte what the device sent.
+    fn reply_matches_device(&self, pdu: &[u8]) -> bool {
+        let Ok(f) = Frame::parse_pdu(pdu) else {
+            return false;
+        };
+        self.stations.iter().any(|st| match &st.kind {
+            Kind::Slave(s) => {
+                let me = match f.address {
+                    Address::Short(a) => a.polling_address == s.dev.polling_address,
+                    Address::Long(a) => a.id == s.dev.unique_id(),
+                };
+                me && s.last_reply == pdu
+            }
+            Kind::Master(_) => false,
+        })
+    }
+
+    fn finish(mut self, end: Micros) -> SimReport {
+        let p = self.cfg.profile;
+        let mut r = std::mem::take(&mut self.report);
+        r.virtual_seconds = end as f64 / 1e6;
+        for st in &self.stations {
+            if let Kind::Master(m) = &st.kind {
+                match m.role {
+                    Source::Secondary => r.transactions_secondary = m.completed,
+                    _ => {
+                        r.transactions_primary = m.completed;
+                        r.devices_found = m.found.len() as u64;
+                    }
+                }
+                r.failed += m.failed;
+                r.retries += m.m.stats().retries;
+            }
+        }
+        let carrier = self.carrier_time
+            - self
+                .carrier_until
+                .saturating_sub(end)
+                .min(self.carrier_time);
+        r.line_utilization = carrier as f64 / end.max(1) as f64;
+        // Mandatory time: every frame, plus the silences the rules require between
+        // consecutive frames (capped at the silence actually there).
+        self.sent.sort_by_key(|s| s.t0);
+        let burst = self.cfg.burst_period.is_some();
+        let mut mandatory: Micros = 0;
+        for (k, s) in self.sent.iter().enumerate() {
+            mandatory += s.t1.min(end) - s.t0.min(end);
+            if let Some(next) = self.sent.get(k + 1) {
+                let gap = next.t0.saturating_sub(s.t1);
+                mandatory += gap.min(required_gap(&p, s.kind, next.kind, burst));
+            }
+        }
+        let mandatory = mandatory.min(end);
+        let total = (r.transactions_primary + r.transactions_secondary) as f64;
+        if mandatory > 0 {
+            r.theoretical_transactions_per_s = total / (mandatory as f64 / 1e6);
+            r.efficiency = mandatory as f64 / end as f64;
+        }
+        if self.backs.len() > 1 {
+            let first = self.backs[0].0;
+            let last = self.backs[self.backs.len() - 1].0;
+            r.burst_mean_period_s = (last - first) as f64 / 1e6 / (self.backs.len() - 1) as f64;
+        }
+        r.burst_alternates = self.backs.windows(2).all(|w| w[0].1 != w[1].1);
+        r
+    }
+}
+
+/// The silence the access rules require between two consecutive frames; 0 where the
+/// rules require none (anything longer is time lost, e.g. waiting for STO).
+pub fn required_gap(
+    p: &TimingProfile,
+    prev: FrameKind,
+    next: FrameKind,
+    burst_device: bool,
+) -> Micros {
+    use FrameKind::*;
+    match (prev, next) {
+        (Stx(_), Ack(_)) => p.hold,
+        (Ack(to), Stx(from)) if to == from => p.rt2,
+        (Ack(_), Stx(_)) => p.hold + if burst_device { p.chars(2) } else { 0 },
+        (Ack(_), Back(_)) => p.hold,
+        (Back(to), Stx(from)) if to == from => p.hold,
+        _ => 0,
+    }
+}
+
+fn is_silent(cfg: &SimConfig, poll: u8, now: Micros) -> bool {
+    cfg.faults
+        .silent_device
+        .is_some_and(|(a, from)| a == poll && now >= from)
+}
+
+/// Issues the master's next request according to its script.
+fn next_request(ms: &mut MasterStation, now: Micros) {
+    loop {
+        match ms.phase {
+            Phase::Scan(addr) if addr > ms.scan_last => {
+                ms.m.set_policy(RetryPolicy::default());
+                ms.phase = if ms.found.is_empty() {
+                    Phase::Done
+                } else {
+                    Phase::Poll(0)
+                };
+            }
+            Phase::Scan(addr) => {
+                let _ =
+                    ms.m.request(&FrameSpec::request(Address::short(addr), 0, &[]), now);
+                return;
+            }
+            Phase::Poll(k) => {
+                let (_, id) = ms.found[k % ms.found.len()];
+                let data: &[u8] = if ms.command == 9 || ms.command == 33 {
+                    &[0]
+                } else {
+                    &[]
+                };
+                let _ = ms.m.request(
+                    &FrameSpec::request(Address::long(id), ms.command, data),
+                    now,
+                );
+                return;
+            }
+            Phase::Done => return,
+        }
+    }
+}
+
+fn request_done(ms: &mut MasterStation, reply: Option<&[u8]>, _now: Micros) {
+    match ms.phase {
+        Phase::Scan(addr) => {
+            if let Some(id) = reply.and_then(identity_of) {
+                ms.found.push((addr, id));
+            }
+            ms.phase = Phase::Scan(addr + 1);
+        }
+        Phase::Poll(k) => ms.phase = Phase::Poll(k + 1),
+        Phase::Done => {}
+    }
+}
+
+fn identity_of(pdu: &[u8]) -> Option<UniqueId> {
+    let f = Frame::parse_pdu(pdu).ok()?;
+    if f.response_code != Some(0) {
+        return None;
+    }
+    Identity::decode(&mut Reader::new(f.data))
+        .ok()
+        .map(|i| i.unique_id())
+}
+
+/// What a receiver makes of one character: collisions garble it with a framing error;
+/// bit errors flip bits of the 11-bit character (start, 8 data, odd parity, stop).
+fn corrupt(
+    byte: u8,
+    collided: bool,
+    bits_to_error: &mut u64,
+    rng: &mut Rng,
+    ber: f64,
+) -> (u8, UartFlags) {
+    if collided {
+        return (
+            byte ^ (rng.next_u64() as u8 | 1),
+            UartFlags {
+                framing: true,
+                ..UartFlags::OK
+            },
+        );
+    }
+    if *bits_to_error >= 11 {
+        if *bits_to_error != u64::MAX {
+            *bits_to_error -= 11;
+        }
+        return (byte, UartFlags::OK);
+    }
+    let parity = u16::from(byte.count_ones() % 2 == 0);
+    let mut word: u16 = (u16::from(byte) << 1) | (parity << 9) | (1 << 10);
+    let mut pos = *bits_to_error;
+    while pos < 11 {
+        word ^= 1 << pos;
+        pos = pos
+            .saturating_add(1)
+            .saturating_add(rng.bits_to_next_error(ber));
+    }
+    *bits_to_error = pos - 11;
+    let data = (word >> 1) as u8;
+    let par = (word >> 9) & 1;
+    let parity_error = (data.count_ones() + u32::from(par)) % 2 == 0;
+    let framing = word & 1 != 0 || (word >> 10) & 1 == 0;
+    (
+        data,
+        UartFlags {
+            parity: parity_error,
+            framing,
+            overrun: false,
+        },
+    )
+}
