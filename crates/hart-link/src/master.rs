@@ -10,7 +10,7 @@
 //! | last frame | this master may start |
 //! |---|---|
 //! | ACK to this master (its transaction is done) | at E + RT2 (the other master has the grant until then) |
-//! | ACK to the other master | at E + HOLD, until E + RT2 (plus 2 characters when a burst device is known, so its BACK goes first); later after RT1 |
+//! | ACK to the other master | at E + HOLD + 2 characters (the slot at E + HOLD is a burst device's), until E + RT2; later after RT1 |
 //! | BACK to this master | at E + HOLD, until E + RT2; later after RT1 |
 //! | anything else (request of the other master, BACK to the other, noise, power-up) | after RT1 of silence |
 //!
@@ -110,12 +110,13 @@ pub struct MasterStats {
 enum State {
     Idle,
     /// Waiting for the line; `not_before` holds busy/delayed-response waits. A retry
-    /// after no reply or a damaged reply `owns_line`: the transaction still holds the
-    /// line, so it goes out after HOLD without waiting for a grant (the other master
-    /// waits RT1, which is longer than STO).
+    /// after no reply or a damaged reply still owns the line while nothing new has been
+    /// heard since the failure (`owns_line` holds the end of the last thing heard then):
+    /// it goes out after HOLD without waiting for a grant (the other master waits RT1,
+    /// which is longer than STO).
     WaitLine {
         not_before: Micros,
-        owns_line: bool,
+        owns_line: Option<Micros>,
     },
     /// Our request is being sent.
     Sending,
@@ -217,7 +218,7 @@ impl Master {
         });
         self.state = State::WaitLine {
             not_before: now,
-            owns_line: false,
+            owns_line: None,
         };
         Ok(())
     }
@@ -283,7 +284,7 @@ impl Master {
                         self.stats.retries += 1;
                         self.state = State::WaitLine {
                             not_before: now + policy.busy_delay,
-                            owns_line: false,
+                            owns_line: None,
                         };
                     }
                     rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT
@@ -293,7 +294,7 @@ impl Master {
                         self.stats.retries += 1;
                         self.state = State::WaitLine {
                             not_before: now + policy.delayed_delay,
-                            owns_line: false,
+                            owns_line: None,
                         };
                     }
                     _ => {
@@ -329,7 +330,7 @@ impl Master {
             self.stats.retries += 1;
             self.state = State::WaitLine {
                 not_before: retry_at,
-                owns_line: true,
+                owns_line: Some(self.line.last().1),
             };
         } else {
             let err = if p.last_error != 0 {
@@ -430,15 +431,24 @@ impl Master {
         };
         let p = self.line.profile();
         let (last, end) = self.line.last();
-        let at = if owns_line {
-            end + p.hold
+        let at = if owns_line == Some(end) {
+            match last {
+                // No reply at all: the line has been silent since our request.
+                LastFrame::Stx { .. } => end + p.hold,
+                // After a damaged or unusable reply: the slots after a reply belong to
+                // a burst device (HOLD) and to the master the reply granted the line
+                // (HOLD + 2 characters), which may have heard it intact; take the next.
+                _ => end + p.hold + p.chars(4),
+            }
         } else {
             let rt1 = end + p.rt1(self.kind);
             match last {
                 LastFrame::Ack { to } if to == self.kind => end + p.rt2,
                 LastFrame::Ack { .. } => {
-                    let window = if self.burst_seen { p.chars(2) } else { 0 };
-                    let start = end + p.hold + window;
+                    // The first slot after an ACK belongs to a burst device (whose
+                    // BACK must follow the ACK); start two characters later, when its
+                    // carrier would already be heard.
+                    let start = end + p.hold + p.chars(2);
                     if not_before <= end + p.rt2 {
                         start
                     } else {

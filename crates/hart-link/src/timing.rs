@@ -77,19 +77,20 @@ impl TimingProfile {
         }
     }
 
-    /// Infrared at 1200 bit/s: STO 30 ms, RT1 261 ms (secondary: RT1 + RT2), RT2 7 ms,
-    /// HOLD 3 ms (HOLD must stay below RT2).
+    /// Infrared: STO 30 ms, RT1 261 ms (secondary: RT1 + RT2), RT2 7 ms. The bit rate
+    /// is not in the public sources; 9600 bit/s is assumed (STO is then 26 characters,
+    /// close to FSK's 28), HOLD 2 characters.
     pub const fn infrared() -> Self {
-        let c = char_time(1200);
+        let c = char_time(9600);
         TimingProfile {
             name: "infrared",
-            baud: 1200,
+            baud: 9600,
             char_time: c,
             sto: 30_000,
             rt1_primary: 261_000,
             rt1_secondary: 268_000,
             rt2: 7_000,
-            hold: 3_000,
+            hold: 2 * c,
         }
     }
 

@@ -582,13 +582,12 @@ impl<'a> Sim<'a> {
         // Mandatory time: every frame, plus the silences the rules require between
         // consecutive frames (capped at the silence actually there).
         self.sent.sort_by_key(|s| s.t0);
-        let burst = self.cfg.burst_period.is_some();
         let mut mandatory: Micros = 0;
         for (k, s) in self.sent.iter().enumerate() {
             mandatory += s.t1.min(end) - s.t0.min(end);
             if let Some(next) = self.sent.get(k + 1) {
                 let gap = next.t0.saturating_sub(s.t1);
-                mandatory += gap.min(required_gap(&p, s.kind, next.kind, burst));
+                mandatory += gap.min(required_gap(&p, s.kind, next.kind));
             }
         }
         let mandatory = mandatory.min(end);
@@ -609,17 +608,12 @@ impl<'a> Sim<'a> {
 
 /// The silence the access rules require between two consecutive frames; 0 where the
 /// rules require none (anything longer is time lost, e.g. waiting for STO).
-pub fn required_gap(
-    p: &TimingProfile,
-    prev: FrameKind,
-    next: FrameKind,
-    burst_device: bool,
-) -> Micros {
+pub fn required_gap(p: &TimingProfile, prev: FrameKind, next: FrameKind) -> Micros {
     use FrameKind::*;
     match (prev, next) {
         (Stx(_), Ack(_)) => p.hold,
         (Ack(to), Stx(from)) if to == from => p.rt2,
-        (Ack(_), Stx(_)) => p.hold + if burst_device { p.chars(2) } else { 0 },
+        (Ack(_), Stx(_)) => p.hold + p.chars(2),
         (Ack(_), Back(_)) => p.hold,
         (Back(to), Stx(from)) if to == from => p.hold,
         _ => 0,

@@ -5,6 +5,7 @@
 pub mod annotate;
 pub mod hex;
 pub mod json;
+pub mod sim;
 
 use hart_proto::frame::{Frame, FrameType};
 use hart_proto::tables::{response_class, ResponseClass};

@@ -21,6 +21,53 @@ enum Top {
     /// Decode or build single HART frames.
     #[command(subcommand)]
     Frame(FrameCmd),
+    /// Simulate a HART network in virtual time.
+    #[command(subcommand)]
+    Sim(SimCmd),
+}
+
+#[derive(Subcommand)]
+enum SimCmd {
+    /// Run a simulated network (discovery, then round-robin polling) and report
+    /// throughput, failures, collisions and efficiency.
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Physical layer: fsk, rs485:BAUD, psk or infrared.
+    #[arg(long, default_value = "fsk")]
+    phy: String,
+    /// Number of devices (polling addresses 1..N, at most 63).
+    #[arg(long, default_value_t = 15, value_parser = clap::value_parser!(u8).range(1..=63))]
+    devices: u8,
+    /// Add a secondary master polling command 1.
+    #[arg(long)]
+    secondary: bool,
+    /// Put device 1 in burst mode publishing command 3.
+    #[arg(long)]
+    burst: bool,
+    /// Burst period in seconds.
+    #[arg(long, default_value_t = 1.0)]
+    burst_period: f64,
+    /// Command the primary master polls.
+    #[arg(long, default_value_t = 3)]
+    command: u16,
+    /// Virtual seconds to simulate.
+    #[arg(long, default_value_t = 60.0)]
+    duration: f64,
+    /// Bit error rate at every receiver (e.g. 1e-4).
+    #[arg(long, default_value_t = 0.0)]
+    ber: f64,
+    /// Seed of the random generator (same seed, same run).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write every transmission as one JSON object per line to FILE.
+    #[arg(long, value_name = "FILE")]
+    trace: Option<std::path::PathBuf>,
+    /// Print one JSON object instead of the summary.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -153,15 +200,65 @@ fn encode(a: &EncodeArgs) -> Result<String, String> {
     Ok(hex::spaced(&out[..n]))
 }
 
+fn sim_bench(a: &BenchArgs) -> Result<String, String> {
+    let profile = hartkit::sim::parse_phy(&a.phy)?;
+    if !(a.duration > 0.0 && a.duration <= 30.0 * 86_400.0) {
+        return Err(format!(
+            "--duration {}: must be more than 0 and at most 30 days of virtual time",
+            a.duration
+        ));
+    }
+    if !(0.0..=0.5).contains(&a.ber) {
+        return Err(format!("--ber {}: bit error rate must be 0..0.5", a.ber));
+    }
+    if !(a.burst_period >= 0.05 && a.burst_period <= 3600.0) {
+        return Err(format!(
+            "--burst-period {}: must be 0.05..3600 s",
+            a.burst_period
+        ));
+    }
+    let cfg = hart_sim::SimConfig {
+        profile,
+        devices: a.devices,
+        secondary: a.secondary,
+        burst_period: a.burst.then_some((a.burst_period * 1e6) as u64),
+        command: a.command,
+        duration: (a.duration * 1e6) as u64,
+        ber: a.ber,
+        seed: a.seed,
+        trace: a.trace.is_some(),
+        faults: hart_sim::Faults::default(),
+    };
+    let started = std::time::Instant::now();
+    let report = hart_sim::run(&cfg);
+    let wall = started.elapsed().as_secs_f64();
+    if let Some(path) = &a.trace {
+        let file =
+            std::fs::File::create(path).map_err(|e| format!("--trace {}: {e}", path.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        hartkit::sim::write_trace(&report, &mut w)
+            .map_err(|e| format!("--trace {}: {e}", path.display()))?;
+    }
+    if a.json {
+        serde_json::to_string_pretty(&hartkit::sim::report_json(&cfg, &report, wall))
+            .map_err(|e| e.to_string())
+    } else {
+        Ok(hartkit::sim::report_text(&cfg, &report, wall))
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Top::Frame(FrameCmd::Decode { hex, json }) => decode(hex, *json),
         Top::Frame(FrameCmd::Encode(a)) => encode(a),
+        Top::Sim(SimCmd::Bench(a)) => sim_bench(a),
     };
     match result {
         Ok(text) => {
-            println!("{text}");
+            // A closed pipe (e.g. `| head`) is not an error worth a message.
+            use std::io::Write as _;
+            let _ = writeln!(std::io::stdout(), "{text}");
             ExitCode::SUCCESS
         }
         Err(e) => {
