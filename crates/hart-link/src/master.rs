@@ -387,35 +387,32 @@ impl Master {
             }
         }
         let profile = *self.line.profile();
-        match self.state {
-            State::AwaitReply { sent } => {
-                let started = self.line.last().1 > sent || self.line.busy(now);
-                if !started && now >= sent + profile.sto {
-                    // No reply started within STO: retry at once, the line is still ours.
-                    self.attempt_failed(now, now);
-                } else if started && !self.line.busy(now) {
-                    // Something arrived and ended, but not our reply (a good reply ends
-                    // the wait in `frame`): damaged, noise or a stranger's frame.
+        if let State::AwaitReply { sent } = self.state {
+            let started = self.line.last().1 > sent || self.line.busy(now);
+            if !started && now >= sent + profile.sto {
+                // No reply started within STO: retry at once, the line is still ours.
+                self.attempt_failed(now, now);
+            } else if started && !self.line.busy(now) {
+                // Something arrived and ended, but not our reply (a good reply ends
+                // the wait in `frame`): damaged, noise or a stranger's frame.
+                let p = self.pending.as_mut()?;
+                if p.last_error == 0 {
+                    p.last_error = 0x80;
+                }
+                let end = self.line.last().1;
+                self.attempt_failed(now, end + profile.hold);
+            }
+        }
+        if let State::WaitLine { .. } = self.state {
+            if let Some(at) = self.earliest_start() {
+                if now >= at && !self.line.busy(now) {
                     let p = self.pending.as_mut()?;
-                    if p.last_error == 0 {
-                        p.last_error = 0x80;
-                    }
-                    let end = self.line.last().1;
-                    self.attempt_failed(now, end + profile.hold);
+                    p.attempts += 1;
+                    self.state = State::Sending;
+                    let (frame, preambles) = (p.frame.clone(), p.preambles);
+                    return Some(MasterOutput::Transmit(frame, preambles));
                 }
             }
-            State::WaitLine { .. } => {
-                if let Some(at) = self.earliest_start() {
-                    if now >= at && !self.line.busy(now) {
-                        let p = self.pending.as_mut()?;
-                        p.attempts += 1;
-                        self.state = State::Sending;
-                        let (frame, preambles) = (p.frame.clone(), p.preambles);
-                        return Some(MasterOutput::Transmit(frame, preambles));
-                    }
-                }
-            }
-            State::Idle | State::Sending => {}
         }
         self.pop()
     }

@@ -346,9 +346,11 @@ impl Slave {
                 self.line.sent(LastFrame::Back { to }, now);
                 self.burst_to = to.other();
                 if let Some(b) = self.burst {
+                    // Keep the cadence (a BACK waits for a slot, so it is sent a little
+                    // after it is due), but never fall more than one period behind.
                     self.burst_due += b.period;
-                    if self.burst_due < now {
-                        self.burst_due = now;
+                    if self.burst_due <= now {
+                        self.burst_due = now + b.period;
                     }
                 }
             } else {
