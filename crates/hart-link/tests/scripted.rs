@@ -166,7 +166,7 @@ fn never_transmits_while_characters_arrive() {
     let mut m = Master::new(MasterKind::Primary, P, RetryPolicy::default(), 0);
     m.request(&cmd1_request(), 0).unwrap();
     // A stranger's frame is on the line when RT1 would expire.
-    let stranger = frame(FrameSpec::request(Address::short(4), 0, &[]).clone());
+    let stranger = frame(FrameSpec::request(Address::short(4), 0, &[]));
     let start = P.rt1_primary - 3 * CT;
     for (i, &b) in stranger.iter().enumerate() {
         let t = start + i as Micros * CT;
@@ -194,7 +194,7 @@ fn busy_and_delayed_responses_repeat_the_request() {
     let mut m = Master::new(MasterKind::Primary, P, policy, 0);
     m.request(&cmd1_request(), 0).unwrap();
     let mut t = P.rt1_primary;
-    let mut answer = |m: &mut Master, t: &mut Micros, rc: u8| -> Micros {
+    let answer = |m: &mut Master, t: &mut Micros, rc: u8| -> Micros {
         let tx = transmit_at(m, *t).expect("request");
         let sent = *t + tx.len() as Micros * CT;
         m.transmitted(sent);
