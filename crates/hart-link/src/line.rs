@@ -41,6 +41,7 @@ pub struct LineMonitor {
     last_char: Option<Micros>,
     last: LastFrame,
     last_end: Micros,
+    carrier: bool,
 }
 
 impl LineMonitor {
@@ -52,6 +53,7 @@ impl LineMonitor {
             last_char: None,
             last: LastFrame::None,
             last_end: now,
+            carrier: false,
         }
     }
 
@@ -73,6 +75,13 @@ impl LineMonitor {
         self.last_char = None;
     }
 
+    /// Records the modem's carrier-detect line (for modems that have one, and in the
+    /// simulation). While it is on the line is busy, even before the first character
+    /// has been received.
+    pub fn set_carrier(&mut self, on: bool) {
+        self.carrier = on;
+    }
+
     /// True while characters are arriving: a frame is being received, or the last
     /// character ended less than two character times ago (the next one may still come:
     /// one character of silence inside a frame is allowed).
@@ -86,7 +95,7 @@ impl LineMonitor {
     /// The earliest time the line counts as quiet (absent new characters); `None` while
     /// a frame is being received.
     pub fn quiet_from(&self) -> Option<Micros> {
-        if self.deframer.in_frame() {
+        if self.carrier || self.deframer.in_frame() {
             None
         } else {
             Some(self.last_char.map_or(0, |t| t + 2 * self.profile.char_time))

@@ -223,6 +223,13 @@ impl Master {
         Ok(())
     }
 
+    /// The carrier-detect line changed (optional: stations also work from received
+    /// characters alone, but carrier detect lets a reply that starts just before STO
+    /// count as started).
+    pub fn carrier(&mut self, on: bool) {
+        self.line.set_carrier(on);
+    }
+
     /// Feeds a character that finished arriving at `now`.
     pub fn receive(&mut self, byte: u8, flags: UartFlags, now: Micros) {
         let mut got: Option<(FrameBuf, FrameType, Address, Option<u8>)> = None;

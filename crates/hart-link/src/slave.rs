@@ -186,6 +186,13 @@ impl Slave {
         self.config.polling_address = polling_address & 0x3F;
     }
 
+    /// The carrier-detect line changed (optional: stations also work from received
+    /// characters alone, but carrier detect lets a reply that starts just before STO
+    /// count as started).
+    pub fn carrier(&mut self, on: bool) {
+        self.line.set_carrier(on);
+    }
+
     /// Feeds a character that finished arriving at `now`.
     pub fn receive(&mut self, byte: u8, flags: UartFlags, now: Micros, handler: &mut impl Handler) {
         let Slave {

@@ -397,6 +397,12 @@ impl<'a> Sim<'a> {
     }
 
     fn finished(&mut self, tx: Tx, now: Micros) {
+        if self.txs.is_empty() {
+            for st in &mut self.stations {
+                set_carrier(st, false);
+                st.dirty = true;
+            }
+        }
         let st = &mut self.stations[tx.src];
         st.dirty = true;
         let collided = !tx.overlaps.is_empty();
@@ -461,6 +467,13 @@ impl<'a> Sim<'a> {
         }
         self.carrier_until = self.carrier_until.max(end);
         self.txs.push(tx);
+        // Carrier detect: every other station hears the carrier from the first bit.
+        for (k, st) in self.stations.iter_mut().enumerate() {
+            if k != src {
+                set_carrier(st, true);
+                st.dirty = true;
+            }
+        }
     }
 
     fn poll_stations(&mut self, now: Micros) {
@@ -617,6 +630,13 @@ pub fn required_gap(p: &TimingProfile, prev: FrameKind, next: FrameKind) -> Micr
         (Ack(_), Back(_)) => p.hold,
         (Back(to), Stx(from)) if to == from => p.hold,
         _ => 0,
+    }
+}
+
+fn set_carrier(st: &mut Station, on: bool) {
+    match &mut st.kind {
+        Kind::Master(m) => m.m.carrier(on),
+        Kind::Slave(s) => s.s.carrier(on),
     }
 }
 
