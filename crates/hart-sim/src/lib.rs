@@ -504,30 +504,35 @@ impl<'a> Sim<'a> {
         let mut replies: Vec<Vec<u8>> = vec![];
         match &mut self.stations[i].kind {
             Kind::Master(ms) => {
-                if !ms.m.is_busy() {
-                    next_request(ms, now);
-                }
-                while let Some(out) = ms.m.poll(now) {
-                    match out {
-                        MasterOutput::Transmit(frame, preambles) => {
-                            let mut buf = vec![0xFF; preambles];
-                            buf.extend_from_slice(frame.as_slice());
-                            to_send = Some(buf);
-                            break;
-                        }
-                        MasterOutput::Done(result) => {
-                            let reply = result.ok();
-                            if let Some(r) = &reply {
-                                ms.completed += 1;
-                                replies.push(r.as_slice().to_vec());
-                            } else if matches!(ms.phase, Phase::Poll(_)) {
-                                // An empty polling address during the scan is no failure.
-                                ms.failed += 1;
+                // Outcomes first (they advance the script), then the next request, then
+                // whatever the master wants to send now.
+                'outer: for _ in 0..2 {
+                    while let Some(out) = ms.m.poll(now) {
+                        match out {
+                            MasterOutput::Transmit(frame, preambles) => {
+                                let mut buf = vec![0xFF; preambles];
+                                buf.extend_from_slice(frame.as_slice());
+                                to_send = Some(buf);
+                                break 'outer;
                             }
-                            request_done(ms, reply.as_ref().map(|r| r.as_slice()), now);
+                            MasterOutput::Done(result) => {
+                                let reply = result.ok();
+                                if let Some(r) = &reply {
+                                    ms.completed += 1;
+                                    replies.push(r.as_slice().to_vec());
+                                } else if matches!(ms.phase, Phase::Poll(_)) {
+                                    // An empty polling address during the scan is no failure.
+                                    ms.failed += 1;
+                                }
+                                request_done(ms, reply.as_ref().map(|r| r.as_slice()), now);
+                            }
+                            MasterOutput::Burst(_) => {}
                         }
-                        MasterOutput::Burst(_) => {}
                     }
+                    if ms.m.is_busy() {
+                        break;
+                    }
+                    next_request(ms, now);
                 }
             }
             Kind::Slave(ss) => {

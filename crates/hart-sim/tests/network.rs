@@ -250,5 +250,6 @@ proptest! {
         prop_assert_eq!(r.collisions, 0);
         prop_assert_eq!(r.wrong_data, 0);
         prop_assert_eq!(r.failed, 0);
+        prop_assert_eq!(r.devices_found, u64::from(devices));
     }
 }

@@ -248,3 +248,80 @@ fn encode_examples() {
         "FF FF 02 85 00 00 87"
     );
 }
+
+#[test]
+fn sim_bench_json_contract_and_trace() {
+    let trace = std::env::temp_dir().join(format!("hartkit-trace-{}.jsonl", std::process::id()));
+    let (code, out, err) = hartkit(&[
+        "sim",
+        "bench",
+        "--devices",
+        "3",
+        "--secondary",
+        "--burst",
+        "--duration",
+        "60",
+        "--json",
+        "--trace",
+        trace.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    for key in [
+        "virtual_seconds",
+        "wall_seconds",
+        "burst_frames",
+        "failed",
+        "retries",
+        "collisions",
+        "wrong_data",
+        "line_utilization",
+        "theoretical_transactions_per_s",
+        "efficiency",
+    ] {
+        assert!(
+            v.get(key).is_some_and(|x| x.is_number()),
+            "{key} missing in {v}"
+        );
+    }
+    assert!(v["transactions"]["primary"].as_u64().unwrap() > 10);
+    assert!(v["transactions"]["secondary"].as_u64().unwrap() > 5);
+    assert_eq!(v["virtual_seconds"], 60.0);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let _ = std::fs::remove_file(&trace);
+    let lines: Vec<Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(lines.len() > 50);
+    for l in &lines {
+        assert!(l["t0_us"].as_u64().unwrap() < l["t1_us"].as_u64().unwrap());
+        let src = l["src"].as_str().unwrap();
+        assert!(
+            src == "primary" || src == "secondary" || src.starts_with("dev:"),
+            "{src}"
+        );
+        assert!(l["hex"].as_str().unwrap().starts_with("FFFFFFFFFF"));
+        assert_eq!(l["collided"], false);
+    }
+    assert!(
+        lines
+            .iter()
+            .any(|l| l["src"] == "dev:1" && l["hex"].as_str().unwrap()[10..12] == *"81"),
+        "a BACK from the burst device"
+    );
+}
+
+#[test]
+fn sim_bench_rejects_bad_options() {
+    for (args, needle) in [
+        (vec!["sim", "bench", "--phy", "rs485:abc"], "baud"),
+        (vec!["sim", "bench", "--phy", "modem"], "expected fsk"),
+        (vec!["sim", "bench", "--ber", "0.9"], "bit error rate"),
+        (vec!["sim", "bench", "--duration", "0"], "--duration"),
+    ] {
+        let (code, _, err) = hartkit(&args);
+        assert_eq!(code, 2, "{args:?}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}
