@@ -513,14 +513,5 @@ impl Master {
     }
 }
 
-/// Bytes of a transmission: `preambles` × 0xFF then the PDU.
-pub fn with_preambles(frame: &FrameBuf, preambles: usize, out: &mut [u8]) -> usize {
-    let n = (preambles + frame.as_slice().len()).min(out.len());
-    let pre = preambles.min(n);
-    out[..pre].fill(0xFF);
-    out[pre..n].copy_from_slice(&frame.as_slice()[..n - pre]);
-    n
-}
-
 /// Largest transmission: 30 preambles plus the largest PDU.
 pub const MAX_TX_LEN: usize = 30 + MAX_PDU_LEN;
