@@ -10,11 +10,11 @@ use libfuzzer_sys::fuzz_target;
 
 struct Any;
 impl Handler for Any {
-    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply) -> bool {
+    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply, _now: u64) -> bool {
         reply.set_data(request.data);
         request.command != 11
     }
-    fn burst(&mut self, reply: &mut Reply) -> u16 {
+    fn burst(&mut self, reply: &mut Reply, _now: u64) -> u16 {
         reply.set_data(&[1, 2, 3]);
         3
     }

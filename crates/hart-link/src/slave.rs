@@ -66,12 +66,12 @@ impl Reply {
 
 /// The application behind a slave.
 pub trait Handler {
-    /// A request addressed to this device arrived intact. Fill `reply` and return
-    /// `true`, or return `false` to stay silent (e.g. command 11 with another tag).
-    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply) -> bool;
-    /// A burst frame is about to be sent: fill `reply` with the published command's
-    /// reply and return its command number.
-    fn burst(&mut self, reply: &mut Reply) -> u16;
+    /// A request addressed to this device arrived intact at `now`. Fill `reply` and
+    /// return `true`, or return `false` to stay silent (e.g. command 11 with another tag).
+    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply, now: Micros) -> bool;
+    /// A burst frame is about to be sent at `now`: fill `reply` with the published
+    /// command's reply and return its command number.
+    fn burst(&mut self, reply: &mut Reply, now: Micros) -> u16;
     /// The field device status to put in communication-error replies.
     fn device_status(&self) -> u8 {
         0
@@ -142,8 +142,9 @@ pub struct Slave {
     tx: [u8; MAX_TX_LEN],
     tx_len: usize,
     tx_to: MasterKind,
-    burst: Option<BurstConfig>,
-    burst_due: Micros,
+    burst_mode: bool,
+    burst_period: Option<Micros>,
+    burst_due: Option<Micros>,
     burst_to: MasterKind,
     stats: SlaveStats,
 }
@@ -158,8 +159,9 @@ impl Slave {
             tx: [0; MAX_TX_LEN],
             tx_len: 0,
             tx_to: MasterKind::Primary,
-            burst: None,
-            burst_due: now,
+            burst_mode: false,
+            burst_period: None,
+            burst_due: None,
             burst_to: MasterKind::Primary,
             stats: SlaveStats::default(),
         }
@@ -175,10 +177,29 @@ impl Slave {
         self.stats
     }
 
-    /// Turns burst mode on (first BACK due at `first_due`) or off.
+    /// Turns periodic burst mode on (first BACK due at `first_due`, then every period)
+    /// or off.
     pub fn set_burst(&mut self, burst: Option<BurstConfig>, first_due: Micros) {
-        self.burst = burst;
-        self.burst_due = first_due;
+        self.burst_mode = burst.is_some();
+        self.burst_period = burst.map(|b| b.period);
+        self.burst_due = burst.map(|_| first_due);
+    }
+
+    /// Burst mode driven by the application: `mode` sets the burst bit in replies;
+    /// [`Slave::set_burst_due`] says when the next BACK is wanted.
+    pub fn set_burst_mode(&mut self, mode: bool) {
+        self.burst_mode = mode;
+        self.burst_period = None;
+        if !mode {
+            self.burst_due = None;
+        }
+    }
+
+    /// When the application wants to publish next (`None`: nothing due). After a BACK
+    /// goes out the slave forgets it until told again, unless a period was set with
+    /// [`Slave::set_burst`].
+    pub fn set_burst_due(&mut self, due: Option<Micros>) {
+        self.burst_due = if self.burst_mode { due } else { None };
     }
 
     /// Changes the polling address.
@@ -201,11 +222,11 @@ impl Slave {
             tx,
             tx_len,
             tx_to,
-            burst,
+            burst_mode,
             stats,
             ..
         } = self;
-        let bursting = burst.is_some();
+        let bursting = *burst_mode;
         let mut ready = false;
         line.receive(byte, flags, now, &mut |e, _| {
             // (address, command, extended, status, data) of the reply to build.
@@ -216,7 +237,7 @@ impl Slave {
                         && is_me(config, &f.address, f.command_byte) =>
                 {
                     stats.requests += 1;
-                    if !handler.request(f, &mut reply) {
+                    if !handler.request(f, &mut reply, now) {
                         return;
                     }
                     (
@@ -273,8 +294,8 @@ impl Slave {
     /// When the next burst frame may go out, if burst mode is on and nothing else is
     /// pending.
     fn burst_start(&self) -> Option<Micros> {
-        self.burst?;
-        if self.state != State::Idle {
+        let due = self.burst_due?;
+        if !self.burst_mode || self.state != State::Idle {
             return None;
         }
         let p = self.line.profile();
@@ -289,8 +310,8 @@ impl Slave {
         };
         let fallback = e + p.rt1_secondary + p.hold;
         let at = match slot {
-            Some(s) if self.burst_due <= s => s,
-            _ => fallback.max(self.burst_due),
+            Some(s) if due <= s => s,
+            _ => fallback.max(due),
         };
         Some(at.max(self.line.quiet_from()?))
     }
@@ -302,7 +323,7 @@ impl Slave {
         if let Some(at) = self.burst_start() {
             if now >= at && !self.line.busy(now) {
                 let mut reply = Reply::default();
-                let command = handler.burst(&mut reply);
+                let command = handler.burst(&mut reply, now);
                 let to = self.burst_to;
                 let address = Address::Long(hart_proto::frame::LongAddress {
                     master: to,
@@ -352,14 +373,16 @@ impl Slave {
                 self.stats.bursts += 1;
                 self.line.sent(LastFrame::Back { to }, now);
                 self.burst_to = to.other();
-                if let Some(b) = self.burst {
+                self.burst_due = match (self.burst_period, self.burst_due) {
                     // Keep the cadence (a BACK waits for a slot, so it is sent a little
                     // after it is due), but never fall more than one period behind.
-                    self.burst_due += b.period;
-                    if self.burst_due <= now {
-                        self.burst_due = now + b.period;
-                    }
-                }
+                    (Some(period), Some(due)) => Some(if due + period <= now {
+                        now + period
+                    } else {
+                        due + period
+                    }),
+                    _ => None,
+                };
             } else {
                 self.stats.replies += 1;
                 self.line.sent(LastFrame::Ack { to }, now);

@@ -275,7 +275,7 @@ struct Echo {
 }
 
 impl Handler for Echo {
-    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply) -> bool {
+    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply, _now: u64) -> bool {
         self.requests.push(request.command);
         if request.command == 11 {
             return request.data == [0x41, 0x4B, 0x71, 0xC3, 0x18, 0x20];
@@ -283,7 +283,7 @@ impl Handler for Echo {
         reply.set_data(&[request.command as u8]);
         true
     }
-    fn burst(&mut self, reply: &mut Reply) -> u16 {
+    fn burst(&mut self, reply: &mut Reply, _now: u64) -> u16 {
         reply.set_data(&[6, 0x41, 0x48, 0, 0]);
         1
     }

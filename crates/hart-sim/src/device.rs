@@ -186,12 +186,12 @@ fn format_tag(poll: u8, out: &mut [u8; 8]) -> usize {
 }
 
 impl Handler for SimpleDevice {
-    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply) -> bool {
+    fn request(&mut self, request: &Frame<'_>, reply: &mut Reply, _now: u64) -> bool {
         self.served += 1;
         self.respond(request.command, request.data, reply)
     }
 
-    fn burst(&mut self, reply: &mut Reply) -> u16 {
+    fn burst(&mut self, reply: &mut Reply, _now: u64) -> u16 {
         self.served += 1;
         let command = self.burst_command;
         self.respond(command, &[0], reply);
