@@ -202,6 +202,11 @@ impl Slave {
         self.burst_due = if self.burst_mode { due } else { None };
     }
 
+    /// Changes the number of preambles in replies.
+    pub fn set_response_preambles(&mut self, n: usize) {
+        self.config.response_preambles = n;
+    }
+
     /// Changes the polling address.
     pub fn set_polling_address(&mut self, polling_address: u8) {
         self.config.polling_address = polling_address & 0x3F;
@@ -306,6 +311,9 @@ impl Slave {
             LastFrame::Ack { .. } => Some(e + p.hold),
             LastFrame::Stx { from, to } if !is_me(&self.config, &to, 0) => Some(e + p.rt1(from)),
             LastFrame::Stx { .. } => None,
+            // After its own BACK the granted master has RT2 to start; if it does not,
+            // the burst device may go on (two characters later, to hear a late start).
+            LastFrame::Back { .. } => Some(e + p.rt2 + p.chars(2)),
             _ => None,
         };
         let fallback = e + p.rt1_secondary + p.hold;
