@@ -5,6 +5,7 @@
 pub mod annotate;
 pub mod hex;
 pub mod json;
+pub mod serve;
 pub mod sim;
 
 use hart_proto::frame::{Frame, FrameType};

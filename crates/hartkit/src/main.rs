@@ -31,6 +31,39 @@ enum SimCmd {
     /// Run a simulated network (discovery, then round-robin polling) and report
     /// throughput, failures, collisions and efficiency.
     Bench(BenchArgs),
+    /// Run simulated field devices on a serial port or a pseudo-terminal, in real time.
+    Serve(ServeArgs),
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    /// Create a pseudo-terminal pair; the first line printed is `pty: /dev/pts/N`, the
+    /// path a host opens.
+    #[arg(long, conflicts_with = "serial", required_unless_present = "serial")]
+    pty: bool,
+    /// Serial port of a HART modem (1200 bit/s 8O1 unless --baud says otherwise).
+    #[arg(long, value_name = "PATH")]
+    serial: Option<std::path::PathBuf>,
+    /// Baud rate of the serial port.
+    #[arg(long, default_value_t = 1200)]
+    baud: u32,
+    /// Device profile: pressure, temperature, valve, or a profile file (TOML).
+    /// Repeat for several devices (multidrop).
+    #[arg(long = "profile", value_name = "NAME|FILE", default_value = "pressure")]
+    profiles: Vec<String>,
+    /// Polling address of each device, in the order of --profile (default 0, 1, 2...).
+    #[arg(long = "poll", value_name = "N", value_parser = clap::value_parser!(u8).range(0..=63))]
+    polls: Vec<u8>,
+    /// Keep each device's configuration in DIR/device-NN.toml (NN = its --poll), so it
+    /// survives restarts.
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<std::path::PathBuf>,
+    /// Set the write-protect jumper of every device.
+    #[arg(long)]
+    write_protect: bool,
+    /// Stop after this many seconds (default: run until killed).
+    #[arg(long, value_name = "SECONDS")]
+    run_for: Option<f64>,
 }
 
 #[derive(Args)]
@@ -247,18 +280,68 @@ fn sim_bench(a: &BenchArgs) -> Result<String, String> {
     }
 }
 
+fn sim_serve(a: &ServeArgs) -> Result<String, String> {
+    use hartkit::serve::{DeviceSpec, Port, ServeOptions};
+    if a.polls.len() > a.profiles.len() {
+        return Err(format!(
+            "{} --poll given for {} --profile; give one --profile per device",
+            a.polls.len(),
+            a.profiles.len()
+        ));
+    }
+    let devices: Vec<DeviceSpec> = a
+        .profiles
+        .iter()
+        .enumerate()
+        .map(|(i, p)| DeviceSpec {
+            profile: p.clone(),
+            poll: a.polls.get(i).copied().unwrap_or(i as u8),
+        })
+        .collect();
+    let mut seen = std::collections::HashSet::new();
+    for d in &devices {
+        if !seen.insert(d.poll) {
+            return Err(format!(
+                "--poll {}: two devices at one polling address",
+                d.poll
+            ));
+        }
+    }
+    let port = match &a.serial {
+        Some(path) => Port::Serial(path.clone(), a.baud),
+        None => Port::Pty,
+    };
+    let opts = ServeOptions {
+        port,
+        devices,
+        state_dir: a.state_dir.clone(),
+        write_protect: a.write_protect,
+        run_for: a.run_for.map(std::time::Duration::from_secs_f64),
+    };
+    hartkit::serve::serve(&opts, |line| {
+        use std::io::Write as _;
+        let mut out = std::io::stdout();
+        let _ = writeln!(out, "{line}");
+        let _ = out.flush();
+    })?;
+    Ok(String::new())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Top::Frame(FrameCmd::Decode { hex, json }) => decode(hex, *json),
         Top::Frame(FrameCmd::Encode(a)) => encode(a),
         Top::Sim(SimCmd::Bench(a)) => sim_bench(a),
+        Top::Sim(SimCmd::Serve(a)) => sim_serve(a).map(|_| String::new()),
     };
     match result {
         Ok(text) => {
             // A closed pipe (e.g. `| head`) is not an error worth a message.
             use std::io::Write as _;
-            let _ = writeln!(std::io::stdout(), "{text}");
+            if !text.is_empty() {
+                let _ = writeln!(std::io::stdout(), "{text}");
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {
