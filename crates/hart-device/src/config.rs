@@ -342,6 +342,9 @@ pub struct DeviceConfig {
     pub valve: Valve,
     /// Physical layer.
     pub phy: Phy,
+    /// Refuse configuration changes from the secondary master ("access restricted"),
+    /// as a device locked for the control system.
+    pub restrict_secondary_writes: bool,
 }
 
 impl Default for DeviceConfig {
@@ -376,6 +379,7 @@ impl Default for DeviceConfig {
             commands: vec![],
             valve: Valve::default(),
             phy: Phy::Fsk,
+            restrict_secondary_writes: false,
         }
     }
 }

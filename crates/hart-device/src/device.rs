@@ -26,7 +26,7 @@ pub const ALARM_HIGH: f32 = 21.75;
 /// Alarm current for "low" alarm selection, mA.
 pub const ALARM_LOW: f32 = 3.6;
 /// How long the delayed response of command 41 (self test) takes.
-pub const SELF_TEST_DURATION: Micros = 2_000_000;
+pub const SELF_TEST_DURATION: Micros = 5_000_000;
 /// How long a finished delayed response is kept for the master to collect it.
 pub const DELAYED_RESULT_KEPT: Micros = 30_000_000;
 
@@ -564,8 +564,21 @@ impl Device {
             }
             _ => {}
         }
-        if info.is_some_and(|i| i.writes) && self.write_protect && command != 38 {
+        let writes = info.is_some_and(|i| i.writes) && command != 38;
+        if writes && self.write_protect {
             return err(rc::WRITE_PROTECTED);
+        }
+        if writes && master == MasterKind::Secondary && self.cfg.restrict_secondary_writes {
+            return err(rc::ACCESS_RESTRICTED);
+        }
+        // While the self test runs the device cannot take configuration changes.
+        if writes
+            && self
+                .delayed
+                .as_ref()
+                .is_some_and(|d| d.command == 41 && !d.dead && now < d.done_at)
+        {
+            return err(rc::BUSY);
         }
         let Some(request) = request else {
             return self.custom(command, data);

@@ -596,10 +596,19 @@ fn unknown_and_extended_commands() {
 fn cmd41_delayed_response_33_34_0_36_35() {
     let mut h = Host::profile("pressure");
     assert_eq!(h.ask(41, &[]).rc, 33, "delayed response initiated");
-    assert_ne!(h.ask(48, &[]).data[0] & 0x01, 0, "self test running");
+    assert_eq!(
+        h.ask(19, &[0, 0, 1]).rc,
+        32,
+        "busy: no configuration changes during the self test"
+    );
+    assert_ne!(
+        h.ask(48, &[]).data[0] & 0x01,
+        0,
+        "self test running; reads go on"
+    );
     assert_eq!(h.ask(41, &[]).rc, 34, "running");
     assert_eq!(h.ask(41, &[1]).rc, 36, "a different request conflicts");
-    h.wait(2_000_000);
+    h.wait(hart_device::device::SELF_TEST_DURATION);
     assert_eq!(h.ask(41, &[]).rc, SUCCESS, "done");
     assert_eq!(h.ask(41, &[]).rc, 33, "a new self test");
     h.ask(42, &[]);
@@ -888,4 +897,16 @@ fn user_profile_with_a_fixed_device_specific_command() {
         hart_device::DeviceConfig::from_toml("no_such_key = 1").is_err(),
         "typos in profiles are errors"
     );
+}
+
+#[test]
+fn access_restricted_for_the_secondary_master() {
+    let mut c = hart_device::profiles::load("pressure").unwrap();
+    c.restrict_secondary_writes = true;
+    let mut h = Host::new(c);
+    h.master = MasterKind::Secondary;
+    assert_eq!(h.ask(19, &[0, 0, 1]).rc, 16, "access restricted");
+    assert_eq!(h.ask(16, &[]).rc, SUCCESS);
+    h.master = MasterKind::Primary;
+    assert_eq!(h.ask(19, &[0, 0, 1]).rc, SUCCESS);
 }
