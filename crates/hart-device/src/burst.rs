@@ -141,8 +141,9 @@ impl Device {
                 let (min, _) = periods(self.config(), m);
                 let due = self.message_due(m, now)?;
                 let last = self.burst_runtime_ref(m).last_publish.unwrap_or(now);
-                // Look again as soon as the minimum period allows a publication.
-                Some(due.min((last + min).max(now + 50_000)))
+                // A message already due is the slave's business (it waits for a slot);
+                // otherwise look again as soon as the minimum period allows one.
+                (due > now).then(|| due.min((last + min).max(now + 50_000)))
             })
             .min()
     }
@@ -155,15 +156,24 @@ impl Device {
 /// Builds the BACK content of the message due first and records its publication.
 pub fn publish(device: &mut Device, reply: &mut Reply, now: Micros) -> u16 {
     device.tick(now);
-    let m = (0..device.config().burst.len())
+    let (due, m) = (0..device.config().burst.len())
         .filter_map(|m| device.burst_message_due(m, now).map(|d| (d, m)))
         .min()
-        .map_or(0, |(_, m)| m);
+        .unwrap_or((now, 0));
+    // Keep the cadence: a BACK waits for a slot on the line, so it goes out a little
+    // after it was due; count the period from when it was due (never more than one
+    // period back).
+    let (min, _) = periods(device.config(), m);
+    let published = if due <= now && due + min > now {
+        due
+    } else {
+        now
+    };
     let (command, data) = device.burst_data(m, now);
     let value = device.trigger_value(m).map(|x| x.0);
     let status = device.device_status(MasterKind::Primary);
     let rt = &mut device.burst_runtime()[m];
-    rt.last_publish = Some(now);
+    rt.last_publish = Some(published);
     rt.last_value = value;
     rt.last_status = Some(status);
     device.count_back();

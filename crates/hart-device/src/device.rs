@@ -27,6 +27,8 @@ pub const ALARM_HIGH: f32 = 21.75;
 pub const ALARM_LOW: f32 = 3.6;
 /// How long the delayed response of command 41 (self test) takes.
 pub const SELF_TEST_DURATION: Micros = 5_000_000;
+/// Step of the process model.
+pub const TICK: Micros = 10_000;
 /// How long a finished delayed response is kept for the master to collect it.
 pub const DELAYED_RESULT_KEPT: Micros = 30_000_000;
 
@@ -271,7 +273,9 @@ impl Device {
     /// Advances the process model to `now`.
     pub fn tick(&mut self, now: Micros) {
         let last = self.last_tick.unwrap_or(now);
-        if now < last {
+        // The process model runs in steps of at least 10 ms (a real device's
+        // acquisition is slower still); finer calls cost time and change nothing.
+        if now < last || (self.last_tick.is_some() && now < last + TICK) {
             return;
         }
         let dt = (now - last) as f32 / 1e6;

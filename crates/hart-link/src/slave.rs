@@ -202,6 +202,11 @@ impl Slave {
         self.burst_due = if self.burst_mode { due } else { None };
     }
 
+    /// Changes the reply delay (`None`: HOLD).
+    pub fn set_reply_delay(&mut self, delay: Option<Micros>) {
+        self.config.reply_delay = delay;
+    }
+
     /// Changes the number of preambles in replies.
     pub fn set_response_preambles(&mut self, n: usize) {
         self.config.response_preambles = n;

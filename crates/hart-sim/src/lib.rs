@@ -57,6 +57,9 @@ pub struct SimConfig {
     pub trace: bool,
     /// Faults.
     pub faults: Faults,
+    /// Run full field devices of this profile (`hart-device`) instead of minimal
+    /// responders.
+    pub device_profile: Option<&'static str>,
 }
 
 impl Default for SimConfig {
@@ -72,6 +75,7 @@ impl Default for SimConfig {
             seed: 1,
             trace: false,
             faults: Faults::default(),
+            device_profile: None,
         }
     }
 }
@@ -166,9 +170,69 @@ struct MasterStation {
 }
 
 struct SlaveStation {
-    s: Slave,
-    dev: SimpleDevice,
+    link: SlaveLink,
+    poll: u8,
     last_reply: Vec<u8>,
+}
+
+/// A minimal responder behind its own slave, or a full field device (node).
+enum SlaveLink {
+    Simple(Box<(Slave, SimpleDevice)>),
+    Full(Box<hart_device::Node>),
+}
+
+impl SlaveStation {
+    fn unique_id(&self) -> UniqueId {
+        match &self.link {
+            SlaveLink::Simple(b) => b.1.unique_id(),
+            SlaveLink::Full(n) => n.device.unique_id(),
+        }
+    }
+
+    fn receive(&mut self, b: u8, flags: UartFlags, now: Micros) {
+        match &mut self.link {
+            SlaveLink::Simple(sd) => {
+                let (s, d) = &mut **sd;
+                s.receive(b, flags, now, d)
+            }
+            SlaveLink::Full(n) => n.receive(b, flags, now),
+        }
+    }
+
+    /// Bytes to send now, and whether they are a burst frame.
+    fn poll(&mut self, now: Micros) -> Option<(Vec<u8>, bool)> {
+        match &mut self.link {
+            SlaveLink::Simple(sd) => {
+                let (s, d) = &mut **sd;
+                s.poll(now, d).map(|t| (t.bytes.to_vec(), t.burst))
+            }
+            SlaveLink::Full(n) => n.poll(now).map(|b| {
+                let burst = Frame::parse(&b).is_ok_and(|f| f.frame_type() == FrameType::Back);
+                (b, burst)
+            }),
+        }
+    }
+
+    fn transmitted(&mut self, now: Micros) {
+        match &mut self.link {
+            SlaveLink::Simple(sd) => sd.0.transmitted(now),
+            SlaveLink::Full(n) => n.transmitted(now),
+        }
+    }
+
+    fn next_deadline(&self, now: Micros) -> Option<Micros> {
+        match &self.link {
+            SlaveLink::Simple(sd) => sd.0.next_deadline(),
+            SlaveLink::Full(n) => n.next_deadline(now),
+        }
+    }
+
+    fn carrier(&mut self, on: bool) {
+        match &mut self.link {
+            SlaveLink::Simple(sd) => sd.0.carrier(on),
+            SlaveLink::Full(n) => n.carrier(on),
+        }
+    }
 }
 
 enum Kind {
@@ -278,31 +342,57 @@ impl<'a> Sim<'a> {
             });
         }
         for poll in 1..=cfg.devices.min(63) {
-            let dev = SimpleDevice::new(poll);
             let reply_delay = cfg
                 .faults
                 .slow_device
                 .filter(|(a, _)| *a == poll)
                 .map(|(_, d)| d);
-            let mut s = Slave::new(
-                SlaveConfig {
-                    polling_address: poll,
-                    unique_id: dev.unique_id(),
-                    reply_delay,
-                    response_preambles: 5,
-                },
-                p,
-                0,
-            );
-            if poll == 1 {
-                if let Some(period) = cfg.burst_period {
-                    s.set_burst(Some(BurstConfig { period }), period);
+            let link = match cfg.device_profile {
+                None => {
+                    let dev = SimpleDevice::new(poll);
+                    let mut s = Slave::new(
+                        SlaveConfig {
+                            polling_address: poll,
+                            unique_id: dev.unique_id(),
+                            reply_delay,
+                            response_preambles: 5,
+                        },
+                        p,
+                        0,
+                    );
+                    if poll == 1 {
+                        if let Some(period) = cfg.burst_period {
+                            s.set_burst(Some(BurstConfig { period }), period);
+                        }
+                    }
+                    SlaveLink::Simple(Box::new((s, dev)))
                 }
-            }
+                Some(name) => {
+                    let mut c = hart_device::profiles::load(name).unwrap_or_default();
+                    c.polling_address = poll;
+                    c.identity.device_id =
+                        c.identity.device_id.wrapping_add(u32::from(poll)) & 0xFF_FFFF;
+                    if poll == 1 {
+                        if let Some(period) = cfg.burst_period {
+                            let b = &mut c.burst[0];
+                            b.command = 3;
+                            b.control = 1;
+                            b.trigger_mode = 0;
+                            b.update_period = (period * 32 / 1000) as u32;
+                            b.max_update_period = b.update_period;
+                        }
+                    }
+                    let mut node = hart_device::Node::new(hart_device::Device::new(c), p, 0);
+                    if let Some(d) = reply_delay {
+                        node.slave.set_reply_delay(Some(d));
+                    }
+                    SlaveLink::Full(Box::new(node))
+                }
+            };
             stations.push(Station {
                 kind: Kind::Slave(Box::new(SlaveStation {
-                    s,
-                    dev,
+                    link,
+                    poll,
                     last_reply: vec![],
                 })),
                 deadline: Some(0),
@@ -378,8 +468,8 @@ impl<'a> Sim<'a> {
                 match &mut st.kind {
                     Kind::Master(m) => m.m.receive(b, flags, now),
                     Kind::Slave(s) => {
-                        if !is_silent(self.cfg, s.dev.polling_address, now) {
-                            s.s.receive(b, flags, now, &mut s.dev)
+                        if !is_silent(self.cfg, s.poll, now) {
+                            s.receive(b, flags, now)
                         }
                     }
                 }
@@ -415,8 +505,8 @@ impl<'a> Sim<'a> {
                 m.role
             }
             Kind::Slave(s) => {
-                s.s.transmitted(now);
-                Source::Device(s.dev.polling_address)
+                s.transmitted(now);
+                Source::Device(s.poll)
             }
         };
         if let FrameKind::Back(to) = tx.kind {
@@ -487,7 +577,7 @@ impl<'a> Sim<'a> {
             let st = &mut self.stations[i];
             st.deadline = match &st.kind {
                 Kind::Master(m) => m.m.next_deadline(),
-                Kind::Slave(s) => s.s.next_deadline(),
+                Kind::Slave(s) => s.next_deadline(now),
             }
             .map(|d| d.max(now + 1));
             if let Kind::Master(m) = &st.kind {
@@ -536,13 +626,13 @@ impl<'a> Sim<'a> {
                 }
             }
             Kind::Slave(ss) => {
-                if !is_silent(cfg, ss.dev.polling_address, now) {
-                    if let Some(t) = ss.s.poll(now, &mut ss.dev) {
-                        if !t.burst {
-                            let pre = t.bytes.iter().take_while(|&&b| b == 0xFF).count();
-                            ss.last_reply = t.bytes[pre..].to_vec();
+                if !is_silent(cfg, ss.poll, now) {
+                    if let Some((bytes, burst)) = ss.poll(now) {
+                        if !burst {
+                            let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
+                            ss.last_reply = bytes[pre..].to_vec();
                         }
-                        to_send = Some(t.bytes.to_vec());
+                        to_send = Some(bytes);
                     }
                 }
             }
@@ -565,8 +655,8 @@ impl<'a> Sim<'a> {
         self.stations.iter().any(|st| match &st.kind {
             Kind::Slave(s) => {
                 let me = match f.address {
-                    Address::Short(a) => a.polling_address == s.dev.polling_address,
-                    Address::Long(a) => a.id == s.dev.unique_id(),
+                    Address::Short(a) => a.polling_address == s.poll,
+                    Address::Long(a) => a.id == s.unique_id(),
                 };
                 me && s.last_reply == pdu
             }
@@ -641,7 +731,7 @@ pub fn required_gap(p: &TimingProfile, prev: FrameKind, next: FrameKind) -> Micr
 fn set_carrier(st: &mut Station, on: bool) {
     match &mut st.kind {
         Kind::Master(m) => m.m.carrier(on),
-        Kind::Slave(s) => s.s.carrier(on),
+        Kind::Slave(s) => s.carrier(on),
     }
 }
 

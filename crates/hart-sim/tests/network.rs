@@ -227,6 +227,33 @@ fn every_physical_layer_runs_clean() {
     }
 }
 
+#[test]
+fn full_field_devices_drop_into_the_network() {
+    for profile in ["pressure", "temperature", "valve"] {
+        let cfg = SimConfig {
+            duration: 600_000_000,
+            secondary: true,
+            burst_period: Some(1_000_000),
+            device_profile: Some(profile),
+            trace: true,
+            ..SimConfig::default()
+        };
+        let r = run(&cfg);
+        assert_eq!(r.devices_found, 15, "{profile}");
+        assert_eq!(
+            (r.collisions, r.failed, r.wrong_data),
+            (0, 0, 0),
+            "{profile}"
+        );
+        assert!(
+            r.burst_frames > 500 && r.burst_alternates,
+            "{profile}: {} BACKs",
+            r.burst_frames
+        );
+        assert_listen_before_talk(&r, &cfg.profile);
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 

@@ -101,6 +101,10 @@ struct BenchArgs {
     /// Print one JSON object instead of the summary.
     #[arg(long)]
     json: bool,
+    /// Run full field devices of this built-in profile (pressure, temperature, valve)
+    /// instead of minimal responders.
+    #[arg(long, value_name = "NAME")]
+    profile: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -261,6 +265,18 @@ fn sim_bench(a: &BenchArgs) -> Result<String, String> {
         seed: a.seed,
         trace: a.trace.is_some(),
         faults: hart_sim::Faults::default(),
+        device_profile: match a.profile.as_deref() {
+            None => None,
+            Some(name) => Some(
+                hart_device::profiles::BUILTIN
+                    .iter()
+                    .find(|(n, _)| *n == name)
+                    .map(|(n, _)| *n)
+                    .ok_or_else(|| {
+                        format!("--profile {name}: expected pressure, temperature or valve")
+                    })?,
+            ),
+        },
     };
     let started = std::time::Instant::now();
     let report = hart_sim::run(&cfg);
