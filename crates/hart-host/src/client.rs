@@ -1,0 +1,444 @@
+//! The master client: the `hart-link` master state machine driven over a [`Transport`],
+//! with device discovery, typed and raw commands, automatic command 48, and a log of
+//! the raw traffic.
+
+use std::collections::VecDeque;
+
+use hart_link::master::{MasterOutput, RetryPolicy};
+use hart_link::{LinkError, Master, Micros};
+use hart_proto::command::Identity;
+use hart_proto::frame::{
+    Address, Frame, FrameSpec, LongAddress, MasterKind, ShortAddress, UniqueId,
+};
+use hart_proto::tables::{response_class, response_code_name, ResponseClass};
+use hart_proto::types::{Latin1String, PackedString};
+use hart_proto::wire::{Reader, Wire};
+
+use crate::error::HostError;
+use crate::transport::Transport;
+
+/// A reply from a device.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reply {
+    /// Response code (success or warning; errors are [`HostError::Device`]).
+    pub response_code: u8,
+    /// Field device status.
+    pub device_status: u8,
+    /// Data after the status bytes (and after any extended command number).
+    pub data: Vec<u8>,
+    /// The reply frame (delimiter through check byte).
+    pub pdu: Vec<u8>,
+    /// Command 48 data, read automatically when the device said "more status available".
+    pub additional_status: Option<Vec<u8>>,
+}
+
+/// How to reach a device.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DeviceRef {
+    /// By polling address (command 0 in a short frame finds its long address).
+    Poll(u8),
+    /// By tag (command 11, broadcast).
+    Tag(String),
+    /// By long tag (command 21, broadcast).
+    LongTag(String),
+    /// By unique ID (10 hex digits).
+    UniqueId(UniqueId),
+}
+
+impl core::fmt::Display for DeviceRef {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            DeviceRef::Poll(p) => write!(f, "polling address {p}"),
+            DeviceRef::Tag(t) => write!(f, "tag {t:?}"),
+            DeviceRef::LongTag(t) => write!(f, "long tag {t:?}"),
+            DeviceRef::UniqueId(id) => write!(f, "unique ID {id}"),
+        }
+    }
+}
+
+/// What the client knows about a device.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceInfo {
+    /// Polling address, when found by one.
+    pub polling_address: Option<u8>,
+    /// Command 0 identity.
+    pub identity: Identity,
+    /// Tag (command 13), when read.
+    pub tag: Option<String>,
+    /// Descriptor (command 13), when read.
+    pub descriptor: Option<String>,
+    /// Long tag (command 20, HART 6+), when read.
+    pub long_tag: Option<String>,
+}
+
+impl DeviceInfo {
+    /// Long-frame identifier.
+    pub fn unique_id(&self) -> UniqueId {
+        self.identity.unique_id()
+    }
+
+    /// HART universal revision.
+    pub fn revision(&self) -> u8 {
+        self.identity.universal_revision
+    }
+
+    /// Manufacturer ID: HART 7's 16-bit code, or byte 1 for HART 5/6.
+    pub fn manufacturer_id(&self) -> u16 {
+        self.identity
+            .manufacturer_id
+            .unwrap_or(self.identity.expanded_device_type >> 8)
+    }
+}
+
+/// Direction of a logged transfer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    /// Sent by this master.
+    Tx,
+    /// Received.
+    Rx,
+}
+
+/// One logged transfer of raw bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogEntry {
+    /// Transport time, µs.
+    pub time_us: Micros,
+    /// Direction.
+    pub direction: Direction,
+    /// The bytes.
+    pub bytes: Vec<u8>,
+}
+
+/// The master client.
+pub struct Client<T: Transport> {
+    transport: T,
+    master: Master,
+    kind: MasterKind,
+    policy: RetryPolicy,
+    /// Read command 48 automatically when a reply says "more status available".
+    pub auto_status: bool,
+    bursts: VecDeque<Vec<u8>>,
+    log: Option<Box<dyn FnMut(&LogEntry)>>,
+    known: Vec<DeviceInfo>,
+}
+
+impl<T: Transport> Client<T> {
+    /// A primary master on `transport`.
+    pub fn new(transport: T) -> Self {
+        Self::with_role(transport, MasterKind::Primary)
+    }
+
+    /// A primary or secondary master on `transport`.
+    pub fn with_role(transport: T, kind: MasterKind) -> Self {
+        let policy = RetryPolicy::default();
+        let master = Master::new(kind, transport.profile(), policy, transport.now());
+        Client {
+            transport,
+            master,
+            kind,
+            policy,
+            auto_status: true,
+            bursts: VecDeque::new(),
+            log: None,
+            known: vec![],
+        }
+    }
+
+    /// The transport.
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    /// The transport, mutable.
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
+    /// Calls `f` with every raw transfer.
+    pub fn set_log(&mut self, f: impl FnMut(&LogEntry) + 'static) {
+        self.log = Some(Box::new(f));
+    }
+
+    /// Replaces the retry policy.
+    pub fn set_policy(&mut self, policy: RetryPolicy) {
+        self.policy = policy;
+        self.master.set_policy(policy);
+    }
+
+    /// Burst frames (PDUs) heard so far and not yet taken.
+    pub fn take_bursts(&mut self) -> Vec<Vec<u8>> {
+        self.bursts.drain(..).collect()
+    }
+
+    fn log(&mut self, direction: Direction, bytes: &[u8], time_us: Micros) {
+        if let Some(f) = &mut self.log {
+            f(&LogEntry {
+                time_us,
+                direction,
+                bytes: bytes.to_vec(),
+            });
+        }
+    }
+
+    /// Listens to the line for `duration` µs (bursts and other masters' traffic).
+    pub async fn listen(&mut self, duration: Micros) -> Result<(), HostError> {
+        let end = self.transport.now() + duration;
+        while self.transport.now() < end {
+            let bytes = self.transport.recv(end).await?;
+            self.feed(&bytes);
+            while let Some(out) = self.master.poll(self.transport.now()) {
+                if let MasterOutput::Burst(f) = out {
+                    self.bursts.push_back(f.as_slice().to_vec());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn feed(&mut self, bytes: &[(u8, Micros)]) {
+        if bytes.is_empty() {
+            return;
+        }
+        let raw: Vec<u8> = bytes.iter().map(|b| b.0).collect();
+        self.log(Direction::Rx, &raw, bytes[bytes.len() - 1].1);
+        for &(b, at) in bytes {
+            self.master
+                .receive(b, hart_proto::deframer::UartFlags::OK, at);
+        }
+    }
+
+    /// One transaction with retries, busy and delayed-response handling (by the
+    /// data-link master); `what` names the target in errors.
+    async fn transact(
+        &mut self,
+        address: Address,
+        command: u16,
+        data: &[u8],
+        preambles: usize,
+        what: &str,
+    ) -> Result<Reply, HostError> {
+        let spec = FrameSpec {
+            preambles,
+            ..FrameSpec::request(address.with_master(self.kind), command, data)
+        };
+        self.master
+            .request(&spec, self.transport.now())
+            .map_err(|e| HostError::Usage(e.to_string()))?;
+        loop {
+            let now = self.transport.now();
+            while let Some(out) = self.master.poll(now) {
+                match out {
+                    MasterOutput::Transmit(frame, pre) => {
+                        let mut bytes = vec![0xFF; pre];
+                        bytes.extend_from_slice(frame.as_slice());
+                        self.log(Direction::Tx, &bytes, self.transport.now());
+                        self.transport.send(&bytes).await?;
+                        self.master.transmitted(self.transport.now());
+                    }
+                    MasterOutput::Done(Ok(fb)) => return self.finish(fb.as_slice(), command, what),
+                    MasterOutput::Done(Err(e)) => {
+                        let sto_ms = self.transport.profile().sto / 1000;
+                        let port = self.transport.describe();
+                        return Err(match e {
+                            LinkError::NoReply { attempts } => HostError::NoReply {
+                                target: what.to_string(),
+                                attempts,
+                                sto_ms,
+                                port,
+                            },
+                            LinkError::CommunicationError {
+                                attempts,
+                                last_error,
+                            } => HostError::Communication {
+                                target: what.to_string(),
+                                attempts,
+                                last_error,
+                            },
+                        });
+                    }
+                    MasterOutput::Burst(f) => self.bursts.push_back(f.as_slice().to_vec()),
+                }
+            }
+            let now = self.transport.now();
+            let deadline = self
+                .master
+                .next_deadline()
+                .unwrap_or(now + 50_000)
+                .clamp(now + 1, now + 200_000);
+            let bytes = self.transport.recv(deadline).await?;
+            self.feed(&bytes);
+        }
+    }
+
+    fn finish(&mut self, pdu: &[u8], command: u16, _what: &str) -> Result<Reply, HostError> {
+        let f = Frame::parse_pdu(pdu).map_err(|e| HostError::Decode(e.to_string()))?;
+        let rc = f.response_code.unwrap_or(0);
+        if response_class(rc) == ResponseClass::Error {
+            return Err(HostError::Device {
+                command,
+                code: rc,
+                name: response_code_name(command, rc)
+                    .unwrap_or("undefined response code")
+                    .to_string(),
+            });
+        }
+        Ok(Reply {
+            response_code: rc,
+            device_status: f.device_status.unwrap_or(0),
+            data: f.data.to_vec(),
+            pdu: pdu.to_vec(),
+            additional_status: None,
+        })
+    }
+
+    /// Identifies the device at polling address `poll` (command 0 in a short frame).
+    pub async fn identify(&mut self, poll: u8) -> Result<DeviceInfo, HostError> {
+        let what = format!("polling address {poll}");
+        let addr = Address::Short(ShortAddress {
+            master: self.kind,
+            burst: false,
+            polling_address: poll,
+        });
+        let r = self.transact(addr, 0, &[], 5, &what).await?;
+        let identity = Identity::decode(&mut Reader::new(&r.data))
+            .map_err(|e| HostError::Decode(format!("command 0 reply from {what}: {e}")))?;
+        let info = DeviceInfo {
+            polling_address: Some(poll),
+            identity,
+            tag: None,
+            descriptor: None,
+            long_tag: None,
+        };
+        self.remember(&info);
+        Ok(info)
+    }
+
+    fn remember(&mut self, info: &DeviceInfo) {
+        self.known.retain(|k| k.unique_id() != info.unique_id());
+        self.known.push(info.clone());
+    }
+
+    /// Finds a device: by polling address (command 0), tag (11), long tag (21), or a
+    /// unique ID (command 0 in a long frame).
+    pub async fn resolve(&mut self, r: &DeviceRef) -> Result<DeviceInfo, HostError> {
+        let broadcast = Address::Long(LongAddress {
+            master: self.kind,
+            burst: false,
+            id: UniqueId::BROADCAST,
+        });
+        let what = r.to_string();
+        let reply = match r {
+            DeviceRef::Poll(p) => return self.identify(*p).await,
+            DeviceRef::Tag(t) => {
+                let tag = PackedString::<6>::new(t)
+                    .map_err(|e| HostError::Usage(format!("tag {t:?}: {e}")))?;
+                self.transact(broadcast, 11, &tag.0, 5, &what).await
+            }
+            DeviceRef::LongTag(t) => {
+                let tag = Latin1String::<32>::new(t)
+                    .map_err(|e| HostError::Usage(format!("long tag {t:?}: {e}")))?;
+                self.transact(broadcast, 21, &tag.0, 5, &what).await
+            }
+            DeviceRef::UniqueId(id) => self.transact(Address::long(*id), 0, &[], 5, &what).await,
+        }
+        .map_err(|e| match e {
+            HostError::NoReply {
+                attempts,
+                sto_ms,
+                port,
+                ..
+            } => HostError::NoReply {
+                target: what.clone(),
+                attempts,
+                sto_ms,
+                port,
+            },
+            e => e,
+        })?;
+        let identity = Identity::decode(&mut Reader::new(&reply.data))
+            .map_err(|e| HostError::Decode(format!("identity reply from {what}: {e}")))?;
+        let info = DeviceInfo {
+            polling_address: None,
+            identity,
+            tag: None,
+            descriptor: None,
+            long_tag: None,
+        };
+        self.remember(&info);
+        Ok(info)
+    }
+
+    /// Sends `command` with `data` to a known device in a long frame, with the
+    /// device's preamble count; reads command 48 when the reply says more status is
+    /// available (and [`Client::auto_status`] is on).
+    pub async fn command(
+        &mut self,
+        device: &DeviceInfo,
+        command: u16,
+        data: &[u8],
+    ) -> Result<Reply, HostError> {
+        let what = match device.polling_address {
+            Some(p) => format!("polling address {p} (unique ID {})", device.unique_id()),
+            None => format!("unique ID {}", device.unique_id()),
+        };
+        let preambles = usize::from(device.identity.min_request_preambles).clamp(5, 20);
+        let addr = Address::long(device.unique_id());
+        let mut reply = self.transact(addr, command, data, preambles, &what).await?;
+        if self.auto_status && reply.device_status & 0x10 != 0 && command != 48 {
+            if let Ok(s) = self.transact(addr, 48, &[], preambles, &what).await {
+                reply.additional_status = Some(s.data);
+            }
+        }
+        Ok(reply)
+    }
+
+    /// Scans polling addresses (command 0 in short frames, one retry), then reads tag,
+    /// descriptor and (HART 6+) long tag of each device found in long frames.
+    pub async fn scan(
+        &mut self,
+        range: std::ops::RangeInclusive<u8>,
+        mut progress: impl FnMut(u8, Option<&DeviceInfo>),
+    ) -> Result<Vec<DeviceInfo>, HostError> {
+        let normal = self.policy;
+        self.master.set_policy(RetryPolicy {
+            retries: 1,
+            ..normal
+        });
+        let mut found = vec![];
+        for poll in range {
+            match self.identify(poll).await {
+                Ok(info) => {
+                    progress(poll, Some(&info));
+                    found.push(info);
+                }
+                Err(HostError::NoReply { .. }) | Err(HostError::Communication { .. }) => {
+                    progress(poll, None)
+                }
+                Err(e) => {
+                    self.master.set_policy(normal);
+                    return Err(e);
+                }
+            }
+        }
+        self.master.set_policy(normal);
+        for info in &mut found {
+            if let Ok(r) = self.command(info, 13, &[]).await {
+                if let Ok(t) =
+                    hart_proto::command::TagDescriptorDate::decode(&mut Reader::new(&r.data))
+                {
+                    info.tag = Some(t.tag.to_string());
+                    info.descriptor = Some(t.descriptor.to_string());
+                }
+            }
+            if info.revision() >= 6 {
+                if let Ok(r) = self.command(info, 20, &[]).await {
+                    if let Ok(t) = hart_proto::command::LongTag::decode(&mut Reader::new(&r.data)) {
+                        info.long_tag = Some(t.long_tag.to_string());
+                    }
+                }
+            }
+        }
+        Ok(found)
+    }
+}

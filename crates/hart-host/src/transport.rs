@@ -1,0 +1,518 @@
+//! Transports: how bytes reach the line. One trait; a target string selects one.
+//!
+//! * [`SerialTransport`]: a HART modem on a serial port (or a pseudo-terminal), 1200
+//!   bit/s 8O1 by default, optional RTS keying; or baseband RS-485 with its own
+//!   transmission read back and dropped.
+//! * [`SimTransport`]: an in-process plant of `hart-device` devices on a simulated
+//!   line, in real time or in virtual time (instant).
+
+use std::ffi::CString;
+use std::io;
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use hart_device::{profiles, Device, Node};
+use hart_link::{Micros, TimingProfile};
+use hart_proto::deframer::UartFlags;
+use tokio::io::unix::AsyncFd;
+
+/// A line to talk HART on.
+#[allow(async_fn_in_trait)]
+pub trait Transport {
+    /// The timing profile of the line.
+    fn profile(&self) -> TimingProfile;
+    /// The transport's clock, in microseconds.
+    fn now(&self) -> Micros;
+    /// Sends `bytes` (preambles included) and returns when the last one has left.
+    async fn send(&mut self, bytes: &[u8]) -> io::Result<()>;
+    /// Waits until bytes arrive or the clock reaches `deadline`. Returns the bytes with
+    /// the time each finished arriving (empty on time-out).
+    async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>>;
+    /// A short description for messages ("serial /dev/ttyUSB0 at 1200 bit/s").
+    fn describe(&self) -> String;
+}
+
+/// RTS keying of a HART modem.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rts {
+    /// Leave RTS alone (modems that key themselves, pseudo-terminals).
+    None,
+    /// RTS high while transmitting.
+    HighTx,
+    /// RTS low while transmitting.
+    LowTx,
+}
+
+/// Settings of a serial transport.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SerialOptions {
+    /// Device path.
+    pub path: PathBuf,
+    /// Bit rate.
+    pub baud: u32,
+    /// RTS keying.
+    pub rts: Rts,
+    /// Wait after keying RTS before the first byte.
+    pub rts_pre: Duration,
+    /// Wait after the last byte before releasing RTS.
+    pub rts_post: Duration,
+    /// Baseband RS-485: our own transmission is read back and dropped; RS-485 timing.
+    pub rs485: bool,
+}
+
+fn os_err(what: &str) -> io::Error {
+    let e = io::Error::last_os_error();
+    io::Error::new(e.kind(), format!("{what}: {e}"))
+}
+
+/// A serial port or pseudo-terminal.
+pub struct SerialTransport {
+    fd: AsyncFd<OwnedFd>,
+    opts: SerialOptions,
+    profile: TimingProfile,
+    start: Instant,
+    echo: Vec<u8>,
+}
+
+impl SerialTransport {
+    /// Opens and configures the port (raw, 8 data bits, odd parity, 1 stop bit).
+    pub fn open(opts: SerialOptions) -> io::Result<Self> {
+        let c = CString::new(opts.path.as_os_str().as_encoded_bytes())
+            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path contains NUL"))?;
+        // SAFETY: plain libc calls on a descriptor we own.
+        let fd =
+            unsafe { libc::open(c.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK) };
+        if fd < 0 {
+            let e = io::Error::last_os_error();
+            return Err(io::Error::new(
+                e.kind(),
+                format!(
+                    "cannot open {}: {e}; check the path and your permission (dialout group)",
+                    opts.path.display()
+                ),
+            ));
+        }
+        let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+        configure(fd.as_raw_fd(), opts.baud)?;
+        let profile = if opts.rs485 && opts.baud > 1200 {
+            TimingProfile::rs485(opts.baud)
+        } else if opts.rs485 {
+            TimingProfile::rs485(1200)
+        } else {
+            TimingProfile::fsk()
+        };
+        // SAFETY: `fd` is an OwnedFd this transport owns; it stays open and refers to the
+        // same port until the AsyncFd is dropped.
+        let fd = unsafe { AsyncFd::register(fd) }?;
+        let t = SerialTransport {
+            fd,
+            opts,
+            profile,
+            start: Instant::now(),
+            echo: vec![],
+        };
+        t.set_rts(false);
+        Ok(t)
+    }
+
+    fn set_rts(&self, transmitting: bool) {
+        let level = match self.opts.rts {
+            Rts::None => return,
+            Rts::HighTx => transmitting,
+            Rts::LowTx => !transmitting,
+        };
+        let bits: libc::c_int = libc::TIOCM_RTS;
+        let req = if level {
+            libc::TIOCMBIS
+        } else {
+            libc::TIOCMBIC
+        };
+        // SAFETY: ioctl with a pointer to a c_int, as TIOCMBIS/TIOCMBIC expect.
+        unsafe { libc::ioctl(self.fd.get_ref().as_raw_fd(), req, &bits) };
+    }
+}
+
+fn configure(fd: i32, baud: u32) -> io::Result<()> {
+    // SAFETY: termios is plain data filled by tcgetattr.
+    let mut t: libc::termios = unsafe { std::mem::zeroed() };
+    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
+        return Err(os_err("tcgetattr"));
+    }
+    unsafe { libc::cfmakeraw(&mut t) };
+    let speed = match baud {
+        300 => libc::B300,
+        600 => libc::B600,
+        1200 => libc::B1200,
+        2400 => libc::B2400,
+        4800 => libc::B4800,
+        9600 => libc::B9600,
+        19200 => libc::B19200,
+        38400 => libc::B38400,
+        57600 => libc::B57600,
+        115200 => libc::B115200,
+        _ => {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("baud rate {baud} not supported (300-115200)"),
+            ))
+        }
+    };
+    unsafe {
+        libc::cfsetispeed(&mut t, speed);
+        libc::cfsetospeed(&mut t, speed);
+    }
+    t.c_cflag &= !(libc::CSIZE | libc::CSTOPB);
+    t.c_cflag |= libc::CS8 | libc::PARENB | libc::PARODD | libc::CLOCAL | libc::CREAD;
+    t.c_iflag |= libc::INPCK;
+    t.c_cc[libc::VMIN] = 0;
+    t.c_cc[libc::VTIME] = 0;
+    if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
+        return Err(os_err("tcsetattr"));
+    }
+    Ok(())
+}
+
+impl Transport for SerialTransport {
+    fn profile(&self) -> TimingProfile {
+        self.profile
+    }
+
+    fn now(&self) -> Micros {
+        self.start.elapsed().as_micros() as Micros
+    }
+
+    async fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        self.set_rts(true);
+        if !self.opts.rts_pre.is_zero() {
+            tokio::time::sleep(self.opts.rts_pre).await;
+        }
+        let fd = self.fd.get_ref().as_raw_fd();
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let n = unsafe { libc::write(fd, rest.as_ptr().cast(), rest.len()) };
+            if n < 0 {
+                let e = io::Error::last_os_error();
+                if e.kind() == io::ErrorKind::WouldBlock {
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                    continue;
+                }
+                self.set_rts(false);
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!("write to {}: {e}", self.opts.path.display()),
+                ));
+            }
+            rest = &rest[n as usize..];
+        }
+        // Wait until the UART has sent everything (a pseudo-terminal returns at once).
+        unsafe { libc::tcdrain(fd) };
+        if !self.opts.rts_post.is_zero() {
+            tokio::time::sleep(self.opts.rts_post).await;
+        }
+        self.set_rts(false);
+        if self.opts.rs485 {
+            self.echo.extend_from_slice(bytes);
+        }
+        Ok(())
+    }
+
+    async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>> {
+        let ct = self.profile.char_time;
+        loop {
+            let now = self.now();
+            if now >= deadline {
+                return Ok(vec![]);
+            }
+            let wait = Duration::from_micros(deadline - now);
+            let Ok(guard) = tokio::time::timeout(wait, self.fd.readable()).await else {
+                return Ok(vec![]);
+            };
+            let mut guard = guard?;
+            let mut buf = [0u8; 512];
+            let fd = self.fd.get_ref().as_raw_fd();
+            let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
+            if n < 0 {
+                let e = io::Error::last_os_error();
+                if e.kind() == io::ErrorKind::WouldBlock {
+                    guard.clear_ready();
+                    continue;
+                }
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!("read from {}: {e}", self.opts.path.display()),
+                ));
+            }
+            if n == 0 {
+                guard.clear_ready();
+                tokio::time::sleep(Duration::from_millis(5)).await;
+                continue;
+            }
+            let n = n as usize;
+            let t = self.now();
+            let mut out = Vec::with_capacity(n);
+            for (i, &b) in buf[..n].iter().enumerate() {
+                // Drop our own transmission read back on a two-wire RS-485 line.
+                if !self.echo.is_empty() && self.echo[0] == b {
+                    self.echo.remove(0);
+                    continue;
+                }
+                self.echo.clear();
+                out.push((b, t.saturating_sub((n - 1 - i) as Micros * ct)));
+            }
+            if !out.is_empty() {
+                return Ok(out);
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "{} {} at {} bit/s",
+            if self.opts.rs485 { "RS-485" } else { "serial" },
+            self.opts.path.display(),
+            self.opts.baud
+        )
+    }
+}
+
+/// One device of a simulated plant.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantDevice {
+    /// Built-in profile name or profile file.
+    pub profile: String,
+    /// Polling address.
+    pub poll: u8,
+    /// Burst: command published and period in seconds.
+    #[serde(default)]
+    pub burst: Option<PlantBurst>,
+}
+
+/// Burst settings of a plant device.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantBurst {
+    /// Command published (1, 2, 3, 9, 33, 48).
+    pub command: u16,
+    /// Period, s.
+    pub period: f32,
+}
+
+/// A simulated plant: `[[device]]` entries.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Plant {
+    /// The devices.
+    pub device: Vec<PlantDevice>,
+}
+
+impl Plant {
+    /// The built-in demo plant: a pressure transmitter (1), a temperature transmitter
+    /// in burst mode (2), a valve positioner (3) and a pressure transmitter at 17.
+    pub fn demo() -> Self {
+        let d = |profile: &str, poll: u8, burst: Option<PlantBurst>| PlantDevice {
+            profile: profile.into(),
+            poll,
+            burst,
+        };
+        Plant {
+            device: vec![
+                d("pressure", 1, None),
+                d(
+                    "temperature",
+                    2,
+                    Some(PlantBurst {
+                        command: 3,
+                        period: 2.0,
+                    }),
+                ),
+                d("valve", 3, None),
+                d("pressure", 17, None),
+            ],
+        }
+    }
+
+    /// Reads a plant file.
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("plant file {}: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| format!("plant file {}: {e}", path.display()))
+    }
+
+    /// Builds the devices.
+    pub fn nodes(&self, profile: TimingProfile) -> Result<Vec<Node>, String> {
+        let mut nodes = vec![];
+        for d in &self.device {
+            let mut c = profiles::load(&d.profile)?;
+            c.polling_address = d.poll & 0x3F;
+            c.loop_current_mode = u8::from(d.poll == 0);
+            c.identity.device_id = (c.identity.device_id + u32::from(d.poll)) & 0xFF_FFFF;
+            if let Some(b) = &d.burst {
+                let m = &mut c.burst[0];
+                m.command = b.command;
+                m.control = 1;
+                m.update_period = (b.period * 32_000.0) as u32;
+                m.max_update_period = m.update_period;
+            }
+            nodes.push(Node::new(Device::new(c), profile, 0));
+        }
+        Ok(nodes)
+    }
+}
+
+/// An in-process plant on a simulated line.
+pub struct SimTransport {
+    nodes: Vec<Node>,
+    profile: TimingProfile,
+    start: Instant,
+    virtual_time: Option<Micros>,
+    /// How far the devices have been run.
+    dev_time: Micros,
+    /// Bytes on the way to the host: (byte, arrival time), in order.
+    pending: Vec<(u8, Micros)>,
+}
+
+impl SimTransport {
+    /// A plant in real time (`virtual_time` false) or in virtual time, where waiting
+    /// costs nothing.
+    pub fn new(plant: &Plant, virtual_time: bool) -> Result<Self, String> {
+        let profile = TimingProfile::fsk();
+        Ok(SimTransport {
+            nodes: plant.nodes(profile)?,
+            profile,
+            start: Instant::now(),
+            virtual_time: virtual_time.then_some(0),
+            dev_time: 0,
+            pending: vec![],
+        })
+    }
+
+    /// The simulated devices.
+    pub fn nodes_mut(&mut self) -> &mut [Node] {
+        &mut self.nodes
+    }
+
+    /// Runs the devices up to `until`; what they send goes to the host and to the
+    /// other devices.
+    fn run_devices(&mut self, until: Micros) {
+        let ct = self.profile.char_time;
+        loop {
+            let t = self.dev_time;
+            let Some(d) = self.nodes.iter().filter_map(|n| n.next_deadline(t)).min() else {
+                break;
+            };
+            if d > until {
+                break;
+            }
+            let t = d.max(t);
+            self.dev_time = t;
+            let mut sent = false;
+            for k in 0..self.nodes.len() {
+                if let Some(bytes) = self.nodes[k].poll(t) {
+                    for (i, &b) in bytes.iter().enumerate() {
+                        let at = t + (i as Micros + 1) * ct;
+                        self.pending.push((b, at));
+                        for (j, other) in self.nodes.iter_mut().enumerate() {
+                            if j != k {
+                                other.receive(b, UartFlags::OK, at);
+                            }
+                        }
+                    }
+                    let end = t + bytes.len() as Micros * ct;
+                    self.nodes[k].transmitted(end);
+                    self.dev_time = end;
+                    sent = true;
+                    break;
+                }
+            }
+            if !sent {
+                self.dev_time = t + 1;
+            }
+        }
+        self.dev_time = self.dev_time.max(until);
+    }
+}
+
+impl Transport for SimTransport {
+    fn profile(&self) -> TimingProfile {
+        self.profile
+    }
+
+    fn now(&self) -> Micros {
+        self.virtual_time
+            .unwrap_or_else(|| self.start.elapsed().as_micros() as Micros)
+    }
+
+    async fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let ct = self.profile.char_time;
+        let t0 = self.now().max(self.dev_time);
+        self.run_devices(t0);
+        for (i, &b) in bytes.iter().enumerate() {
+            let at = t0 + (i as Micros + 1) * ct;
+            for n in &mut self.nodes {
+                n.receive(b, UartFlags::OK, at);
+            }
+        }
+        let end = t0 + bytes.len() as Micros * ct;
+        self.dev_time = end;
+        match &mut self.virtual_time {
+            Some(v) => *v = end,
+            None => {
+                tokio::time::sleep(Duration::from_micros(
+                    end.saturating_sub(self.start.elapsed().as_micros() as Micros),
+                ))
+                .await
+            }
+        }
+        Ok(())
+    }
+
+    async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>> {
+        loop {
+            let now = self.now();
+            let horizon = if self.virtual_time.is_some() {
+                deadline
+            } else {
+                now
+            };
+            self.run_devices(horizon);
+            let n = self.pending.iter().take_while(|p| p.1 <= horizon).count();
+            if n > 0 {
+                let ready: Vec<(u8, Micros)> = self.pending.drain(..n).collect();
+                if let (Some(v), Some(last)) = (&mut self.virtual_time, ready.last()) {
+                    *v = (*v).max(last.1);
+                }
+                return Ok(ready);
+            }
+            if let Some(v) = &mut self.virtual_time {
+                *v = (*v).max(deadline);
+                return Ok(vec![]);
+            }
+            if now >= deadline {
+                return Ok(vec![]);
+            }
+            let next = self
+                .nodes
+                .iter()
+                .filter_map(|n| n.next_deadline(now))
+                .min()
+                .unwrap_or(deadline)
+                .min(deadline)
+                .min(now + 20_000);
+            tokio::time::sleep(Duration::from_micros(next.saturating_sub(now).max(200))).await;
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "simulated plant of {} device(s){}",
+            self.nodes.len(),
+            if self.virtual_time.is_some() {
+                " (virtual time)"
+            } else {
+                ""
+            }
+        )
+    }
+}

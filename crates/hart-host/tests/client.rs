@@ -1,0 +1,75 @@
+//! The client against the in-process plant, in virtual time.
+
+use hart_host::target::{open, AnyTransport};
+use hart_host::{Client, DeviceRef, HostError};
+
+fn client() -> Client<AnyTransport> {
+    Client::new(open("sim?virtual").unwrap())
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn scan_finds_every_device_of_the_demo_plant() {
+    let mut c = client();
+    let found = c.scan(0..=20, |_, _| {}).await.unwrap();
+    let polls: Vec<u8> = found.iter().map(|d| d.polling_address.unwrap()).collect();
+    assert_eq!(polls, vec![1, 2, 3, 17]);
+    assert_eq!(found[0].tag.as_deref(), Some("PT-100"));
+    assert_eq!(found[1].tag.as_deref(), Some("TT-200"));
+    assert_eq!(found[0].revision(), 7);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn commands_by_poll_tag_and_unique_id() {
+    let mut c = client();
+    let d = c.resolve(&DeviceRef::Poll(3)).await.unwrap();
+    let r = c.command(&d, 1, &[]).await.unwrap();
+    assert_eq!(r.data[0], 57, "valve travel in %");
+    let t = c.resolve(&DeviceRef::Tag("TT-200".into())).await.unwrap();
+    assert_eq!(
+        t.unique_id(),
+        c.resolve(&DeviceRef::Poll(2)).await.unwrap().unique_id()
+    );
+    let u = c
+        .resolve(&DeviceRef::UniqueId(d.unique_id()))
+        .await
+        .unwrap();
+    assert_eq!(u.identity.device_id, d.identity.device_id);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn errors_explain_themselves() {
+    let mut c = client();
+    match c.resolve(&DeviceRef::Poll(9)).await {
+        Err(e @ HostError::NoReply { .. }) => {
+            let msg = e.to_string();
+            assert!(
+                msg.contains("no reply from polling address 9 after 2 tries")
+                    || msg.contains("no reply from polling address 9 after 4 tries"),
+                "{msg}"
+            );
+            assert!(msg.contains("RTS"), "{msg}");
+            assert_eq!(e.exit_code(), 3);
+        }
+        other => panic!("{other:?}"),
+    }
+    let d = c.resolve(&DeviceRef::Poll(1)).await.unwrap();
+    c.transport_mut();
+    match c.command(&d, 200, &[]).await {
+        Err(e @ HostError::Device { code: 64, .. }) => {
+            assert!(e.to_string().contains("command not implemented"), "{e}")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn bursts_are_collected_while_listening() {
+    let mut c = client();
+    c.listen(10_000_000).await.unwrap();
+    let bursts = c.take_bursts();
+    assert!(
+        bursts.len() >= 4,
+        "temperature transmitter bursts every 2 s: {}",
+        bursts.len()
+    );
+}
