@@ -110,6 +110,9 @@ pub struct LogEntry {
     pub bytes: Vec<u8>,
 }
 
+/// Receives every raw transfer.
+pub type LogSink = Box<dyn FnMut(&LogEntry)>;
+
 /// The master client.
 pub struct Client<T: Transport> {
     transport: T,
@@ -119,7 +122,7 @@ pub struct Client<T: Transport> {
     /// Read command 48 automatically when a reply says "more status available".
     pub auto_status: bool,
     bursts: VecDeque<Vec<u8>>,
-    log: Option<Box<dyn FnMut(&LogEntry)>>,
+    log: Option<LogSink>,
     known: Vec<DeviceInfo>,
 }
 

@@ -53,7 +53,6 @@ async fn errors_explain_themselves() {
         other => panic!("{other:?}"),
     }
     let d = c.resolve(&DeviceRef::Poll(1)).await.unwrap();
-    c.transport_mut();
     match c.command(&d, 200, &[]).await {
         Err(e @ HostError::Device { code: 64, .. }) => {
             assert!(e.to_string().contains("command not implemented"), "{e}")
