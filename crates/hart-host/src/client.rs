@@ -169,6 +169,11 @@ impl<T: Transport> Client<T> {
         self.master.set_policy(policy);
     }
 
+    /// Counters of the data-link master (completed, failed, retries, bursts heard).
+    pub fn stats(&self) -> hart_link::master::MasterStats {
+        self.master.stats()
+    }
+
     /// Burst frames (PDUs) heard so far and not yet taken.
     pub fn take_bursts(&mut self) -> Vec<Vec<u8>> {
         self.bursts.drain(..).collect()

@@ -361,8 +361,19 @@ impl Plant {
     }
 }
 
+/// A secondary master inside the simulated plant, reading command 1 now and then.
+struct Secondary {
+    master: hart_link::Master,
+    polls: Vec<u8>,
+    next: usize,
+    every: Micros,
+    next_at: Micros,
+    done: u64,
+}
+
 /// An in-process plant on a simulated line.
 pub struct SimTransport {
+    secondary: Option<Secondary>,
     nodes: Vec<Node>,
     profile: TimingProfile,
     start: Instant,
@@ -379,6 +390,7 @@ impl SimTransport {
     pub fn new(plant: &Plant, virtual_time: bool) -> Result<Self, String> {
         let profile = TimingProfile::fsk();
         Ok(SimTransport {
+            secondary: None,
             nodes: plant.nodes(profile)?,
             profile,
             start: Instant::now(),
@@ -386,6 +398,74 @@ impl SimTransport {
             dev_time: 0,
             pending: vec![],
         })
+    }
+
+    /// Adds a secondary master that reads command 1 from each device in turn, one
+    /// request every `every` µs (a handheld on the same loop).
+    pub fn add_secondary(&mut self, every: Micros) {
+        let polls = self
+            .nodes
+            .iter()
+            .map(|n| n.device.config().polling_address)
+            .collect();
+        let master = hart_link::Master::new(
+            hart_proto::MasterKind::Secondary,
+            self.profile,
+            hart_link::RetryPolicy::default(),
+            self.dev_time,
+        );
+        self.secondary = Some(Secondary {
+            master,
+            polls,
+            next: 0,
+            every,
+            next_at: self.dev_time + every,
+            done: 0,
+        });
+    }
+
+    /// Transactions the in-plant secondary master completed.
+    pub fn secondary_transactions(&self) -> u64 {
+        self.secondary.as_ref().map_or(0, |s| s.done)
+    }
+
+    fn secondary_deadline(&self) -> Option<Micros> {
+        let s = self.secondary.as_ref()?;
+        if s.master.is_busy() {
+            s.master.next_deadline()
+        } else {
+            Some(s.next_at)
+        }
+    }
+
+    /// Lets the secondary master act at `t`; returns the bytes it sends, if any.
+    fn run_secondary(&mut self, t: Micros) -> Option<Vec<u8>> {
+        let s = self.secondary.as_mut()?;
+        if !s.master.is_busy() && t >= s.next_at && !s.polls.is_empty() {
+            let poll = s.polls[s.next % s.polls.len()];
+            s.next += 1;
+            let _ = s.master.request(
+                &hart_proto::FrameSpec::request(hart_proto::Address::short(poll), 1, &[]),
+                t,
+            );
+        }
+        while let Some(out) = s.master.poll(t) {
+            match out {
+                hart_link::MasterOutput::Transmit(f, pre) => {
+                    let mut bytes = vec![0xFF; pre];
+                    bytes.extend_from_slice(f.as_slice());
+                    return Some(bytes);
+                }
+                hart_link::MasterOutput::Done(r) => {
+                    if r.is_ok() {
+                        s.done += 1;
+                    }
+                    s.next_at = t + s.every;
+                }
+                hart_link::MasterOutput::Burst(_) => {}
+            }
+        }
+        None
     }
 
     /// The simulated devices.
@@ -399,7 +479,13 @@ impl SimTransport {
         let ct = self.profile.char_time;
         loop {
             let t = self.dev_time;
-            let Some(d) = self.nodes.iter().filter_map(|n| n.next_deadline(t)).min() else {
+            let Some(d) = self
+                .nodes
+                .iter()
+                .filter_map(|n| n.next_deadline(t))
+                .chain(self.secondary_deadline())
+                .min()
+            else {
                 break;
             };
             if d > until {
@@ -407,27 +493,44 @@ impl SimTransport {
             }
             let t = d.max(t);
             self.dev_time = t;
-            let mut sent = false;
+            let mut sent: Option<(Option<usize>, Vec<u8>)> = None;
             for k in 0..self.nodes.len() {
                 if let Some(bytes) = self.nodes[k].poll(t) {
+                    sent = Some((Some(k), bytes));
+                    break;
+                }
+            }
+            if sent.is_none() {
+                sent = self.run_secondary(t).map(|b| (None, b));
+            }
+            match sent {
+                Some((from, bytes)) => {
                     for (i, &b) in bytes.iter().enumerate() {
                         let at = t + (i as Micros + 1) * ct;
                         self.pending.push((b, at));
                         for (j, other) in self.nodes.iter_mut().enumerate() {
-                            if j != k {
+                            if Some(j) != from {
                                 other.receive(b, UartFlags::OK, at);
+                            }
+                        }
+                        if from.is_some() {
+                            if let Some(s) = &mut self.secondary {
+                                s.master.receive(b, UartFlags::OK, at);
                             }
                         }
                     }
                     let end = t + bytes.len() as Micros * ct;
-                    self.nodes[k].transmitted(end);
+                    match from {
+                        Some(k) => self.nodes[k].transmitted(end),
+                        None => {
+                            if let Some(s) = &mut self.secondary {
+                                s.master.transmitted(end);
+                            }
+                        }
+                    }
                     self.dev_time = end;
-                    sent = true;
-                    break;
                 }
-            }
-            if !sent {
-                self.dev_time = t + 1;
+                None => self.dev_time = t + 1,
             }
         }
         self.dev_time = self.dev_time.max(until);
@@ -452,6 +555,9 @@ impl Transport for SimTransport {
             let at = t0 + (i as Micros + 1) * ct;
             for n in &mut self.nodes {
                 n.receive(b, UartFlags::OK, at);
+            }
+            if let Some(s) = &mut self.secondary {
+                s.master.receive(b, UartFlags::OK, at);
             }
         }
         let end = t0 + bytes.len() as Micros * ct;

@@ -3,7 +3,9 @@
 //! itself lives in `hart-proto`; this crate only presents it.
 
 pub mod annotate;
+pub mod demo;
 pub mod hex;
+pub mod host;
 pub mod json;
 pub mod serve;
 pub mod sim;

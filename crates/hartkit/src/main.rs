@@ -24,6 +24,165 @@ enum Top {
     /// Simulate a HART network in virtual time.
     #[command(subcommand)]
     Sim(SimCmd),
+    /// Find devices: command 0 in short frames over a polling-address range.
+    Scan {
+        #[command(flatten)]
+        host: HostArgs,
+        /// First polling address.
+        #[arg(long, default_value_t = 0)]
+        from: u8,
+        /// Last polling address (15 for HART 5 loops, up to 63).
+        #[arg(long, default_value_t = 15)]
+        to: u8,
+    },
+    /// Read from a device: pv, loop, dynamic, vars CODES..., status, info.
+    Read {
+        #[command(flatten)]
+        host: HostArgs,
+        #[command(flatten)]
+        target: TargetArgs,
+        /// What to read.
+        what: String,
+        /// Device variable codes (for `vars`).
+        codes: Vec<u8>,
+    },
+    /// Write to a device and read back: tag, long-tag, descriptor, message, date,
+    /// range URV LRV [UNITS], units, damping, polling-address N [MODE], fixed-current,
+    /// preambles.
+    Write {
+        #[command(flatten)]
+        host: HostArgs,
+        #[command(flatten)]
+        target: TargetArgs,
+        /// What to write.
+        what: String,
+        /// Value(s).
+        #[arg(required = true, allow_hyphen_values = true)]
+        values: Vec<String>,
+    },
+    /// Send any command (data as hex) and decode the reply.
+    Command {
+        #[command(flatten)]
+        host: HostArgs,
+        #[command(flatten)]
+        target: TargetArgs,
+        /// Command number (0-65535).
+        number: u16,
+        /// Request data as hex.
+        #[arg(default_value = "")]
+        data: String,
+    },
+    /// Configure, enable, disable or show a burst message.
+    Burst {
+        #[command(flatten)]
+        host: HostArgs,
+        #[command(flatten)]
+        target: TargetArgs,
+        #[command(subcommand)]
+        action: BurstCmd,
+    },
+    /// Print every frame seen on the line, decoded, with timing.
+    Monitor {
+        #[command(flatten)]
+        host: HostArgs,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        duration: Option<f64>,
+    },
+    /// The simulated plant: devices found by scan, shown live until Ctrl-C.
+    Demo {
+        /// Stop after this many seconds.
+        #[arg(long)]
+        duration: Option<f64>,
+        /// One JSON object per update instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Where the plant is (default: the built-in simulated plant).
+        #[arg(long, short = 'p', default_value = "sim")]
+        port: String,
+    },
+}
+
+#[derive(Args, Clone)]
+struct HostArgs {
+    /// Where the devices are: /dev/ttyUSB0, serial:PATH?baud=1200&rts=high-tx,
+    /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual.
+    #[arg(long, short = 'p', value_name = "TARGET")]
+    port: String,
+    /// Print JSON instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// error, warn, info, debug (raw traffic on stderr) or trace.
+    #[arg(long, default_value = "warn")]
+    log_level: String,
+    /// Write every transfer as one JSON object per line to FILE.
+    #[arg(long, value_name = "FILE")]
+    trace: Option<std::path::PathBuf>,
+    /// Act as the secondary master (default primary).
+    #[arg(long)]
+    secondary: bool,
+}
+
+#[derive(Args, Clone)]
+struct TargetArgs {
+    /// The device at this polling address.
+    #[arg(long)]
+    poll: Option<u8>,
+    /// The device with this tag.
+    #[arg(long)]
+    tag: Option<String>,
+    /// The device with this long tag.
+    #[arg(long)]
+    long_tag: Option<String>,
+    /// The device with this unique ID (10 hex digits).
+    #[arg(long)]
+    unique_id: Option<String>,
+}
+
+#[derive(Subcommand, Clone)]
+enum BurstCmd {
+    /// Configure a burst message.
+    Config {
+        /// Burst message number.
+        #[arg(long, default_value_t = 0)]
+        message: u8,
+        /// Command to publish (1, 2, 3, 9, 33, 38, 48).
+        #[arg(long)]
+        command: u16,
+        /// Device variable codes for the slots (commands 9 and 33).
+        #[arg(long, value_delimiter = ',')]
+        vars: Vec<u8>,
+        /// Update period, s.
+        #[arg(long)]
+        period: f32,
+        /// Maximum update period, s.
+        #[arg(long)]
+        max_period: Option<f32>,
+        /// continuous, window, rising, falling or on-change.
+        #[arg(long, default_value = "continuous")]
+        trigger: String,
+        /// Trigger level (window, rising, falling).
+        #[arg(long, allow_hyphen_values = true)]
+        level: Option<f32>,
+    },
+    /// Enable a burst message.
+    On {
+        /// Burst message number.
+        #[arg(long, default_value_t = 0)]
+        message: u8,
+    },
+    /// Disable a burst message.
+    Off {
+        /// Burst message number.
+        #[arg(long, default_value_t = 0)]
+        message: u8,
+    },
+    /// Show a burst message's configuration.
+    Show {
+        /// Burst message number.
+        #[arg(long, default_value_t = 0)]
+        message: u8,
+    },
 }
 
 #[derive(Subcommand)]
@@ -343,13 +502,137 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
     Ok(String::new())
 }
 
+fn host_client(
+    h: &HostArgs,
+) -> Result<hart_host::Client<hart_host::target::AnyTransport>, (String, u8)> {
+    let verbose = matches!(h.log_level.as_str(), "debug" | "trace");
+    if !["error", "warn", "info", "debug", "trace"].contains(&h.log_level.as_str()) {
+        return Err((
+            format!(
+                "--log-level {}: expected error, warn, info, debug or trace",
+                h.log_level
+            ),
+            2,
+        ));
+    }
+    hartkit::host::client(&h.port, h.trace.as_deref(), verbose, h.secondary)
+}
+
+fn target(t: &TargetArgs) -> Result<hart_host::DeviceRef, (String, u8)> {
+    hartkit::host::device_ref(
+        t.poll,
+        t.tag.as_deref(),
+        t.long_tag.as_deref(),
+        t.unique_id.as_deref(),
+    )
+}
+
+fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
+    use hartkit::host;
+    Some(match top {
+        Top::Scan { host: h, from, to } => {
+            host_client(h).and_then(|mut c| host::block_on(host::scan(&mut c, *from, *to, h.json)))
+        }
+        Top::Read {
+            host: h,
+            target: t,
+            what,
+            codes,
+        } => target(t).and_then(|d| {
+            host_client(h)
+                .and_then(|mut c| host::block_on(host::read(&mut c, &d, what, codes, h.json)))
+        }),
+        Top::Write {
+            host: h,
+            target: t,
+            what,
+            values,
+        } => target(t).and_then(|d| {
+            host_client(h).and_then(|mut c| host::block_on(host::write(&mut c, &d, what, values)))
+        }),
+        Top::Command {
+            host: h,
+            target: t,
+            number,
+            data,
+        } => target(t).and_then(|d| {
+            let bytes = if data.trim().is_empty() {
+                Ok(vec![])
+            } else {
+                hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))
+            }?;
+            host_client(h).and_then(|mut c| {
+                host::block_on(host::command(&mut c, &d, *number, &bytes, h.json))
+            })
+        }),
+        Top::Burst {
+            host: h,
+            target: t,
+            action,
+        } => target(t).and_then(|d| {
+            let a = match action.clone() {
+                BurstCmd::Config {
+                    message,
+                    command,
+                    vars,
+                    period,
+                    max_period,
+                    trigger,
+                    level,
+                } => host::BurstAction::Config {
+                    message,
+                    command,
+                    vars,
+                    period,
+                    max_period,
+                    trigger,
+                    level,
+                },
+                BurstCmd::On { message } => host::BurstAction::On { message },
+                BurstCmd::Off { message } => host::BurstAction::Off { message },
+                BurstCmd::Show { message } => host::BurstAction::Show { message },
+            };
+            host_client(h).and_then(|mut c| host::block_on(host::burst(&mut c, &d, &a, h.json)))
+        }),
+        Top::Monitor { host: h, duration } => hart_host::target::open(&h.port)
+            .map_err(|e| (e, 2))
+            .and_then(|mut t| {
+                let mut out = std::io::stdout();
+                host::block_on(host::monitor(&mut t, *duration, h.json, &mut out))
+                    .map(|_| String::new())
+            }),
+        Top::Demo {
+            duration,
+            json,
+            port,
+        } => hartkit::demo::run(port, *duration, *json).map(|_| String::new()),
+        _ => return None,
+    })
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(result) = run_host(&cli.command) {
+        return match result {
+            Ok(text) => {
+                use std::io::Write as _;
+                if !text.is_empty() {
+                    let _ = writeln!(std::io::stdout(), "{text}");
+                }
+                ExitCode::SUCCESS
+            }
+            Err((e, code)) => {
+                eprintln!("hartkit: error: {e}");
+                ExitCode::from(code)
+            }
+        };
+    }
     let result = match &cli.command {
         Top::Frame(FrameCmd::Decode { hex, json }) => decode(hex, *json),
         Top::Frame(FrameCmd::Encode(a)) => encode(a),
         Top::Sim(SimCmd::Bench(a)) => sim_bench(a),
         Top::Sim(SimCmd::Serve(a)) => sim_serve(a).map(|_| String::new()),
+        _ => unreachable!("host commands are handled above"),
     };
     match result {
         Ok(text) => {

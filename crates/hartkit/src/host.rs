@@ -1,0 +1,757 @@
+//! The host commands of `hartkit`: scan, read, write, command, burst, monitor, demo.
+//! Protocol work is in `hart-host`; this module turns replies into tables and JSON.
+
+use std::io::Write as _;
+
+use hart_host::target::AnyTransport;
+use hart_host::transport::Transport;
+use hart_host::{Client, DeviceInfo, DeviceRef, HostError, Reply};
+use hart_proto::command as cmd;
+use hart_proto::deframer::{Deframer, DeframerEvent};
+use hart_proto::frame::Frame;
+use hart_proto::tables::{self, FIELD_DEVICE_STATUS};
+use hart_proto::types::{Date, Latin1String, PackedString};
+use hart_proto::wire::{Reader, Wire};
+use serde_json::{json, Value};
+
+use crate::{annotate, hex, json as fj};
+
+/// A failure with the exit status to use.
+pub type Failure = (String, u8);
+
+fn fail(e: HostError) -> Failure {
+    let code = e.exit_code();
+    (e.to_string(), code)
+}
+
+fn usage(msg: impl Into<String>) -> Failure {
+    (msg.into(), 2)
+}
+
+fn units(code: u8) -> Value {
+    json!(tables::unit(code).map_or("", |u| u.symbol))
+}
+
+fn f(x: f32) -> Value {
+    fj::float(x)
+}
+
+fn decode<T: Wire>(r: &Reply, what: &str) -> Result<T, Failure> {
+    T::decode(&mut Reader::new(&r.data)).map_err(|e| usage(format!("{what}: {e}")))
+}
+
+/// Opens the client for `--port`, with a trace file and a log level.
+pub fn client(
+    port: &str,
+    trace: Option<&std::path::Path>,
+    verbose: bool,
+    secondary: bool,
+) -> Result<Client<AnyTransport>, Failure> {
+    let t = hart_host::target::open(port).map_err(usage)?;
+    let kind = if secondary {
+        hart_proto::MasterKind::Secondary
+    } else {
+        hart_proto::MasterKind::Primary
+    };
+    let mut c = Client::with_role(t, kind);
+    let mut file = match trace {
+        Some(p) => Some(
+            std::fs::File::create(p).map_err(|e| usage(format!("--trace {}: {e}", p.display())))?,
+        ),
+        None => None,
+    };
+    if file.is_some() || verbose {
+        c.set_log(move |e| {
+            let dir = match e.direction {
+                hart_host::client::Direction::Tx => "tx",
+                hart_host::client::Direction::Rx => "rx",
+            };
+            if let Some(f) = &mut file {
+                let _ = writeln!(
+                    f,
+                    "{}",
+                    json!({"t_us": e.time_us, "dir": dir, "hex": hex::compact(&e.bytes)})
+                );
+            }
+            if verbose {
+                eprintln!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
+            }
+        });
+    }
+    Ok(c)
+}
+
+/// Runs a future on a single-threaded runtime.
+pub fn block_on<F: std::future::Future>(f: F) -> F::Output {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("tokio runtime")
+        .block_on(f)
+}
+
+/// The target device from `--poll`, `--tag`, `--long-tag` or `--unique-id`.
+pub fn device_ref(
+    poll: Option<u8>,
+    tag: Option<&str>,
+    long_tag: Option<&str>,
+    unique_id: Option<&str>,
+) -> Result<DeviceRef, Failure> {
+    match (poll, tag, long_tag, unique_id) {
+        (Some(p), None, None, None) => Ok(DeviceRef::Poll(p)),
+        (None, Some(t), None, None) => Ok(DeviceRef::Tag(t.into())),
+        (None, None, Some(t), None) => Ok(DeviceRef::LongTag(t.into())),
+        (None, None, None, Some(u)) => hart_proto::UniqueId::parse_hex(u)
+            .map(DeviceRef::UniqueId)
+            .map_err(|e| usage(format!("--unique-id {u}: {e}"))),
+        (None, None, None, None) => Err(usage(
+            "say which device: --poll N, --tag T, --long-tag T or --unique-id HEX",
+        )),
+        _ => Err(usage(
+            "give only one of --poll, --tag, --long-tag, --unique-id",
+        )),
+    }
+}
+
+fn device_json(d: &DeviceInfo) -> Value {
+    let id = &d.identity;
+    json!({
+        "polling_address": d.polling_address,
+        "unique_id": d.unique_id().to_string(),
+        "expanded_device_type": id.expanded_device_type,
+        "manufacturer_id": d.manufacturer_id(),
+        "device_id": id.device_id.to_string(),
+        "universal_revision": id.universal_revision,
+        "device_revision": id.device_revision,
+        "tag": d.tag,
+        "long_tag": if d.revision() >= 6 { json!(d.long_tag) } else { Value::Null },
+        "descriptor": d.descriptor,
+    })
+}
+
+/// `hartkit scan`.
+pub async fn scan(
+    c: &mut Client<AnyTransport>,
+    from: u8,
+    to: u8,
+    as_json: bool,
+) -> Result<String, Failure> {
+    if from > to || to > 63 {
+        return Err(usage(format!(
+            "--from {from} --to {to}: polling addresses are 0-63, from ≤ to"
+        )));
+    }
+    let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let total = usize::from(to - from) + 1;
+    let mut done = 0;
+    let found = c
+        .scan(from..=to, |poll, info| {
+            done += 1;
+            if tty {
+                let bar = "#".repeat(done * 30 / total);
+                eprint!(
+                    "\rscanning [{bar:<30}] {done}/{total} polling address {poll}{}   ",
+                    if info.is_some() { " found" } else { "" }
+                );
+                if done == total {
+                    eprintln!();
+                }
+            }
+        })
+        .await
+        .map_err(fail)?;
+    if as_json {
+        return Ok(serde_json::to_string_pretty(&Value::Array(
+            found.iter().map(device_json).collect(),
+        ))
+        .unwrap_or_default());
+    }
+    let mut s = format!(
+        "{} device(s) on {}\n",
+        found.len(),
+        c.transport().describe()
+    );
+    s.push_str(&format!(
+        "{:>4}  {:<10}  {:<8}  {:<10}  {:>3}  {:<8}  {:<16}  {}\n",
+        "poll", "unique ID", "type", "manuf.", "rev", "tag", "descriptor", "long tag"
+    ));
+    for d in &found {
+        s.push_str(&format!(
+            "{:>4}  {:<10}  0x{:04X}    0x{:04X}    {:>3}  {:<8}  {:<16}  {}\n",
+            d.polling_address.unwrap_or(0),
+            d.unique_id(),
+            d.identity.expanded_device_type,
+            d.manufacturer_id(),
+            d.revision(),
+            d.tag.as_deref().unwrap_or(""),
+            d.descriptor.as_deref().unwrap_or(""),
+            d.long_tag.as_deref().unwrap_or("")
+        ));
+    }
+    Ok(s.trim_end().to_string())
+}
+
+const DV_NAMES: [&str; 4] = ["PV", "SV", "TV", "QV"];
+
+fn bits_words(table: &tables::BitTable, v: u8) -> Value {
+    json!(table.set_bits(v).map(|b| b.name).collect::<Vec<_>>())
+}
+
+/// `hartkit read`.
+pub async fn read(
+    c: &mut Client<AnyTransport>,
+    target: &DeviceRef,
+    what: &str,
+    codes: &[u8],
+    as_json: bool,
+) -> Result<String, Failure> {
+    let d = c.resolve(target).await.map_err(fail)?;
+    let v = match what {
+        "pv" => {
+            let r: cmd::ReadPvResponse =
+                decode(&c.command(&d, 1, &[]).await.map_err(fail)?, "command 1")?;
+            json!({"pv": f(r.pv), "units": r.pv_units.0, "units_symbol": units(r.pv_units.0)})
+        }
+        "loop" => {
+            let r: cmd::ReadLoopCurrentResponse =
+                decode(&c.command(&d, 2, &[]).await.map_err(fail)?, "command 2")?;
+            json!({"loop_current": f(r.loop_current.0), "percent_of_range": f(r.percent_of_range.0)})
+        }
+        "dynamic" => {
+            let r: cmd::ReadDynamicVariablesResponse =
+                decode(&c.command(&d, 3, &[]).await.map_err(fail)?, "command 3")?;
+            let vars: Vec<Value> = r
+                .variables
+                .as_slice()
+                .iter()
+                .enumerate()
+                .map(|(i, v)| json!({"name": DV_NAMES[i], "units": v.units.0, "units_symbol": units(v.units.0), "value": f(v.value)}))
+                .collect();
+            json!({"loop_current": f(r.loop_current.0), "variables": vars})
+        }
+        "vars" => {
+            if codes.is_empty() || codes.len() > 8 {
+                return Err(usage("read vars: give 1 to 8 device variable codes"));
+            }
+            if d.revision() >= 6 {
+                let r: cmd::ReadDeviceVariablesResponse =
+                    decode(&c.command(&d, 9, codes).await.map_err(fail)?, "command 9")?;
+                let slots: Vec<Value> = r
+                    .data
+                    .slots
+                    .as_slice()
+                    .iter()
+                    .map(|s| {
+                        json!({"code": s.code.0, "classification": s.classification.0, "units": s.units.0, "units_symbol": units(s.units.0), "value": f(s.value),
+                        "status": s.status.0, "process_data": tables::PROCESS_DATA_STATUS.name(s.status.process_data()), "limit": tables::LIMIT_STATUS.name(s.status.limit())})
+                    })
+                    .collect();
+                json!({"variables": slots})
+            } else {
+                let r: cmd::ReadVariablesResponse = decode(
+                    &c.command(&d, 33, &codes[..codes.len().min(4)])
+                        .await
+                        .map_err(fail)?,
+                    "command 33",
+                )?;
+                let slots: Vec<Value> = r.variables.as_slice().iter().map(|s| json!({"code": s.code.0, "units": s.units.0, "units_symbol": units(s.units.0), "value": f(s.value)})).collect();
+                json!({"variables": slots})
+            }
+        }
+        "status" => {
+            let mut cl = c.command(&d, 48, &[]).await.map_err(fail)?;
+            let ds = cl.device_status;
+            let data = std::mem::take(&mut cl.data);
+            let mut v = json!({
+                "device_status": ds,
+                "device_status_bits": bits_words(&FIELD_DEVICE_STATUS, ds),
+                "additional_status": hex::compact(&data),
+            });
+            let named: [(usize, &str, &tables::BitTable); 7] = [
+                (6, "extended_status", &tables::EXTENDED_DEVICE_STATUS),
+                (8, "standardized_status_0", &tables::STANDARDIZED_STATUS_0),
+                (9, "standardized_status_1", &tables::STANDARDIZED_STATUS_1),
+                (
+                    10,
+                    "analog_channel_saturated",
+                    &tables::ANALOG_CHANNEL_SATURATED,
+                ),
+                (11, "standardized_status_2", &tables::STANDARDIZED_STATUS_2),
+                (12, "standardized_status_3", &tables::STANDARDIZED_STATUS_3),
+                (13, "analog_channel_fixed", &tables::ANALOG_CHANNEL_FIXED),
+            ];
+            for (at, key, table) in named {
+                if let Some(&b) = data.get(at) {
+                    v[key] = bits_words(table, b);
+                }
+            }
+            if let Some(ds6) = data.get(..6) {
+                v["device_specific_status"] = json!(hex::compact(ds6));
+            }
+            v
+        }
+        "info" => {
+            let mut v = device_json(&d);
+            if let Ok(r) = c.command(&d, 13, &[]).await {
+                if let Ok(t) = cmd::TagDescriptorDate::decode(&mut Reader::new(&r.data)) {
+                    v["tag"] = json!(t.tag.to_string());
+                    v["descriptor"] = json!(t.descriptor.to_string());
+                    v["date"] = json!(t.date.to_string());
+                }
+            }
+            if let Ok(r) = c.command(&d, 12, &[]).await {
+                if let Ok(m) = cmd::Message::decode(&mut Reader::new(&r.data)) {
+                    v["message"] = json!(m.message.to_string());
+                }
+            }
+            if d.revision() >= 6 {
+                if let Ok(r) = c.command(&d, 20, &[]).await {
+                    if let Ok(t) = cmd::LongTag::decode(&mut Reader::new(&r.data)) {
+                        v["long_tag"] = json!(t.long_tag.to_string());
+                    }
+                }
+            }
+            if let Ok(r) = c.command(&d, 15, &[]).await {
+                if let Ok(i) = cmd::DeviceInformation::decode(&mut Reader::new(&r.data)) {
+                    v["range"] = json!({"units": i.range_units.0, "units_symbol": units(i.range_units.0), "upper": f(i.upper_range_value), "lower": f(i.lower_range_value)});
+                    v["damping"] = f(i.damping.0);
+                    v["transfer_function"] =
+                        json!(tables::TRANSFER_FUNCTION.name(i.transfer_function.0));
+                    v["alarm_selection"] = json!(tables::ALARM_SELECTION.name(i.alarm_selection.0));
+                    v["write_protect"] = json!(tables::WRITE_PROTECT.name(i.write_protect.0));
+                }
+            }
+            if let Ok(r) = c.command(&d, 16, &[]).await {
+                if let Ok(n) = cmd::FinalAssemblyNumber::decode(&mut Reader::new(&r.data)) {
+                    v["final_assembly_number"] = json!(n.final_assembly_number.get());
+                }
+            }
+            v["min_request_preambles"] = json!(d.identity.min_request_preambles);
+            v["config_change_counter"] = json!(d.identity.config_change_counter);
+            v
+        }
+        other => {
+            return Err(usage(format!(
+                "read {other}: expected pv, loop, dynamic, vars CODES, status or info"
+            )))
+        }
+    };
+    if as_json {
+        return Ok(serde_json::to_string_pretty(&v).unwrap_or_default());
+    }
+    Ok(text_of(&v, 0))
+}
+
+/// A JSON value as indented "key: value" lines.
+fn text_of(v: &Value, indent: usize) -> String {
+    let pad = " ".repeat(indent);
+    match v {
+        Value::Object(m) => m
+            .iter()
+            .map(|(k, x)| match x {
+                Value::Object(_) | Value::Array(_) => {
+                    format!("{pad}{k}:\n{}", text_of(x, indent + 2))
+                }
+                _ => format!("{pad}{k:<24} {}", scalar(x)),
+            })
+            .collect::<Vec<_>>()
+            .join("\n"),
+        Value::Array(a) if a.iter().all(|x| !x.is_object()) => format!(
+            "{pad}{}",
+            a.iter().map(scalar).collect::<Vec<_>>().join(", ")
+        ),
+        Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .map(|(i, x)| format!("{pad}[{i}]\n{}", text_of(x, indent + 2)))
+            .collect::<Vec<_>>()
+            .join("\n"),
+        x => format!("{pad}{}", scalar(x)),
+    }
+}
+
+fn scalar(v: &Value) -> String {
+    match v {
+        Value::String(s) => s.clone(),
+        Value::Null => "-".into(),
+        x => x.to_string(),
+    }
+}
+
+fn check_rc(r: &Reply) -> String {
+    if r.response_code == 0 {
+        String::new()
+    } else {
+        format!(
+            " (device warning {}: {})",
+            r.response_code,
+            tables::response_code_name(0, r.response_code).unwrap_or("warning")
+        )
+    }
+}
+
+/// `hartkit write`.
+pub async fn write(
+    c: &mut Client<AnyTransport>,
+    target: &DeviceRef,
+    what: &str,
+    args: &[String],
+) -> Result<String, Failure> {
+    let d = c.resolve(target).await.map_err(fail)?;
+    let need = |n: usize| -> Result<(), Failure> {
+        if args.len() < n {
+            Err(usage(format!("write {what}: needs {n} value(s)")))
+        } else {
+            Ok(())
+        }
+    };
+    let num = |s: &str| -> Result<f32, Failure> {
+        s.parse::<f32>()
+            .map_err(|_| usage(format!("write {what}: {s:?} is not a number")))
+    };
+    let int = |s: &str| -> Result<u8, Failure> {
+        s.parse::<u8>()
+            .map_err(|_| usage(format!("write {what}: {s:?} is not a number 0-255")))
+    };
+    let enc = |v: &dyn Fn(
+        &mut hart_proto::wire::Writer<'_>,
+    ) -> Result<(), hart_proto::wire::EncodeError>|
+     -> Result<Vec<u8>, Failure> {
+        let mut buf = [0u8; 64];
+        let mut w = hart_proto::wire::Writer::new(&mut buf);
+        v(&mut w).map_err(|e| usage(format!("write {what}: {e}")))?;
+        Ok(w.written().to_vec())
+    };
+    let (command, data, confirm): (u16, Vec<u8>, u16) = match what {
+        "tag" | "descriptor" | "date" => {
+            need(1)?;
+            // Read the current tag/descriptor/date so one of them can change alone.
+            let mut t: cmd::TagDescriptorDate = decode(&c.command(&d, 13, &[]).await.map_err(fail)?, "command 13")?;
+            match what {
+                "tag" => t.tag = PackedString::new(&args[0]).map_err(|e| usage(format!("tag: {e}")))?,
+                "descriptor" => t.descriptor = PackedString::new(&args[0]).map_err(|e| usage(format!("descriptor: {e}")))?,
+                _ => {
+                    let p: Vec<&str> = args[0].split('-').collect();
+                    let bad = || usage(format!("date {:?}: expected YYYY-MM-DD", args[0]));
+                    if p.len() != 3 {
+                        return Err(bad());
+                    }
+                    t.date = Date::new(p[0].parse().map_err(|_| bad())?, p[1].parse().map_err(|_| bad())?, p[2].parse().map_err(|_| bad())?).map_err(|e| usage(format!("date: {e}")))?;
+                }
+            }
+            (18, enc(&|w| t.encode(w))?, 13)
+        }
+        "message" => {
+            need(1)?;
+            let m = cmd::Message { message: PackedString::new(&args.join(" ")).map_err(|e| usage(format!("message: {e}")))? };
+            (17, enc(&|w| m.encode(w))?, 12)
+        }
+        "long-tag" => {
+            need(1)?;
+            if d.revision() < 6 {
+                return Err(usage(format!("write long-tag: the device is HART {}; long tags need HART 6 or later", d.revision())));
+            }
+            let t = cmd::LongTag { long_tag: Latin1String::new(&args.join(" ")).map_err(|e| usage(format!("long tag: {e}")))? };
+            (22, enc(&|w| t.encode(w))?, 20)
+        }
+        "range" => {
+            need(2)?;
+            let (urv, lrv) = (num(&args[0])?, num(&args[1])?);
+            let units_code = match args.get(2) {
+                Some(u) => int(u)?,
+                None => decode::<cmd::DeviceInformation>(&c.command(&d, 15, &[]).await.map_err(fail)?, "command 15")?.range_units.0,
+            };
+            let r = cmd::RangeValues { range_units: hart_proto::types::UnitCode(units_code), upper_range_value: urv, lower_range_value: lrv };
+            (35, enc(&|w| r.encode(w))?, 15)
+        }
+        "units" => {
+            need(1)?;
+            (44, vec![int(&args[0])?], 1)
+        }
+        "damping" => {
+            need(1)?;
+            (34, num(&args[0])?.to_be_bytes().to_vec(), 15)
+        }
+        "polling-address" => {
+            need(1)?;
+            let p = int(&args[0])?;
+            let mode = match args.get(1) {
+                Some(m) => int(m)?,
+                None => u8::from(p == 0),
+            };
+            let data = if d.revision() >= 6 { vec![p, mode] } else { vec![p] };
+            (6, data, 7)
+        }
+        "fixed-current" => {
+            need(1)?;
+            (40, num(&args[0])?.to_be_bytes().to_vec(), 2)
+        }
+        "preambles" => {
+            need(1)?;
+            (59, vec![int(&args[0])?], 0)
+        }
+        other => return Err(usage(format!("write {other}: expected tag, long-tag, descriptor, message, date, range, units, damping, polling-address, fixed-current or preambles"))),
+    };
+    let r = c.command(&d, command, &data).await.map_err(fail)?;
+    let warn = check_rc(&r);
+    // Confirm by reading back.
+    let back = c.command(&d, confirm, &[]).await.map_err(fail)?;
+    let mut s = format!("command {command} accepted{warn}; read back with command {confirm}:\n");
+    let pdu = back.pdu.clone();
+    let frame = Frame::parse_pdu(&pdu).map_err(|e| usage(e.to_string()))?;
+    s.push_str(&annotate::frame(&frame));
+    Ok(s.trim_end().to_string())
+}
+
+/// `hartkit command CMD [DATA]`: any command, reply decoded.
+pub async fn command(
+    c: &mut Client<AnyTransport>,
+    target: &DeviceRef,
+    number: u16,
+    data: &[u8],
+    as_json: bool,
+) -> Result<String, Failure> {
+    let d = c.resolve(target).await.map_err(fail)?;
+    let r = c.command(&d, number, data).await.map_err(fail)?;
+    let frame = Frame::parse_pdu(&r.pdu).map_err(|e| usage(e.to_string()))?;
+    if as_json {
+        return Ok(serde_json::to_string_pretty(&fj::frame(&frame)).unwrap_or_default());
+    }
+    Ok(annotate::frame(&frame).trim_end().to_string())
+}
+
+/// `hartkit burst`.
+pub async fn burst(
+    c: &mut Client<AnyTransport>,
+    target: &DeviceRef,
+    action: &BurstAction,
+    as_json: bool,
+) -> Result<String, Failure> {
+    let d = c.resolve(target).await.map_err(fail)?;
+    let mut notes = vec![];
+    let period = |s: f32| ((s as f64) * 32_000.0).round() as u32;
+    match action {
+        BurstAction::Config {
+            message,
+            command,
+            vars,
+            period: p,
+            max_period,
+            trigger,
+            level,
+        } => {
+            let m = *message;
+            let r = c
+                .command(&d, 108, &[&command.to_be_bytes()[..], &[m]].concat())
+                .await
+                .map_err(fail)?;
+            notes.push(format!("command {command}{}", check_rc(&r)));
+            if !vars.is_empty() {
+                let mut slots = [250u8; 8];
+                for (i, v) in vars.iter().take(8).enumerate() {
+                    slots[i] = *v;
+                }
+                let r = c
+                    .command(&d, 107, &[&slots[..], &[m]].concat())
+                    .await
+                    .map_err(fail)?;
+                notes.push(format!("slots {vars:?}{}", check_rc(&r)));
+            }
+            let max = max_period.unwrap_or(p.max(60.0));
+            let r = c
+                .command(
+                    &d,
+                    103,
+                    &[
+                        &[m][..],
+                        &period(*p).to_be_bytes(),
+                        &period(max).to_be_bytes(),
+                    ]
+                    .concat(),
+                )
+                .await
+                .map_err(fail)?;
+            let bp = cmd::BurstPeriod::decode(&mut Reader::new(&r.data))
+                .map_err(|e| usage(e.to_string()))?;
+            notes.push(format!(
+                "period {} s, max {} s{}",
+                bp.update_period.as_secs_f64(),
+                bp.max_update_period.as_secs_f64(),
+                check_rc(&r)
+            ));
+            let mode = match trigger.as_str() {
+                "continuous" => 0u8,
+                "window" => 1,
+                "rising" => 2,
+                "falling" => 3,
+                "on-change" => 4,
+                other => return Err(usage(format!(
+                    "--trigger {other}: expected continuous, window, rising, falling or on-change"
+                ))),
+            };
+            let (class, unit, lvl) = if matches!(mode, 0 | 4) {
+                (0u8, 250u8, hart_proto::types::hart_nan())
+            } else {
+                let level = level
+                    .ok_or_else(|| usage("--trigger window/rising/falling needs --level X"))?;
+                // The trigger is in the units and classification of the value the command carries.
+                let src = if matches!(command, 9 | 33) {
+                    vars.first().copied().unwrap_or(0)
+                } else {
+                    246
+                };
+                let v = c.command(&d, 9, &[src]).await.map_err(fail)?;
+                let slot = cmd::ReadDeviceVariablesResponse::decode(&mut Reader::new(&v.data))
+                    .map_err(|e| usage(e.to_string()))?;
+                let s = slot
+                    .data
+                    .slots
+                    .as_slice()
+                    .first()
+                    .copied()
+                    .ok_or_else(|| usage("no trigger variable"))?;
+                (s.classification.0, s.units.0, level)
+            };
+            let t = [&[m, mode, class, unit][..], &lvl.to_be_bytes()].concat();
+            let r = c.command(&d, 104, &t).await.map_err(fail)?;
+            notes.push(format!("trigger {trigger}{}", check_rc(&r)));
+        }
+        BurstAction::On { message } | BurstAction::Off { message } => {
+            let code = u8::from(matches!(action, BurstAction::On { .. }));
+            let r = c.command(&d, 109, &[code, *message]).await.map_err(fail)?;
+            notes.push(format!(
+                "burst message {message} {}{}",
+                if code == 1 { "on" } else { "off" },
+                check_rc(&r)
+            ));
+        }
+        BurstAction::Show { .. } => {}
+    }
+    let message = match action {
+        BurstAction::Config { message, .. }
+        | BurstAction::On { message }
+        | BurstAction::Off { message }
+        | BurstAction::Show { message } => *message,
+    };
+    let r = c.command(&d, 105, &[message]).await.map_err(fail)?;
+    let frame = Frame::parse_pdu(&r.pdu).map_err(|e| usage(e.to_string()))?;
+    if as_json {
+        let mut v = fj::frame(&frame);
+        v["changes"] = json!(notes);
+        return Ok(serde_json::to_string_pretty(&v).unwrap_or_default());
+    }
+    let mut s = notes.join("\n");
+    if !s.is_empty() {
+        s.push('\n');
+    }
+    s.push_str(&annotate::frame(&frame));
+    Ok(s.trim_end().to_string())
+}
+
+/// What `hartkit burst` does.
+#[derive(Debug, Clone)]
+pub enum BurstAction {
+    /// Configure a burst message.
+    Config {
+        /// Message number.
+        message: u8,
+        /// Command published.
+        command: u16,
+        /// Device variable codes for the slots.
+        vars: Vec<u8>,
+        /// Update period, s.
+        period: f32,
+        /// Maximum update period, s.
+        max_period: Option<f32>,
+        /// Trigger mode name.
+        trigger: String,
+        /// Trigger level.
+        level: Option<f32>,
+    },
+    /// Enable.
+    On {
+        /// Message number.
+        message: u8,
+    },
+    /// Disable.
+    Off {
+        /// Message number.
+        message: u8,
+    },
+    /// Show the configuration.
+    Show {
+        /// Message number.
+        message: u8,
+    },
+}
+
+/// `hartkit monitor`: every frame seen on the line, decoded, with timing.
+pub async fn monitor(
+    t: &mut AnyTransport,
+    duration: Option<f64>,
+    as_json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<(), Failure> {
+    let start = t.now();
+    let end = duration.map(|d| start + (d * 1e6) as u64);
+    let mut deframer = Deframer::default();
+    let mut last_end: Option<u64> = None;
+    loop {
+        let now = t.now();
+        if end.is_some_and(|e| now >= e) {
+            return Ok(());
+        }
+        let until = end.unwrap_or(now + 1_000_000).min(now + 1_000_000);
+        let bytes = t.recv(until).await.map_err(|e| fail(HostError::Io(e)))?;
+        for (b, at) in bytes {
+            let mut lines: Vec<String> = vec![];
+            deframer.push(b, hart_proto::deframer::UartFlags::OK, &mut |e| match e {
+                DeframerEvent::Frame(f) => {
+                    let gap = last_end.map(|l| at.saturating_sub(l));
+                    if as_json {
+                        let mut v = fj::frame(&f);
+                        v["t_us"] = json!(at - start);
+                        v["gap_us"] = json!(gap);
+                        lines.push(v.to_string());
+                    } else {
+                        let summary = match f.response_code {
+                            Some(rc) => {
+                                format!("rc {rc} status 0x{:02X}", f.device_status.unwrap_or(0))
+                            }
+                            None => String::new(),
+                        };
+                        lines.push(format!(
+                            "{:>10.3} s {:>8} {:<4} cmd {:<4} {} {} {}",
+                            (at - start) as f64 / 1e6,
+                            gap.map_or(String::from("-"), |g| format!(
+                                "+{:.1}ms",
+                                g as f64 / 1000.0
+                            )),
+                            f.frame_type().name(),
+                            f.command,
+                            f.address,
+                            summary,
+                            hex::compact(f.data)
+                        ));
+                    }
+                    last_end = Some(at);
+                }
+                DeframerEvent::Damaged(d) => lines.push(if as_json {
+                    json!({"t_us": at - start, "damaged": hex::compact(d.pdu), "errors": d.errors})
+                        .to_string()
+                } else {
+                    format!(
+                        "{:>10.3} s damaged frame (errors 0x{:02X}) {}",
+                        (at - start) as f64 / 1e6,
+                        d.errors,
+                        hex::compact(d.pdu)
+                    )
+                }),
+                _ => {}
+            });
+            for l in lines {
+                let _ = writeln!(out, "{l}");
+            }
+        }
+    }
+}
