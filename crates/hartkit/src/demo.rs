@@ -82,8 +82,8 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
         let stop = tokio::signal::ctrl_c();
         tokio::pin!(stop);
         loop {
-            for i in 0..rows.len() {
-                let info = rows[i].info.clone();
+            for row in rows.iter_mut() {
+                let info = row.info.clone();
                 let r = tokio::select! {
                     r = c.command(&info, 3, &[]) => r,
                     _ = &mut stop => return Ok(()),

@@ -585,9 +585,11 @@ pub async fn burst(
                 "rising" => 2,
                 "falling" => 3,
                 "on-change" => 4,
-                other => return Err(usage(format!(
+                other => {
+                    return Err(usage(format!(
                     "--trigger {other}: expected continuous, window, rising, falling or on-change"
-                ))),
+                )))
+                }
             };
             let (class, unit, lvl) = if matches!(mode, 0 | 4) {
                 (0u8, 250u8, hart_proto::types::hart_nan())
