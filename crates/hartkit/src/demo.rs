@@ -90,17 +90,16 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
                 };
                 match r {
                     Ok(r) => {
-                        rows[i].status = r.device_status;
-                        rows[i].error = None;
+                        row.status = r.device_status;
+                        row.error = None;
                         if let Ok(d) =
                             ReadDynamicVariablesResponse::decode(&mut Reader::new(&r.data))
                         {
-                            rows[i].current = Some(d.loop_current.0);
-                            rows[i].pv =
-                                d.variables.as_slice().first().map(|v| (v.value, v.units.0));
+                            row.current = Some(d.loop_current.0);
+                            row.pv = d.variables.as_slice().first().map(|v| (v.value, v.units.0));
                         }
                     }
-                    Err(e) => rows[i].error = Some(e.to_string()),
+                    Err(e) => row.error = Some(e.to_string()),
                 }
             }
             // Burst frames heard meanwhile, per device.
