@@ -168,7 +168,12 @@ fn configure(fd: i32, baud: u32) -> io::Result<()> {
     t.c_cc[libc::VMIN] = 0;
     t.c_cc[libc::VTIME] = 0;
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-        return Err(os_err("tcsetattr"));
+        // A pseudo-terminal has no parity; some C libraries refuse the request then.
+        t.c_cflag &= !(libc::PARENB | libc::PARODD);
+        t.c_iflag &= !libc::INPCK;
+        if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
+            return Err(os_err("tcsetattr"));
+        }
     }
     Ok(())
 }

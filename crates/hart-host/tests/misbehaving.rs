@@ -20,7 +20,12 @@ struct Scripted {
 
 impl Scripted {
     fn new(replies: Vec<Option<Vec<u8>>>) -> Self {
-        Scripted { now: 0, replies: replies.into(), pending: vec![], requests: vec![] }
+        Scripted {
+            now: 0,
+            replies: replies.into(),
+            pending: vec![],
+            requests: vec![],
+        }
     }
 }
 
@@ -37,7 +42,11 @@ impl Transport for Scripted {
         self.requests.push(bytes.to_vec());
         if let Some(Some(reply)) = self.replies.pop_front() {
             let start = self.now + self.profile().hold;
-            self.pending = reply.iter().enumerate().map(|(i, &b)| (b, start + (i as Micros + 1) * ct)).collect();
+            self.pending = reply
+                .iter()
+                .enumerate()
+                .map(|(i, &b)| (b, start + (i as Micros + 1) * ct))
+                .collect();
         }
         Ok(())
     }
@@ -58,8 +67,20 @@ impl Transport for Scripted {
 }
 
 /// An ACK from the HART 5-style device 0x1A/0x1A/0xAD188C with `preambles` preambles.
-fn ack(short: bool, command: u8, rc: u8, status: u8, data: &[u8], preambles: usize, trailing: &[u8]) -> Vec<u8> {
-    let mut pdu = if short { vec![0x06, 0x80] } else { vec![0x86, 0x9A, 0x1A, 0xAD, 0x18, 0x8C] };
+fn ack(
+    short: bool,
+    command: u8,
+    rc: u8,
+    status: u8,
+    data: &[u8],
+    preambles: usize,
+    trailing: &[u8],
+) -> Vec<u8> {
+    let mut pdu = if short {
+        vec![0x06, 0x80]
+    } else {
+        vec![0x86, 0x9A, 0x1A, 0xAD, 0x18, 0x8C]
+    };
     pdu.push(command);
     pdu.push((data.len() + 2) as u8);
     pdu.extend([rc, status]);
@@ -82,10 +103,22 @@ fn client(replies: Vec<Option<Vec<u8>>>) -> Client<Scripted> {
 
 #[tokio::test(flavor = "current_thread")]
 async fn hart5_device_with_four_preambles_and_trailing_garbage() {
-    let mut c = client(vec![Some(ack(true, 0, 0, 0, &hart5_identity(), 4, &[0x00, 0x13, 0x37]))]);
+    let mut c = client(vec![Some(ack(
+        true,
+        0,
+        0,
+        0,
+        &hart5_identity(),
+        4,
+        &[0x00, 0x13, 0x37],
+    ))]);
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     assert_eq!(d.revision(), 5);
-    assert_eq!(d.manufacturer_id(), 0x1A, "HART 5: manufacturer ID is byte 1");
+    assert_eq!(
+        d.manufacturer_id(),
+        0x1A,
+        "HART 5: manufacturer ID is byte 1"
+    );
     assert_eq!(d.unique_id().to_string(), "1A1AAD188C");
     assert!(d.identity.min_response_preambles.is_none());
 }
@@ -94,7 +127,12 @@ async fn hart5_device_with_four_preambles_and_trailing_garbage() {
 async fn busy_twice_then_the_real_reply() {
     let id = ack(true, 0, 0, 0, &hart5_identity(), 5, &[]);
     let pv = [6u8, 0x41, 0x48, 0, 0];
-    let mut c = client(vec![Some(id), Some(ack(false, 1, 32, 0, &[], 5, &[])), Some(ack(false, 1, 32, 0, &[], 5, &[])), Some(ack(false, 1, 0, 0, &pv, 5, &[]))]);
+    let mut c = client(vec![
+        Some(id),
+        Some(ack(false, 1, 32, 0, &[], 5, &[])),
+        Some(ack(false, 1, 32, 0, &[], 5, &[])),
+        Some(ack(false, 1, 0, 0, &pv, 5, &[])),
+    ]);
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     let r = c.command(&d, 1, &[]).await.unwrap();
     assert_eq!(r.data, pv);
@@ -106,12 +144,25 @@ async fn busy_twice_then_the_real_reply() {
 #[tokio::test(flavor = "current_thread")]
 async fn delayed_response_is_polled_until_done() {
     let id = ack(true, 0, 0, 0, &hart5_identity(), 5, &[]);
-    let mut c = client(vec![Some(id), Some(ack(false, 41, 33, 0, &[], 5, &[])), Some(ack(false, 41, 34, 0, &[], 5, &[])), Some(ack(false, 41, 34, 0, &[], 5, &[])), Some(ack(false, 41, 0, 0, &[], 5, &[]))]);
+    let mut c = client(vec![
+        Some(id),
+        Some(ack(false, 41, 33, 0, &[], 5, &[])),
+        Some(ack(false, 41, 34, 0, &[], 5, &[])),
+        Some(ack(false, 41, 34, 0, &[], 5, &[])),
+        Some(ack(false, 41, 0, 0, &[], 5, &[])),
+    ]);
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     let r = c.command(&d, 41, &[]).await.unwrap();
-    assert_eq!((r.response_code, r.data.len()), (0, 0), "status-only success reply");
+    assert_eq!(
+        (r.response_code, r.data.len()),
+        (0, 0),
+        "status-only success reply"
+    );
     assert_eq!(c.transport().requests.len(), 5);
-    assert!(c.transport().now() >= 3 * 500_000, "waits the delayed-response interval between polls");
+    assert!(
+        c.transport().now() >= 3 * 500_000,
+        "waits the delayed-response interval between polls"
+    );
 }
 
 #[tokio::test(flavor = "current_thread")]
@@ -119,14 +170,30 @@ async fn communication_error_reply_is_retried() {
     let id = ack(true, 0, 0, 0, &hart5_identity(), 5, &[]);
     let pv = [6u8, 0x41, 0x48, 0, 0];
     // The device says our request arrived with a parity error (0xC0), then answers.
-    let mut c = client(vec![Some(id.clone()), Some(ack(false, 1, 0xC0, 0, &[], 5, &[])), Some(ack(false, 1, 0, 0, &pv, 5, &[]))]);
+    let mut c = client(vec![
+        Some(id.clone()),
+        Some(ack(false, 1, 0xC0, 0, &[], 5, &[])),
+        Some(ack(false, 1, 0, 0, &pv, 5, &[])),
+    ]);
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     assert_eq!(c.command(&d, 1, &[]).await.unwrap().data, pv);
     // Always damaged: reported, with the device's error byte.
-    let mut c = client(vec![Some(id), Some(ack(false, 1, 0x88, 0, &[], 5, &[])), Some(ack(false, 1, 0x88, 0, &[], 5, &[])), Some(ack(false, 1, 0x88, 0, &[], 5, &[])), Some(ack(false, 1, 0x88, 0, &[], 5, &[]))]);
+    let mut c = client(vec![
+        Some(id),
+        Some(ack(false, 1, 0x88, 0, &[], 5, &[])),
+        Some(ack(false, 1, 0x88, 0, &[], 5, &[])),
+        Some(ack(false, 1, 0x88, 0, &[], 5, &[])),
+        Some(ack(false, 1, 0x88, 0, &[], 5, &[])),
+    ]);
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     match c.command(&d, 1, &[]).await {
-        Err(e @ HostError::Communication { attempts: 4, last_error: 0x88, .. }) => assert!(e.to_string().contains("0x88"), "{e}"),
+        Err(
+            e @ HostError::Communication {
+                attempts: 4,
+                last_error: 0x88,
+                ..
+            },
+        ) => assert!(e.to_string().contains("0x88"), "{e}"),
         other => panic!("{other:?}"),
     }
 }
@@ -138,7 +205,10 @@ async fn status_only_error_reply_is_explained() {
     let d = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
     match c.command(&d, 18, &[0; 21]).await {
         Err(e @ HostError::Device { code: 7, .. }) => {
-            assert_eq!(e.to_string(), "device replied 'in write-protect mode' (7) to command 18");
+            assert_eq!(
+                e.to_string(),
+                "device replied 'in write-protect mode' (7) to command 18"
+            );
             assert_eq!(e.exit_code(), 4);
         }
         other => panic!("{other:?}"),

@@ -45,6 +45,7 @@ fn symbol(u: u8) -> &'static str {
 /// Runs the demo on `port` (normally `sim`).
 pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (String, u8)> {
     crate::host::block_on(async move {
+        // Opened inside the runtime: serial ports register with its reactor.
         let mut t = hart_host::target::open(port).map_err(|e| (e, 2))?;
         if let AnyTransport::Sim(s) = &mut t {
             s.add_secondary(5_000_000);

@@ -529,47 +529,53 @@ fn target(t: &TargetArgs) -> Result<hart_host::DeviceRef, (String, u8)> {
 
 fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
     use hartkit::host;
+    // Ports are opened inside the runtime (serial ports register with its reactor).
     Some(match top {
-        Top::Scan { host: h, from, to } => {
-            host_client(h).and_then(|mut c| host::block_on(host::scan(&mut c, *from, *to, h.json)))
-        }
+        Top::Scan { host: h, from, to } => host::block_on(async {
+            let mut c = host_client(h)?;
+            host::scan(&mut c, *from, *to, h.json).await
+        }),
         Top::Read {
             host: h,
             target: t,
             what,
             codes,
-        } => target(t).and_then(|d| {
-            host_client(h)
-                .and_then(|mut c| host::block_on(host::read(&mut c, &d, what, codes, h.json)))
+        } => host::block_on(async {
+            let d = target(t)?;
+            let mut c = host_client(h)?;
+            host::read(&mut c, &d, what, codes, h.json).await
         }),
         Top::Write {
             host: h,
             target: t,
             what,
             values,
-        } => target(t).and_then(|d| {
-            host_client(h).and_then(|mut c| host::block_on(host::write(&mut c, &d, what, values)))
+        } => host::block_on(async {
+            let d = target(t)?;
+            let mut c = host_client(h)?;
+            host::write(&mut c, &d, what, values).await
         }),
         Top::Command {
             host: h,
             target: t,
             number,
             data,
-        } => target(t).and_then(|d| {
+        } => host::block_on(async {
+            let d = target(t)?;
             let bytes = if data.trim().is_empty() {
-                Ok(vec![])
+                vec![]
             } else {
-                hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))
-            }?;
-            host_client(h).and_then(|mut c| {
-                host::block_on(host::command(&mut c, &d, *number, &bytes, h.json))
-            })
+                hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))?
+            };
+            let mut c = host_client(h)?;
+            host::command(&mut c, &d, *number, &bytes, h.json).await
         }),
         Top::Burst {
             host: h,
             target: t,
             action,
-        } => target(t).and_then(|d| {
+        } => host::block_on(async {
+            let d = target(t)?;
             let a = match action.clone() {
                 BurstCmd::Config {
                     message,
@@ -592,15 +598,16 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 BurstCmd::Off { message } => host::BurstAction::Off { message },
                 BurstCmd::Show { message } => host::BurstAction::Show { message },
             };
-            host_client(h).and_then(|mut c| host::block_on(host::burst(&mut c, &d, &a, h.json)))
+            let mut c = host_client(h)?;
+            host::burst(&mut c, &d, &a, h.json).await
         }),
-        Top::Monitor { host: h, duration } => hart_host::target::open(&h.port)
-            .map_err(|e| (e, 2))
-            .and_then(|mut t| {
-                let mut out = std::io::stdout();
-                host::block_on(host::monitor(&mut t, *duration, h.json, &mut out))
-                    .map(|_| String::new())
-            }),
+        Top::Monitor { host: h, duration } => host::block_on(async {
+            let mut t = hart_host::target::open(&h.port).map_err(|e| (e, 2))?;
+            let mut out = std::io::stdout();
+            host::monitor(&mut t, *duration, h.json, &mut out)
+                .await
+                .map(|_| String::new())
+        }),
         Top::Demo {
             duration,
             json,

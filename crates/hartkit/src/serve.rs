@@ -82,7 +82,12 @@ fn configure(fd: i32, baud: Option<u32>) -> Result<(), String> {
     t.c_cc[libc::VMIN] = 0;
     t.c_cc[libc::VTIME] = 0;
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-        return Err(errno("tcsetattr"));
+        // A pseudo-terminal has no parity; some C libraries refuse the request then.
+        t.c_cflag &= !(libc::PARENB | libc::PARODD);
+        t.c_iflag &= !libc::INPCK;
+        if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
+            return Err(errno("tcsetattr"));
+        }
     }
     Ok(())
 }

@@ -1,0 +1,187 @@
+//! End to end: `hartkit sim serve --pty` runs devices on a real pseudo-terminal and the
+//! host commands talk to them through it, as they would through a USB HART modem.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+
+use serde_json::Value;
+
+struct Served {
+    child: Child,
+    pty: String,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn serve(args: &[&str]) -> Served {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["sim", "serve", "--pty"])
+        .args(args)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.as_mut().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let pty = first
+        .trim()
+        .strip_prefix("pty: ")
+        .expect("first line names the pty")
+        .to_string();
+    Served { child, pty }
+}
+
+fn hartkit(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn host_commands_over_a_pseudo_terminal() {
+    let s = serve(&[
+        "--profile",
+        "pressure",
+        "--poll",
+        "1",
+        "--profile",
+        "temperature",
+        "--poll",
+        "2",
+        "--profile",
+        "valve",
+        "--poll",
+        "20",
+    ]);
+    let p = s.pty.as_str();
+
+    // Scan finds every device, including one above polling address 15.
+    let (code, out, err) = hartkit(&["scan", "-p", p, "--from", "0", "--to", "21", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let devices: Value = serde_json::from_str(&out).unwrap();
+    let polls: Vec<u64> = devices
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["polling_address"].as_u64().unwrap())
+        .collect();
+    assert_eq!(polls, vec![1, 2, 20]);
+    for key in [
+        "unique_id",
+        "expanded_device_type",
+        "manufacturer_id",
+        "device_id",
+        "universal_revision",
+        "device_revision",
+        "tag",
+        "long_tag",
+        "descriptor",
+    ] {
+        assert!(devices[0].get(key).is_some(), "{key} in {}", devices[0]);
+    }
+    assert_eq!(devices[1]["tag"], "TT-200");
+
+    // Reads.
+    let (code, out, err) = hartkit(&["read", "-p", p, "--poll", "2", "dynamic", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["variables"][0]["name"], "PV");
+    assert_eq!(v["variables"][0]["units_symbol"], "°C");
+    assert!(v["loop_current"].as_f64().unwrap() > 3.5);
+    let (code, out, _) = hartkit(&[
+        "read", "-p", p, "--tag", "FV-300", "vars", "0", "1", "--json",
+    ]);
+    assert_eq!(code, 0);
+    assert_eq!(
+        serde_json::from_str::<Value>(&out).unwrap()["variables"]
+            .as_array()
+            .unwrap()
+            .len(),
+        2
+    );
+    let (code, out, _) = hartkit(&["read", "-p", p, "--poll", "1", "status", "--json"]);
+    assert_eq!(code, 0);
+    assert!(serde_json::from_str::<Value>(&out).unwrap()["device_status_bits"].is_array());
+
+    // Writes confirm by reading back.
+    let (code, out, err) = hartkit(&["write", "-p", p, "--poll", "1", "tag", "PT-777"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("\"PT-777\""), "{out}");
+    let (code, out, err) = hartkit(&["write", "-p", p, "--poll", "1", "range", "300", "0", "12"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("upper_range_value") && out.contains("300"),
+        "{out}"
+    );
+
+    // Burst: configure command 1 every second, enable, and see BACKs on the line.
+    let (code, _, err) = hartkit(&[
+        "burst",
+        "-p",
+        p,
+        "--poll",
+        "1",
+        "config",
+        "--command",
+        "1",
+        "--period",
+        "1",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = hartkit(&["burst", "-p", p, "--poll", "1", "on"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = hartkit(&["monitor", "-p", p, "--duration", "3.5", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let backs = out
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["frame_type"] == "BACK")
+        .count();
+    assert!(backs >= 2, "BACK frames seen: {backs}\n{out}");
+    let (code, _, _) = hartkit(&["burst", "-p", p, "--poll", "1", "off"]);
+    assert_eq!(code, 0);
+
+    // A device that does not answer: the clear error, exit status 3.
+    let (code, _, err) = hartkit(&["read", "-p", p, "--poll", "9", "pv"]);
+    assert_eq!(code, 3);
+    assert!(
+        err.contains("no reply from polling address 9 after 4 tries (STO 256 ms)"),
+        "{err}"
+    );
+    assert!(err.contains("RTS"), "{err}");
+
+    // A device error in words.
+    let (code, _, err) = hartkit(&["command", "-p", p, "--poll", "2", "200"]);
+    assert_eq!(code, 4);
+    assert!(
+        err.contains("device replied 'command not implemented' (64) to command 200"),
+        "{err}"
+    );
+}
+
+#[test]
+fn demo_runs_on_the_builtin_plant() {
+    let (code, out, err) = hartkit(&["demo", "--duration", "4", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let last: Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    let polls: Vec<u64> = last["devices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["polling_address"].as_u64().unwrap())
+        .collect();
+    assert_eq!(polls, vec![1, 2, 3, 17]);
+    assert!(last["line"]["transactions"].as_u64().unwrap() >= 4);
+}
