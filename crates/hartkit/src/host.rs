@@ -44,7 +44,7 @@ fn decode<T: Wire>(r: &Reply, what: &str) -> Result<T, Failure> {
 pub fn client(
     port: &str,
     trace: Option<&std::path::Path>,
-    verbose: bool,
+    verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
     let t = hart_host::target::open(port).map_err(usage)?;
@@ -60,7 +60,8 @@ pub fn client(
         ),
         None => None,
     };
-    if file.is_some() || verbose {
+    if file.is_some() || verbose > 0 {
+        let (mut tx_deframer, mut rx_deframer) = (Deframer::default(), Deframer::default());
         c.set_log(move |e| {
             let dir = match e.direction {
                 hart_host::client::Direction::Tx => "tx",
@@ -73,8 +74,20 @@ pub fn client(
                     json!({"t_us": e.time_us, "dir": dir, "hex": hex::compact(&e.bytes)})
                 );
             }
-            if verbose {
+            if verbose > 0 {
                 eprintln!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
+            }
+            if verbose > 1 {
+                // Received bytes come in pieces: one deframer per direction keeps state.
+                let d = match e.direction {
+                    hart_host::client::Direction::Tx => &mut tx_deframer,
+                    hart_host::client::Direction::Rx => &mut rx_deframer,
+                };
+                d.feed(&e.bytes, |ev| {
+                    if let DeframerEvent::Frame(f) = ev {
+                        eprintln!("{}", annotate::frame(&f).trim_end());
+                    }
+                });
             }
         });
     }

@@ -505,7 +505,11 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
 fn host_client(
     h: &HostArgs,
 ) -> Result<hart_host::Client<hart_host::target::AnyTransport>, (String, u8)> {
-    let verbose = matches!(h.log_level.as_str(), "debug" | "trace");
+    let verbose = match h.log_level.as_str() {
+        "debug" => 1,
+        "trace" => 2,
+        _ => 0,
+    };
     if !["error", "warn", "info", "debug", "trace"].contains(&h.log_level.as_str()) {
         return Err((
             format!(
