@@ -300,6 +300,73 @@ impl<T: Transport> Client<T> {
         })
     }
 
+    /// Sends a frame as it is (a gateway forwarding a PDU) and returns the reply's PDU,
+    /// whatever its response code. The master bit is set to this client's.
+    pub async fn forward(&mut self, pdu: &[u8]) -> Result<Vec<u8>, HostError> {
+        let f = Frame::parse_pdu(pdu).map_err(|e| HostError::Decode(e.to_string()))?;
+        let data = f.data.to_vec();
+        let spec = FrameSpec {
+            preambles: 5,
+            expansion: f.expansion,
+            extended: f.extended,
+            ..FrameSpec::request(f.address, f.command, &data)
+        };
+        self.master
+            .request(
+                &FrameSpec {
+                    address: spec.address.with_master(self.kind),
+                    ..spec
+                },
+                self.transport.now(),
+            )
+            .map_err(|e| HostError::Usage(e.to_string()))?;
+        let what = f.address.to_string();
+        loop {
+            let now = self.transport.now();
+            while let Some(out) = self.master.poll(now) {
+                match out {
+                    MasterOutput::Transmit(frame, pre) => {
+                        let mut bytes = vec![0xFF; pre];
+                        bytes.extend_from_slice(frame.as_slice());
+                        self.log(Direction::Tx, &bytes, self.transport.now());
+                        self.transport.send(&bytes).await?;
+                        self.master.transmitted(self.transport.now());
+                    }
+                    MasterOutput::Done(Ok(fb)) => return Ok(fb.as_slice().to_vec()),
+                    MasterOutput::Done(Err(e)) => {
+                        let sto_ms = self.transport.profile().sto / 1000;
+                        let port = self.transport.describe();
+                        return Err(match e {
+                            LinkError::NoReply { attempts } => HostError::NoReply {
+                                target: what,
+                                attempts,
+                                sto_ms,
+                                port,
+                            },
+                            LinkError::CommunicationError {
+                                attempts,
+                                last_error,
+                            } => HostError::Communication {
+                                target: what,
+                                attempts,
+                                last_error,
+                            },
+                        });
+                    }
+                    MasterOutput::Burst(fb) => self.bursts.push_back(fb.as_slice().to_vec()),
+                }
+            }
+            let now = self.transport.now();
+            let deadline = self
+                .master
+                .next_deadline()
+                .unwrap_or(now + 50_000)
+                .clamp(now + 1, now + 200_000);
+            let bytes = self.transport.recv(deadline).await?;
+            self.feed(&bytes);
+        }
+    }
+
     /// Identifies the device at polling address `poll` (command 0 in a short frame).
     pub async fn identify(&mut self, poll: u8) -> Result<DeviceInfo, HostError> {
         let what = format!("polling address {poll}");

@@ -8,6 +8,7 @@
 
 pub mod client;
 pub mod error;
+pub mod hartip;
 pub mod target;
 pub mod transport;
 

@@ -13,6 +13,8 @@ pub enum AnyTransport {
     Serial(SerialTransport),
     /// Simulated plant.
     Sim(Box<SimTransport>),
+    /// HART-IP session.
+    HartIp(Box<crate::hartip::HartIpTransport>),
 }
 
 impl Transport for AnyTransport {
@@ -20,30 +22,35 @@ impl Transport for AnyTransport {
         match self {
             AnyTransport::Serial(t) => t.profile(),
             AnyTransport::Sim(t) => t.profile(),
+            AnyTransport::HartIp(t) => t.profile(),
         }
     }
     fn now(&self) -> Micros {
         match self {
             AnyTransport::Serial(t) => t.now(),
             AnyTransport::Sim(t) => t.now(),
+            AnyTransport::HartIp(t) => t.now(),
         }
     }
     async fn send(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         match self {
             AnyTransport::Serial(t) => t.send(bytes).await,
             AnyTransport::Sim(t) => t.send(bytes).await,
+            AnyTransport::HartIp(t) => t.send(bytes).await,
         }
     }
     async fn recv(&mut self, deadline: Micros) -> std::io::Result<Vec<(u8, Micros)>> {
         match self {
             AnyTransport::Serial(t) => t.recv(deadline).await,
             AnyTransport::Sim(t) => t.recv(deadline).await,
+            AnyTransport::HartIp(t) => t.recv(deadline).await,
         }
     }
     fn describe(&self) -> String {
         match self {
             AnyTransport::Serial(t) => t.describe(),
             AnyTransport::Sim(t) => t.describe(),
+            AnyTransport::HartIp(t) => t.describe(),
         }
     }
 }
@@ -120,4 +127,27 @@ pub fn open(target: &str) -> Result<AnyTransport, String> {
     SerialTransport::open(opts)
         .map(AnyTransport::Serial)
         .map_err(|e| e.to_string())
+}
+
+/// Opens any target, including HART-IP (`udp://HOST[:PORT]`, `tcp://HOST[:PORT]`,
+/// default port 5094), which needs the runtime to connect.
+pub async fn open_async(target: &str) -> Result<AnyTransport, String> {
+    let (base, _) = target.split_once('?').unwrap_or((target, ""));
+    for (scheme, tcp) in [("udp://", false), ("tcp://", true)] {
+        if let Some(rest) = base.strip_prefix(scheme) {
+            let addr = if rest
+                .rsplit_once(':')
+                .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+            {
+                rest.to_string()
+            } else {
+                format!("{rest}:{}", hart_ip::PORT)
+            };
+            return crate::hartip::HartIpTransport::connect(&addr, tcp, 60_000)
+                .await
+                .map(|t| AnyTransport::HartIp(Box::new(t)))
+                .map_err(|e| format!("--port {target}: {e}"));
+        }
+    }
+    open(target)
 }

@@ -1,0 +1,504 @@
+//! # hart-gateway
+//!
+//! A HART-IP server (UDP and TCP, port 5094) in front of a HART loop: sessions with a
+//! limit and an inactivity timer, keep-alive, token-passing PDUs forwarded to the
+//! devices on the loop, direct PDUs answered by the server itself, burst frames
+//! published to every session, a read-only mode, and a read audit log.
+//!
+//! Every session is independent: a malformed message closes (TCP) or is refused
+//! (UDP) for its own session only. The loop is reached through a
+//! `hart_host::Client`, one transaction at a time, by a single backend task.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use hart_host::target::AnyTransport;
+use hart_host::Client;
+use hart_ip::{encode, status, Body, Header, Message, MessageId, MessageType, HEADER_LEN};
+use hart_proto::frame::{Frame, FrameSpec, FrameType};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream, UdpSocket};
+use tokio::sync::{broadcast, mpsc, oneshot, Mutex};
+
+/// Server settings.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Address to listen on (UDP and TCP).
+    pub bind: SocketAddr,
+    /// Serve UDP.
+    pub udp: bool,
+    /// Serve TCP.
+    pub tcp: bool,
+    /// Most sessions at once (UDP and TCP together).
+    pub max_sessions: usize,
+    /// Refuse every command that changes a device ("access restricted").
+    pub read_only: bool,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            bind: "127.0.0.1:5094".parse().unwrap(),
+            udp: true,
+            tcp: true,
+            max_sessions: 64,
+            read_only: false,
+        }
+    }
+}
+
+/// Shortest inactivity timer the server accepts, ms.
+pub const MIN_TIMER_MS: u32 = 1000;
+
+struct Request {
+    pdu: Vec<u8>,
+    reply: oneshot::Sender<Option<Vec<u8>>>,
+}
+
+/// Counters for the audit log and tests.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Stats {
+    /// Sessions opened.
+    pub sessions_opened: u64,
+    /// Sessions refused (limit reached, bad initiate).
+    pub sessions_refused: u64,
+    /// Token-passing requests forwarded.
+    pub forwarded: u64,
+    /// Publish messages sent.
+    pub published: u64,
+    /// Malformed messages.
+    pub malformed: u64,
+}
+
+struct Shared {
+    config: Config,
+    sessions: Mutex<usize>,
+    stats: Mutex<Stats>,
+    to_loop: mpsc::Sender<Request>,
+    bursts: broadcast::Sender<Vec<u8>>,
+}
+
+/// A running server.
+pub struct Server {
+    /// UDP address actually bound.
+    pub udp_addr: Option<SocketAddr>,
+    /// TCP address actually bound.
+    pub tcp_addr: Option<SocketAddr>,
+    shared: Arc<Shared>,
+}
+
+impl Server {
+    /// Counters so far.
+    pub async fn stats(&self) -> Stats {
+        *self.shared.stats.lock().await
+    }
+}
+
+/// Starts the server with `client` reaching the loop; returns once the sockets are
+/// bound. The server runs on local tasks: call it inside a `tokio::task::LocalSet`
+/// (the loop's client is not `Send`: serial ports and simulated plants stay on one
+/// thread).
+pub async fn start(config: Config, client: Client<AnyTransport>) -> std::io::Result<Server> {
+    let (to_loop, from_sessions) = mpsc::channel::<Request>(256);
+    let (bursts, _) = broadcast::channel(64);
+    let shared = Arc::new(Shared {
+        config: config.clone(),
+        sessions: Mutex::new(0),
+        stats: Mutex::new(Stats::default()),
+        to_loop,
+        bursts: bursts.clone(),
+    });
+    tokio::task::spawn_local(backend(client, from_sessions, bursts));
+    let mut udp_addr = None;
+    let mut tcp_addr = None;
+    if config.udp {
+        let sock = Arc::new(UdpSocket::bind(config.bind).await?);
+        udp_addr = Some(sock.local_addr()?);
+        tokio::task::spawn_local(serve_udp(sock, shared.clone()));
+    }
+    if config.tcp {
+        let bind = match udp_addr {
+            Some(a) if config.bind.port() == 0 => a,
+            _ => config.bind,
+        };
+        let listener = TcpListener::bind(bind).await?;
+        tcp_addr = Some(listener.local_addr()?);
+        tokio::task::spawn_local(serve_tcp(listener, shared.clone()));
+    }
+    Ok(Server {
+        udp_addr,
+        tcp_addr,
+        shared,
+    })
+}
+
+/// The one task that talks to the loop: requests in turn, and bursts in between.
+async fn backend(
+    mut client: Client<AnyTransport>,
+    mut requests: mpsc::Receiver<Request>,
+    bursts: broadcast::Sender<Vec<u8>>,
+) {
+    loop {
+        let req = tokio::select! {
+            r = requests.recv() => match r { Some(r) => Some(r), None => return },
+            _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+        };
+        match req {
+            Some(r) => {
+                let reply = client.forward(&r.pdu).await.ok();
+                let _ = r.reply.send(reply);
+            }
+            None => {
+                let _ = client.listen(20_000).await;
+            }
+        }
+        for b in client.take_bursts() {
+            let _ = bursts.send(b);
+        }
+    }
+}
+
+fn message(ty: MessageType, id: MessageId, st: u8, seq: u16, body: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; HEADER_LEN + body.len()];
+    let _ = encode(1, ty, id, st, seq, body, &mut out);
+    out
+}
+
+/// A status-only reply to a request, built by the server itself (read-only mode).
+fn local_reply(f: &Frame<'_>, rc: u8) -> Vec<u8> {
+    let spec = FrameSpec {
+        preambles: 0,
+        frame_type: FrameType::Ack,
+        extended: f.extended,
+        status: Some((rc, 0)),
+        ..FrameSpec::request(f.address, f.command, &[])
+    };
+    let mut out = vec![0u8; spec.encoded_len()];
+    let n = spec.encode(&mut out).unwrap_or(0);
+    out.truncate(n);
+    out
+}
+
+/// What to do with one received message of a session.
+enum Action {
+    Reply(Vec<u8>),
+    ReplyAndClose(Vec<u8>),
+    Close,
+}
+
+/// Session state shared by UDP and TCP.
+struct Session {
+    open: bool,
+    timer: Duration,
+    last_rx: Instant,
+    publish_seq: u16,
+}
+
+impl Session {
+    fn new() -> Self {
+        Session {
+            open: false,
+            timer: Duration::from_secs(60),
+            last_rx: Instant::now(),
+            publish_seq: 0,
+        }
+    }
+}
+
+async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
+    s.last_rx = Instant::now();
+    if h.message_type != MessageType::Request || h.reserved != 0 {
+        shared.stats.lock().await.malformed += 1;
+        return Action::Close;
+    }
+    let reply = |st: u8, b: &[u8]| message(MessageType::Response, h.message_id, st, h.sequence, b);
+    match h.message_id {
+        MessageId::SessionInitiate => {
+            if body.len() < 5 {
+                shared.stats.lock().await.sessions_refused += 1;
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            }
+            let master = body[0];
+            if master > 1 {
+                shared.stats.lock().await.sessions_refused += 1;
+                return Action::Reply(reply(status::INVALID_SELECTION, &[]));
+            }
+            let asked = u32::from_be_bytes([body[1], body[2], body[3], body[4]]);
+            if !s.open {
+                let mut n = shared.sessions.lock().await;
+                if *n >= shared.config.max_sessions {
+                    shared.stats.lock().await.sessions_refused += 1;
+                    return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
+                }
+                *n += 1;
+                s.open = true;
+                shared.stats.lock().await.sessions_opened += 1;
+            }
+            let timer = asked.max(MIN_TIMER_MS);
+            s.timer = Duration::from_millis(u64::from(timer));
+            let mut st = if timer != asked {
+                status::SET_TO_NEAREST
+            } else {
+                status::SUCCESS
+            };
+            if h.version != 1 {
+                st = status::VERSION_NOT_SUPPORTED;
+            }
+            Action::Reply(reply(st, &hart_ip::session_initiate_body(master, timer)))
+        }
+        _ if !s.open => Action::Close,
+        MessageId::SessionClose => Action::ReplyAndClose(reply(status::SUCCESS, &[])),
+        MessageId::KeepAlive => Action::Reply(reply(status::SUCCESS, &[])),
+        MessageId::TokenPassingPdu => {
+            let Ok(f) = Frame::parse_pdu(body) else {
+                shared.stats.lock().await.malformed += 1;
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            };
+            if f.frame_type() != FrameType::Stx {
+                return Action::Reply(reply(status::INVALID_SELECTION, &[]));
+            }
+            if shared.config.read_only
+                && hart_proto::command::info(f.command).is_some_and(|i| i.writes)
+            {
+                return Action::Reply(reply(
+                    status::SUCCESS,
+                    &local_reply(&f, hart_proto::tables::rc::ACCESS_RESTRICTED),
+                ));
+            }
+            let (tx, rx) = oneshot::channel();
+            if shared
+                .to_loop
+                .send(Request {
+                    pdu: body.to_vec(),
+                    reply: tx,
+                })
+                .await
+                .is_err()
+            {
+                return Action::Reply(reply(status::DEVICE_SPECIFIC, &[]));
+            }
+            shared.stats.lock().await.forwarded += 1;
+            match rx.await {
+                Ok(Some(pdu)) => Action::Reply(reply(status::SUCCESS, &pdu)),
+                // The device did not answer: an empty response, so the client stops waiting.
+                _ => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+            }
+        }
+        MessageId::DirectPdu => {
+            let Ok(Body::Direct { entries, .. }) = Body::parse(h.message_id, h.message_type, body)
+            else {
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            };
+            // The server is a HART-IP device itself; it answers "not implemented" to the
+            // commands it does not serve.
+            let mut out = vec![0u8, 0u8];
+            for e in hart_ip::DirectEntries(entries).flatten() {
+                out.extend_from_slice(&e.command.to_be_bytes());
+                out.extend([1u8, hart_proto::tables::rc::NOT_IMPLEMENTED]);
+            }
+            Action::Reply(reply(status::SUCCESS, &out))
+        }
+        MessageId::ReadAuditLog => {
+            let start = body.first().copied().unwrap_or(0);
+            let mut out = vec![start, 0];
+            out.extend([0u8; 8 + 8]);
+            out.extend([0u8, 0, 0, 58]);
+            Action::Reply(reply(status::SUCCESS, &out))
+        }
+        MessageId::Other(_) => {
+            shared.stats.lock().await.malformed += 1;
+            Action::Reply(message(
+                MessageType::Nak,
+                h.message_id,
+                status::INVALID_SELECTION,
+                h.sequence,
+                &[],
+            ))
+        }
+    }
+}
+
+async fn close_session(shared: &Shared, s: &mut Session) {
+    if s.open {
+        s.open = false;
+        let mut n = shared.sessions.lock().await;
+        *n = n.saturating_sub(1);
+    }
+}
+
+async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
+    let sessions: Arc<Mutex<HashMap<SocketAddr, Session>>> = Arc::new(Mutex::new(HashMap::new()));
+    // Publish bursts and close idle sessions.
+    {
+        let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
+        tokio::task::spawn_local(async move {
+            let mut bursts = shared.bursts.subscribe();
+            loop {
+                let burst = tokio::select! {
+                    b = bursts.recv() => b.ok(),
+                    _ = tokio::time::sleep(Duration::from_millis(200)) => None,
+                };
+                let mut map = sessions.lock().await;
+                let mut closed = vec![];
+                for (peer, s) in map.iter_mut() {
+                    if s.last_rx.elapsed() > s.timer {
+                        closed.push(*peer);
+                        continue;
+                    }
+                    if let Some(b) = &burst {
+                        s.publish_seq = s.publish_seq.wrapping_add(1);
+                        let _ = sock
+                            .send_to(
+                                &message(
+                                    MessageType::Publish,
+                                    MessageId::TokenPassingPdu,
+                                    0,
+                                    s.publish_seq,
+                                    b,
+                                ),
+                                peer,
+                            )
+                            .await;
+                        shared.stats.lock().await.published += 1;
+                    }
+                }
+                for p in closed {
+                    if let Some(mut s) = map.remove(&p) {
+                        close_session(&shared, &mut s).await;
+                    }
+                }
+            }
+        });
+    }
+    let mut buf = vec![0u8; 65536];
+    loop {
+        let Ok((n, peer)) = sock.recv_from(&mut buf).await else {
+            continue;
+        };
+        let data = buf[..n].to_vec();
+        let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
+        tokio::task::spawn_local(async move {
+            let mut rest = &data[..];
+            while !rest.is_empty() {
+                let (h, body, used) = match Message::parse(rest) {
+                    Ok((m, used)) => (m.header, m.body.to_vec(), used),
+                    Err(_) => {
+                        shared.stats.lock().await.malformed += 1;
+                        return;
+                    }
+                };
+                rest = &rest[used..];
+                let mut s = sessions
+                    .lock()
+                    .await
+                    .remove(&peer)
+                    .unwrap_or_else(Session::new);
+                let action = handle(&shared, &mut s, h, &body).await;
+                let keep = match action {
+                    Action::Reply(r) => {
+                        let _ = sock.send_to(&r, peer).await;
+                        s.open
+                    }
+                    Action::ReplyAndClose(r) => {
+                        let _ = sock.send_to(&r, peer).await;
+                        false
+                    }
+                    Action::Close => false,
+                };
+                if keep {
+                    sessions.lock().await.insert(peer, s);
+                } else {
+                    close_session(&shared, &mut s).await;
+                }
+            }
+        });
+    }
+}
+
+async fn serve_tcp(listener: TcpListener, shared: Arc<Shared>) {
+    loop {
+        let Ok((stream, _)) = listener.accept().await else {
+            continue;
+        };
+        let _ = stream.set_nodelay(true);
+        tokio::task::spawn_local(tcp_session(stream, shared.clone()));
+    }
+}
+
+async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
+    let (mut rd, wr) = stream.into_split();
+    let wr = Arc::new(Mutex::new(wr));
+    let mut s = Session::new();
+    let mut buf: Vec<u8> = vec![];
+    let mut bursts = shared.bursts.subscribe();
+    let mut tmp = [0u8; 4096];
+    let publish_seq = Arc::new(Mutex::new(0u16));
+    loop {
+        // Complete messages first.
+        loop {
+            match Message::parse(&buf) {
+                Ok((m, used)) => {
+                    let (h, body) = (m.header, m.body.to_vec());
+                    buf.drain(..used);
+                    match handle(&shared, &mut s, h, &body).await {
+                        Action::Reply(r) => {
+                            if wr.lock().await.write_all(&r).await.is_err() {
+                                close_session(&shared, &mut s).await;
+                                return;
+                            }
+                        }
+                        Action::ReplyAndClose(r) => {
+                            let _ = wr.lock().await.write_all(&r).await;
+                            close_session(&shared, &mut s).await;
+                            return;
+                        }
+                        Action::Close => {
+                            close_session(&shared, &mut s).await;
+                            return;
+                        }
+                    }
+                }
+                Err(hart_ip::Error::ShortHeader { .. }) | Err(hart_ip::Error::Truncated { .. })
+                    if buf.len() < 65536 =>
+                {
+                    break
+                }
+                Err(_) => {
+                    // A stream that cannot be split any more: this session ends.
+                    shared.stats.lock().await.malformed += 1;
+                    close_session(&shared, &mut s).await;
+                    return;
+                }
+            }
+        }
+        let timer = s.timer;
+        tokio::select! {
+            r = tokio::time::timeout(timer, rd.read(&mut tmp)) => match r {
+                Ok(Ok(n)) if n > 0 => buf.extend_from_slice(&tmp[..n]),
+                _ => {
+                    close_session(&shared, &mut s).await;
+                    return;
+                }
+            },
+            b = bursts.recv() => if let (Ok(b), true) = (b, s.open) {
+                let mut seq = publish_seq.lock().await;
+                *seq = seq.wrapping_add(1);
+                let m = message(MessageType::Publish, MessageId::TokenPassingPdu, 0, *seq, &b);
+                if wr.lock().await.write_all(&m).await.is_err() {
+                    close_session(&shared, &mut s).await;
+                    return;
+                }
+                shared.stats.lock().await.published += 1;
+            },
+        }
+    }
+}
+
+/// The address of a frame, for messages.
+pub fn describe(pdu: &[u8]) -> String {
+    Frame::parse_pdu(pdu)
+        .map(|f| f.address.to_string())
+        .unwrap_or_else(|e| e.to_string())
+}

@@ -1,0 +1,142 @@
+//! Our HART-IP client against our server on loopback, over UDP and TCP, with a
+//! simulated plant behind the server.
+
+use std::time::Duration;
+
+use hart_gateway::{start, Config};
+use hart_host::hartip::HartIpTransport;
+use hart_host::target::{open, AnyTransport};
+use hart_host::{Client, DeviceRef, HostError};
+
+fn config() -> Config {
+    Config {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        ..Config::default()
+    }
+}
+
+async fn connect(addr: std::net::SocketAddr, tcp: bool) -> Client<AnyTransport> {
+    Client::new(AnyTransport::HartIp(Box::new(
+        HartIpTransport::connect(&addr.to_string(), tcp, 60_000)
+            .await
+            .unwrap(),
+    )))
+}
+
+#[test]
+fn udp_and_tcp_sessions_reach_the_devices() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let server = start(config(), Client::new(open("sim?virtual").unwrap()))
+            .await
+            .unwrap();
+        for (addr, tcp) in [
+            (server.udp_addr.unwrap(), false),
+            (server.tcp_addr.unwrap(), true),
+        ] {
+            let mut c = connect(addr, tcp).await;
+            let d = c.resolve(&DeviceRef::Poll(1)).await.unwrap();
+            assert_eq!(d.identity.expanded_device_type, 0x26F1);
+            let r = c.command(&d, 3, &[]).await.unwrap();
+            assert!(r.data.len() >= 9);
+            let t = c.resolve(&DeviceRef::Tag("TT-200".into())).await.unwrap();
+            assert_eq!(t.identity.expanded_device_type, 0x26F2);
+            // Burst frames of the temperature transmitter arrive as publish messages.
+            c.listen(5_000_000).await.unwrap();
+            assert!(
+                !c.take_bursts().is_empty(),
+                "publish messages over {}",
+                if tcp { "TCP" } else { "UDP" }
+            );
+        }
+        let st = server.stats().await;
+        assert_eq!(st.sessions_opened, 2);
+        assert!(st.forwarded >= 6 && st.published >= 2, "{st:?}");
+    });
+}
+
+#[test]
+fn read_only_sessions_and_limits() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let server = start(
+            Config {
+                read_only: true,
+                max_sessions: 1,
+                ..config()
+            },
+            Client::new(open("sim?virtual").unwrap()),
+        )
+        .await
+        .unwrap();
+        let addr = server.udp_addr.unwrap();
+        let mut c = connect(addr, false).await;
+        let d = c.resolve(&DeviceRef::Poll(2)).await.unwrap();
+        match c.command(&d, 19, &[0, 0, 1]).await {
+            Err(HostError::Device { code: 16, .. }) => {}
+            other => panic!("read-only must refuse writes: {other:?}"),
+        }
+        assert!(c.command(&d, 16, &[]).await.is_ok(), "reads go through");
+        // The limit: a second session is refused with a clear status.
+        let err = HartIpTransport::connect(&addr.to_string(), false, 60_000)
+            .await
+            .err()
+            .expect("second session refused");
+        assert!(
+            err.to_string()
+                .contains("all available sessions in use (15)"),
+            "{err}"
+        );
+    });
+}
+
+#[test]
+fn malformed_messages_do_not_disturb_other_sessions() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let server = start(config(), Client::new(open("sim?virtual").unwrap()))
+            .await
+            .unwrap();
+        let (udp, tcp) = (server.udp_addr.unwrap(), server.tcp_addr.unwrap());
+        let mut good = connect(udp, false).await;
+        let d = good.resolve(&DeviceRef::Poll(3)).await.unwrap();
+        // A misbehaving UDP peer: short header, byte count lies, unknown message ID,
+        // reserved bits, oversized PDU, garbage after a session close.
+        let bad = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let junk: [&[u8]; 6] = [
+            &[1, 0, 2],
+            &[1, 0, 2, 0, 0, 1, 0, 200, 0, 0],
+            &[1, 0, 0, 0, 0, 1, 0, 13, 1, 0, 0, 0xEA, 0x60],
+            &[1, 0, 9, 0, 0, 2, 0, 8],
+            &[1, 0x70, 2, 0, 0, 3, 0, 8],
+            &[1, 0, 1, 0, 0, 4, 0, 8, 0xDE, 0xAD],
+        ];
+        for j in junk {
+            bad.send_to(j, udp).await.unwrap();
+        }
+        let mut big = vec![1u8, 0, 3, 0, 0, 5, 0xFF, 0xFF];
+        big.resize(65_000, 0xAB);
+        bad.send_to(&big, udp).await.unwrap();
+        // A misbehaving TCP peer: garbage that cannot be split into messages.
+        let mut t = tokio::net::TcpStream::connect(tcp).await.unwrap();
+        tokio::io::AsyncWriteExt::write_all(&mut t, &[1, 0, 0, 0, 0, 1, 0, 3, 9, 9, 9])
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        // The good session goes on.
+        assert!(good.command(&d, 1, &[]).await.is_ok());
+        assert!(server.stats().await.malformed >= 3);
+    });
+}
