@@ -41,13 +41,13 @@ fn decode<T: Wire>(r: &Reply, what: &str) -> Result<T, Failure> {
 }
 
 /// Opens the client for `--port`, with a trace file and a log level.
-pub fn client(
+pub async fn client(
     port: &str,
     trace: Option<&std::path::Path>,
     verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
-    let t = hart_host::target::open(port).map_err(usage)?;
+    let t = hart_host::target::open_async(port).await.map_err(usage)?;
     let kind = if secondary {
         hart_proto::MasterKind::Secondary
     } else {

@@ -89,6 +89,35 @@ enum Top {
         #[arg(long)]
         duration: Option<f64>,
     },
+    /// A HART-IP server (gateway) in front of a loop: a serial or RS-485 line, or a
+    /// simulated plant.
+    Serve {
+        /// Address to listen on, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).
+        #[arg(long, value_name = "ADDR[:PORT]")]
+        hart_ip: String,
+        /// Serve UDP (with --tcp: only the ones given; default both).
+        #[arg(long)]
+        udp: bool,
+        /// Serve TCP.
+        #[arg(long)]
+        tcp: bool,
+        /// The loop behind the server (any host --port target).
+        #[arg(long, short = 'p', value_name = "TARGET", conflicts_with = "sim")]
+        port: Option<String>,
+        /// A simulated plant behind the server: these profiles at polling addresses
+        /// 1, 2, ... (none: the demo plant).
+        #[arg(long, num_args = 0.., value_name = "PROFILE")]
+        sim: Option<Vec<String>>,
+        /// Refuse every command that changes a device ("access restricted").
+        #[arg(long)]
+        read_only: bool,
+        /// Most sessions at once.
+        #[arg(long, default_value_t = 64)]
+        max_sessions: usize,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        run_for: Option<f64>,
+    },
     /// The simulated plant: devices found by scan, shown live until Ctrl-C.
     Demo {
         /// Stop after this many seconds.
@@ -502,7 +531,7 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
     Ok(String::new())
 }
 
-fn host_client(
+async fn host_client(
     h: &HostArgs,
 ) -> Result<hart_host::Client<hart_host::target::AnyTransport>, (String, u8)> {
     let verbose = match h.log_level.as_str() {
@@ -519,7 +548,7 @@ fn host_client(
             2,
         ));
     }
-    hartkit::host::client(&h.port, h.trace.as_deref(), verbose, h.secondary)
+    hartkit::host::client(&h.port, h.trace.as_deref(), verbose, h.secondary).await
 }
 
 fn target(t: &TargetArgs) -> Result<hart_host::DeviceRef, (String, u8)> {
@@ -536,7 +565,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
     // Ports are opened inside the runtime (serial ports register with its reactor).
     Some(match top {
         Top::Scan { host: h, from, to } => host::block_on(async {
-            let mut c = host_client(h)?;
+            let mut c = host_client(h).await?;
             host::scan(&mut c, *from, *to, h.json).await
         }),
         Top::Read {
@@ -546,7 +575,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             codes,
         } => host::block_on(async {
             let d = target(t)?;
-            let mut c = host_client(h)?;
+            let mut c = host_client(h).await?;
             host::read(&mut c, &d, what, codes, h.json).await
         }),
         Top::Write {
@@ -556,7 +585,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             values,
         } => host::block_on(async {
             let d = target(t)?;
-            let mut c = host_client(h)?;
+            let mut c = host_client(h).await?;
             host::write(&mut c, &d, what, values).await
         }),
         Top::Command {
@@ -571,7 +600,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             } else {
                 hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))?
             };
-            let mut c = host_client(h)?;
+            let mut c = host_client(h).await?;
             host::command(&mut c, &d, *number, &bytes, h.json).await
         }),
         Top::Burst {
@@ -602,11 +631,13 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 BurstCmd::Off { message } => host::BurstAction::Off { message },
                 BurstCmd::Show { message } => host::BurstAction::Show { message },
             };
-            let mut c = host_client(h)?;
+            let mut c = host_client(h).await?;
             host::burst(&mut c, &d, &a, h.json).await
         }),
         Top::Monitor { host: h, duration } => host::block_on(async {
-            let mut t = hart_host::target::open(&h.port).map_err(|e| (e, 2))?;
+            let mut t = hart_host::target::open_async(&h.port)
+                .await
+                .map_err(|e| (e, 2))?;
             let mut out = std::io::stdout();
             host::monitor(&mut t, *duration, h.json, &mut out)
                 .await
@@ -617,7 +648,108 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             json,
             port,
         } => hartkit::demo::run(port, *duration, *json).map(|_| String::new()),
+        Top::Serve {
+            hart_ip,
+            udp,
+            tcp,
+            port,
+            sim,
+            read_only,
+            max_sessions,
+            run_for,
+        } => serve_hart_ip(
+            hart_ip,
+            *udp,
+            *tcp,
+            port.as_deref(),
+            sim.as_deref(),
+            *read_only,
+            *max_sessions,
+            *run_for,
+        ),
         _ => return None,
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn serve_hart_ip(
+    bind: &str,
+    udp: bool,
+    tcp: bool,
+    port: Option<&str>,
+    sim: Option<&[String]>,
+    read_only: bool,
+    max_sessions: usize,
+    run_for: Option<f64>,
+) -> Result<String, (String, u8)> {
+    use std::net::ToSocketAddrs;
+    let with_port = if bind
+        .rsplit_once(':')
+        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+    {
+        bind.to_string()
+    } else {
+        format!("{bind}:{}", hart_ip::PORT)
+    };
+    let addr = with_port
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .ok_or_else(|| (format!("--hart-ip {bind}: not an address"), 2))?;
+    let target = match (port, sim) {
+        (Some(p), _) => p.to_string(),
+        (None, Some(profiles)) if !profiles.is_empty() => {
+            let mut plant = String::new();
+            for (i, p) in profiles.iter().enumerate() {
+                plant.push_str(&format!("[[device]]\nprofile = {p:?}\npoll = {}\n", i + 1));
+            }
+            let path =
+                std::env::temp_dir().join(format!("hartkit-plant-{}.toml", std::process::id()));
+            std::fs::write(&path, plant).map_err(|e| (e.to_string(), 5))?;
+            format!("sim:{}", path.display())
+        }
+        (None, _) => "sim".to_string(),
+    };
+    let config = hart_gateway::Config {
+        bind: addr,
+        udp: udp || !tcp,
+        tcp: tcp || !udp,
+        max_sessions,
+        read_only,
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| (e.to_string(), 5))?;
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async move {
+        let t = hart_host::target::open_async(&target)
+            .await
+            .map_err(|e| (e, 2))?;
+        let server = hart_gateway::start(config, hart_host::Client::new(t))
+            .await
+            .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
+        {
+            use std::io::Write as _;
+            let mut out = std::io::stdout();
+            let show =
+                |a: Option<std::net::SocketAddr>| a.map_or("-".to_string(), |a| a.to_string());
+            let _ = writeln!(
+                out,
+                "hart-ip: udp {} tcp {}{}",
+                show(server.udp_addr),
+                show(server.tcp_addr),
+                if read_only { " (read only)" } else { "" }
+            );
+            let _ = out.flush();
+        }
+        match run_for {
+            Some(s) => tokio::time::sleep(std::time::Duration::from_secs_f64(s)).await,
+            None => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+        Ok(String::new())
     })
 }
 
