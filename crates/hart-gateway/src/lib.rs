@@ -20,7 +20,11 @@ use hart_ip::{encode, status, Body, Header, Message, MessageId, MessageType, HEA
 use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream, UdpSocket};
-use tokio::sync::{broadcast, mpsc, oneshot, Mutex};
+use tokio::sync::{broadcast, mpsc, Mutex};
+
+pub mod mux;
+use mux::LoopRequest;
+pub use mux::{GatewayIdentity, Mux, Route, SubDevice};
 
 /// Server settings.
 #[derive(Debug, Clone)]
@@ -35,6 +39,11 @@ pub struct Config {
     pub max_sessions: usize,
     /// Refuse every command that changes a device ("access restricted").
     pub read_only: bool,
+    /// Scan each loop's polling addresses 0..=N at start (for routing by long address
+    /// and command 84); `None` skips the scan.
+    pub scan_to: Option<u8>,
+    /// The gateway's own identity.
+    pub identity: GatewayIdentity,
 }
 
 impl Default for Config {
@@ -45,17 +54,14 @@ impl Default for Config {
             tcp: true,
             max_sessions: 64,
             read_only: false,
+            scan_to: Some(15),
+            identity: GatewayIdentity::default(),
         }
     }
 }
 
 /// Shortest inactivity timer the server accepts, ms.
 pub const MIN_TIMER_MS: u32 = 1000;
-
-struct Request {
-    pdu: Vec<u8>,
-    reply: oneshot::Sender<Option<Vec<u8>>>,
-}
 
 /// Counters for the audit log and tests.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -76,7 +82,7 @@ struct Shared {
     config: Config,
     sessions: Mutex<usize>,
     stats: Mutex<Stats>,
-    to_loop: mpsc::Sender<Request>,
+    mux: Mux,
     bursts: broadcast::Sender<Vec<u8>>,
 }
 
@@ -100,17 +106,34 @@ impl Server {
 /// bound. The server runs on local tasks: call it inside a `tokio::task::LocalSet`
 /// (the loop's client is not `Send`: serial ports and simulated plants stay on one
 /// thread).
-pub async fn start(config: Config, client: Client<AnyTransport>) -> std::io::Result<Server> {
-    let (to_loop, from_sessions) = mpsc::channel::<Request>(256);
+pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io::Result<Server> {
     let (bursts, _) = broadcast::channel(64);
+    let subs = Arc::new(Mutex::new(vec![]));
+    let mut senders = vec![];
+    for (channel, client) in loops.into_iter().enumerate() {
+        let (tx, rx) = mpsc::channel::<LoopRequest>(256);
+        senders.push(tx);
+        tokio::task::spawn_local(backend(
+            client,
+            channel as u8,
+            config.scan_to,
+            subs.clone(),
+            rx,
+            bursts.clone(),
+        ));
+    }
+    let mux = Mux {
+        identity: config.identity.clone(),
+        loops: senders,
+        subs,
+    };
     let shared = Arc::new(Shared {
         config: config.clone(),
         sessions: Mutex::new(0),
         stats: Mutex::new(Stats::default()),
-        to_loop,
+        mux,
         bursts: bursts.clone(),
     });
-    tokio::task::spawn_local(backend(client, from_sessions, bursts));
     let mut udp_addr = None;
     let mut tcp_addr = None;
     if config.udp {
@@ -134,23 +157,53 @@ pub async fn start(config: Config, client: Client<AnyTransport>) -> std::io::Res
     })
 }
 
-/// The one task that talks to the loop: requests in turn, and bursts in between.
+/// The one task that talks to a loop: requests in turn; between them, one polling
+/// address of the scan at a time (so requests never wait long) and listening for
+/// burst frames.
 async fn backend(
     mut client: Client<AnyTransport>,
-    mut requests: mpsc::Receiver<Request>,
+    channel: u8,
+    scan_to: Option<u8>,
+    subs: Arc<Mutex<Vec<SubDevice>>>,
+    mut requests: mpsc::Receiver<LoopRequest>,
     bursts: broadcast::Sender<Vec<u8>>,
 ) {
+    let mut next_scan = scan_to.map(|_| 0u8);
     loop {
-        let req = tokio::select! {
-            r = requests.recv() => match r { Some(r) => Some(r), None => return },
-            _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+        let req = match requests.try_recv() {
+            Ok(r) => Some(r),
+            Err(mpsc::error::TryRecvError::Disconnected) => return,
+            Err(mpsc::error::TryRecvError::Empty) if next_scan.is_some() => None,
+            Err(mpsc::error::TryRecvError::Empty) => tokio::select! {
+                r = requests.recv() => match r { Some(r) => Some(r), None => return },
+                _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+            },
         };
-        match req {
-            Some(r) => {
+        match (req, next_scan) {
+            (Some(r), _) => {
                 let reply = client.forward(&r.pdu).await.ok();
                 let _ = r.reply.send(reply);
             }
-            None => {
+            (None, Some(poll)) => {
+                if let Ok(mut info) = client.identify(poll).await {
+                    if info.revision() >= 6 {
+                        if let Ok(r) = client.command(&info, 20, &[]).await {
+                            info.long_tag = Some(
+                                hart_proto::types::Latin1String::<32>(
+                                    r.data
+                                        .get(..32)
+                                        .and_then(|b| b.try_into().ok())
+                                        .unwrap_or([0; 32]),
+                                )
+                                .to_string(),
+                            );
+                        }
+                    }
+                    subs.lock().await.push(SubDevice { channel, info });
+                }
+                next_scan = (poll < scan_to.unwrap_or(0).min(63)).then_some(poll + 1);
+            }
+            (None, None) => {
                 let _ = client.listen(20_000).await;
             }
         }
@@ -267,23 +320,38 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
                     &local_reply(&f, hart_proto::tables::rc::ACCESS_RESTRICTED),
                 ));
             }
-            let (tx, rx) = oneshot::channel();
-            if shared
-                .to_loop
-                .send(Request {
-                    pdu: body.to_vec(),
-                    reply: tx,
-                })
-                .await
-                .is_err()
-            {
-                return Action::Reply(reply(status::DEVICE_SPECIFIC, &[]));
-            }
-            shared.stats.lock().await.forwarded += 1;
-            match rx.await {
-                Ok(Some(pdu)) => Action::Reply(reply(status::SUCCESS, &pdu)),
-                // The device did not answer: an empty response, so the client stops waiting.
-                _ => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+            let route = shared.mux.route(&f).await;
+            match route {
+                Route::Local => {
+                    let (code, data) = shared.mux.local(f.command, f.data).await;
+                    let data = if hart_proto::tables::response_class(code)
+                        == hart_proto::tables::ResponseClass::Error
+                    {
+                        vec![]
+                    } else {
+                        data
+                    };
+                    let spec = FrameSpec {
+                        preambles: 0,
+                        frame_type: FrameType::Ack,
+                        extended: f.extended,
+                        status: Some((code, 0)),
+                        ..FrameSpec::request(f.address, f.command, &data)
+                    };
+                    let mut out = vec![0u8; spec.encoded_len()];
+                    let n = spec.encode(&mut out).unwrap_or(0);
+                    out.truncate(n);
+                    Action::Reply(reply(status::SUCCESS, &out))
+                }
+                Route::Loop(channel) => {
+                    shared.stats.lock().await.forwarded += 1;
+                    match shared.mux.forward(channel, body.to_vec()).await {
+                        Some(pdu) => Action::Reply(reply(status::SUCCESS, &pdu)),
+                        // The device did not answer: an empty response, so the client stops waiting.
+                        None => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+                    }
+                }
+                Route::Nowhere => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
             }
         }
         MessageId::DirectPdu => {
@@ -291,12 +359,21 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
             else {
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             };
-            // The server is a HART-IP device itself; it answers "not implemented" to the
-            // commands it does not serve.
+            // Commands to the gateway itself, each answered in turn.
             let mut out = vec![0u8, 0u8];
             for e in hart_ip::DirectEntries(entries).flatten() {
+                let (code, data) = shared.mux.local(e.command, e.data).await;
+                let data = if hart_proto::tables::response_class(code)
+                    == hart_proto::tables::ResponseClass::Error
+                {
+                    vec![]
+                } else {
+                    data
+                };
                 out.extend_from_slice(&e.command.to_be_bytes());
-                out.extend([1u8, hart_proto::tables::rc::NOT_IMPLEMENTED]);
+                out.push((1 + data.len()).min(255) as u8);
+                out.push(code);
+                out.extend_from_slice(&data[..data.len().min(254)]);
             }
             Action::Reply(reply(status::SUCCESS, &out))
         }

@@ -31,7 +31,7 @@ fn udp_and_tcp_sessions_reach_the_devices() {
         .unwrap();
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async {
-        let server = start(config(), Client::new(open("sim?virtual").unwrap()))
+        let server = start(config(), vec![Client::new(open("sim?virtual").unwrap())])
             .await
             .unwrap();
         for (addr, tcp) in [
@@ -73,7 +73,7 @@ fn read_only_sessions_and_limits() {
                 max_sessions: 1,
                 ..config()
             },
-            Client::new(open("sim?virtual").unwrap()),
+            vec![Client::new(open("sim?virtual").unwrap())],
         )
         .await
         .unwrap();
@@ -106,7 +106,7 @@ fn malformed_messages_do_not_disturb_other_sessions() {
         .unwrap();
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async {
-        let server = start(config(), Client::new(open("sim?virtual").unwrap()))
+        let server = start(config(), vec![Client::new(open("sim?virtual").unwrap())])
             .await
             .unwrap();
         let (udp, tcp) = (server.udp_addr.unwrap(), server.tcp_addr.unwrap());
@@ -138,5 +138,91 @@ fn malformed_messages_do_not_disturb_other_sessions() {
         // The good session goes on.
         assert!(good.command(&d, 1, &[]).await.is_ok());
         assert!(server.stats().await.malformed >= 3);
+    });
+}
+
+/// Two loops behind one address: the gateway answers as an I/O system and routes.
+#[test]
+fn multiplexer_routes_to_sub_devices() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let plant2 =
+            std::env::temp_dir().join(format!("hart-gateway-plant2-{}.toml", std::process::id()));
+        std::fs::write(&plant2, "[[device]]\nprofile = \"valve\"\npoll = 5\n").unwrap();
+        let loops = vec![
+            Client::new(open("sim?virtual").unwrap()),
+            Client::new(open(&format!("sim:{}?virtual", plant2.display())).unwrap()),
+        ];
+        let server = start(
+            Config {
+                scan_to: Some(6),
+                ..config()
+            },
+            loops,
+        )
+        .await
+        .unwrap();
+        // The scan runs between requests, one polling address at a time.
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let mut c = connect(server.udp_addr.unwrap(), false).await;
+        // The gateway itself at polling address 0.
+        let gw = c.resolve(&DeviceRef::Poll(0)).await.unwrap();
+        assert_eq!(
+            gw.identity.device_profile.map(|p| p.0),
+            Some(68),
+            "HART-IP I/O system"
+        );
+        // Command 74: one card, two channels, 3 + 1 + 1 devices (the gateway included).
+        let caps = c.command(&gw, 74, &[]).await.unwrap().data;
+        assert_eq!(
+            (caps[0], caps[1], u16::from_be_bytes([caps[3], caps[4]])),
+            (1, 2, 5)
+        );
+        // Command 84 lists the sub-devices with their channel.
+        let mut channels = vec![];
+        for i in 0..4u16 {
+            let s = c.command(&gw, 84, &i.to_be_bytes()).await.unwrap().data;
+            channels.push(s[3]);
+        }
+        channels.sort();
+        assert_eq!(channels, vec![0, 0, 0, 1]);
+        assert!(matches!(
+            c.command(&gw, 84, &9u16.to_be_bytes()).await,
+            Err(HostError::Device { code: 2, .. })
+        ));
+        // Command 77: command 0 to polling address 5 on channel 1 (short frame inside).
+        let r = c
+            .command(&gw, 77, &[0, 1, 5, 0x02, 0x85, 0x00, 0x00])
+            .await
+            .unwrap()
+            .data;
+        assert_eq!(
+            (r[0], r[1], r[2]),
+            (0, 1, 0x06),
+            "card, channel, then the ACK frame"
+        );
+        assert!(
+            matches!(
+                c.command(&gw, 77, &[0, 7, 5, 0x02, 0x85, 0x00, 0x00]).await,
+                Err(HostError::Device { code: 22, .. })
+            ),
+            "invalid channel"
+        );
+        assert!(
+            matches!(
+                c.command(&gw, 77, &[3, 0, 5, 0x02, 0x85, 0x00, 0x00]).await,
+                Err(HostError::Device { code: 21, .. })
+            ),
+            "invalid I/O card"
+        );
+        // A sub-device on channel 1 reached directly by its long address.
+        let valve_id = hart_proto::UniqueId::new(0x26F3, 0x030001 + 5);
+        let v = c.resolve(&DeviceRef::UniqueId(valve_id)).await.unwrap();
+        assert_eq!(c.command(&v, 1, &[]).await.unwrap().data[0], 57);
+        let _ = std::fs::remove_file(&plant2);
     });
 }

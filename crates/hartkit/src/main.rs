@@ -101,9 +101,15 @@ enum Top {
         /// Serve TCP.
         #[arg(long)]
         tcp: bool,
-        /// The loop behind the server (any host --port target).
-        #[arg(long, short = 'p', value_name = "TARGET", conflicts_with = "sim")]
-        port: Option<String>,
+        /// A loop behind the server (any host --port target); repeat for several
+        /// loops (the server then acts as a multiplexer: each loop is a channel).
+        #[arg(
+            long = "port",
+            short = 'p',
+            value_name = "TARGET",
+            conflicts_with = "sim"
+        )]
+        ports: Vec<String>,
         /// A simulated plant behind the server: these profiles at polling addresses
         /// 1, 2, ... (none: the demo plant).
         #[arg(long, num_args = 0.., value_name = "PROFILE")]
@@ -652,7 +658,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             hart_ip,
             udp,
             tcp,
-            port,
+            ports,
             sim,
             read_only,
             max_sessions,
@@ -661,7 +667,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             hart_ip,
             *udp,
             *tcp,
-            port.as_deref(),
+            ports,
             sim.as_deref(),
             *read_only,
             *max_sessions,
@@ -676,7 +682,7 @@ fn serve_hart_ip(
     bind: &str,
     udp: bool,
     tcp: bool,
-    port: Option<&str>,
+    ports: &[String],
     sim: Option<&[String]>,
     read_only: bool,
     max_sessions: usize,
@@ -696,9 +702,9 @@ fn serve_hart_ip(
         .ok()
         .and_then(|mut a| a.next())
         .ok_or_else(|| (format!("--hart-ip {bind}: not an address"), 2))?;
-    let target = match (port, sim) {
-        (Some(p), _) => p.to_string(),
-        (None, Some(profiles)) if !profiles.is_empty() => {
+    let targets: Vec<String> = match (ports, sim) {
+        (p, _) if !p.is_empty() => p.to_vec(),
+        (_, Some(profiles)) if !profiles.is_empty() => {
             let mut plant = String::new();
             for (i, p) in profiles.iter().enumerate() {
                 plant.push_str(&format!("[[device]]\nprofile = {p:?}\npoll = {}\n", i + 1));
@@ -706,9 +712,9 @@ fn serve_hart_ip(
             let path =
                 std::env::temp_dir().join(format!("hartkit-plant-{}.toml", std::process::id()));
             std::fs::write(&path, plant).map_err(|e| (e.to_string(), 5))?;
-            format!("sim:{}", path.display())
+            vec![format!("sim:{}", path.display())]
         }
-        (None, _) => "sim".to_string(),
+        _ => vec!["sim".to_string()],
     };
     let config = hart_gateway::Config {
         bind: addr,
@@ -716,6 +722,7 @@ fn serve_hart_ip(
         tcp: tcp || !udp,
         max_sessions,
         read_only,
+        ..hart_gateway::Config::default()
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -723,10 +730,13 @@ fn serve_hart_ip(
         .map_err(|e| (e.to_string(), 5))?;
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async move {
-        let t = hart_host::target::open_async(&target)
-            .await
-            .map_err(|e| (e, 2))?;
-        let server = hart_gateway::start(config, hart_host::Client::new(t))
+        let mut loops = vec![];
+        for t in &targets {
+            loops.push(hart_host::Client::new(
+                hart_host::target::open_async(t).await.map_err(|e| (e, 2))?,
+            ));
+        }
+        let server = hart_gateway::start(config, loops)
             .await
             .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
         {
