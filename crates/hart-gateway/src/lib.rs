@@ -84,6 +84,8 @@ struct Shared {
     stats: Mutex<Stats>,
     mux: Mux,
     bursts: broadcast::Sender<Vec<u8>>,
+    audit: Mutex<Vec<AuditRecord>>,
+    power_up: u64,
 }
 
 /// A running server.
@@ -133,6 +135,8 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
         stats: Mutex::new(Stats::default()),
         mux,
         bursts: bursts.clone(),
+        audit: Mutex::new(vec![]),
+        power_up: unix_now(),
     });
     let mut udp_addr = None;
     let mut tcp_addr = None;
@@ -247,15 +251,70 @@ struct Session {
     timer: Duration,
     last_rx: Instant,
     publish_seq: u16,
+    peer: SocketAddr,
+    local_port: u16,
+    /// Index of this session's audit record.
+    audit: Option<usize>,
+}
+
+/// One session in the audit log (58 bytes on the wire).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AuditRecord {
+    /// Client address.
+    pub client: SocketAddr,
+    /// Server port.
+    pub server_port: u16,
+    /// Connect time, s since 1970.
+    pub connected: u64,
+    /// Disconnect time, s since 1970 (0 while open).
+    pub disconnected: u64,
+    /// Session status bits: 0x0001 writes occurred, 0x0002 bad session initialization,
+    /// 0x0004 aborted session, 0x0008 session timeout, 0x0010 insecure session.
+    pub status: u16,
+    /// Publish PDUs sent.
+    pub publishes: u32,
+    /// Request PDUs received.
+    pub requests: u32,
+    /// Response PDUs sent.
+    pub responses: u32,
+}
+
+impl AuditRecord {
+    fn bytes(&self) -> [u8; 58] {
+        let mut b = [0u8; 58];
+        match self.client.ip() {
+            std::net::IpAddr::V4(a) => b[0..4].copy_from_slice(&a.octets()),
+            std::net::IpAddr::V6(a) => b[4..20].copy_from_slice(&a.octets()),
+        }
+        b[20..22].copy_from_slice(&self.client.port().to_be_bytes());
+        b[22..24].copy_from_slice(&self.server_port.to_be_bytes());
+        b[24..32].copy_from_slice(&self.connected.to_be_bytes());
+        b[32..40].copy_from_slice(&self.disconnected.to_be_bytes());
+        b[40..42].copy_from_slice(&self.status.to_be_bytes());
+        // 42..46: configuration change counts at start and end (not tracked: 0).
+        b[46..50].copy_from_slice(&self.publishes.to_be_bytes());
+        b[50..54].copy_from_slice(&self.requests.to_be_bytes());
+        b[54..58].copy_from_slice(&self.responses.to_be_bytes());
+        b
+    }
+}
+
+fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
 }
 
 impl Session {
-    fn new() -> Self {
+    fn new(peer: SocketAddr, local_port: u16) -> Self {
         Session {
             open: false,
             timer: Duration::from_secs(60),
             last_rx: Instant::now(),
             publish_seq: 0,
+            peer,
+            local_port,
+            audit: None,
         }
     }
 }
@@ -288,6 +347,19 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
                 *n += 1;
                 s.open = true;
                 shared.stats.lock().await.sessions_opened += 1;
+                let mut audit = shared.audit.lock().await;
+                s.audit = Some(audit.len());
+                // Every HART-IP v1 session is an insecure session (0x0010).
+                audit.push(AuditRecord {
+                    client: s.peer,
+                    server_port: s.local_port,
+                    connected: unix_now(),
+                    disconnected: 0,
+                    status: 0x0010,
+                    publishes: 0,
+                    requests: 0,
+                    responses: 0,
+                });
             }
             let timer = asked.max(MIN_TIMER_MS);
             s.timer = Duration::from_millis(u64::from(timer));
@@ -305,6 +377,18 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
         MessageId::SessionClose => Action::ReplyAndClose(reply(status::SUCCESS, &[])),
         MessageId::KeepAlive => Action::Reply(reply(status::SUCCESS, &[])),
         MessageId::TokenPassingPdu => {
+            if let Some(i) = s.audit {
+                if let Some(r) = shared.audit.lock().await.get_mut(i) {
+                    r.requests += 1;
+                    r.responses += 1;
+                    if Frame::parse_pdu(body).is_ok_and(|f| {
+                        hart_proto::command::info(f.command).is_some_and(|c| c.writes)
+                    }) && !shared.config.read_only
+                    {
+                        r.status |= 0x0001;
+                    }
+                }
+            }
             let Ok(f) = Frame::parse_pdu(body) else {
                 shared.stats.lock().await.malformed += 1;
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
@@ -378,10 +462,24 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
             Action::Reply(reply(status::SUCCESS, &out))
         }
         MessageId::ReadAuditLog => {
-            let start = body.first().copied().unwrap_or(0);
-            let mut out = vec![start, 0];
-            out.extend([0u8; 8 + 8]);
-            out.extend([0u8, 0, 0, 58]);
+            let (start, count) = match Body::parse(h.message_id, h.message_type, body) {
+                Ok(Body::AuditLogRequest { start, count }) => (start, count),
+                _ => return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[])),
+            };
+            let audit = shared.audit.lock().await;
+            let records: Vec<&AuditRecord> = audit
+                .iter()
+                .skip(usize::from(start))
+                .take(usize::from(count))
+                .collect();
+            let mut out = vec![start, records.len() as u8];
+            out.extend(shared.power_up.to_be_bytes());
+            out.extend(0u64.to_be_bytes()); // last security change: never
+            out.extend(0u16.to_be_bytes()); // server status: no syslog in use
+            out.extend(58u16.to_be_bytes());
+            for r in records {
+                out.extend(r.bytes());
+            }
             Action::Reply(reply(status::SUCCESS, &out))
         }
         MessageId::Other(_) => {
@@ -397,15 +495,24 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
     }
 }
 
-async fn close_session(shared: &Shared, s: &mut Session) {
+/// Ends a session; `why` goes into its audit record (0 normal, 0x0004 aborted,
+/// 0x0008 timed out).
+async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
     if s.open {
         s.open = false;
+        if let Some(r) = s.audit {
+            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+                rec.disconnected = unix_now();
+                rec.status |= why;
+            }
+        }
         let mut n = shared.sessions.lock().await;
         *n = n.saturating_sub(1);
     }
 }
 
 async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
+    let local_port = sock.local_addr().map_or(0, |a| a.port());
     let sessions: Arc<Mutex<HashMap<SocketAddr, Session>>> = Arc::new(Mutex::new(HashMap::new()));
     // Publish bursts and close idle sessions.
     {
@@ -439,11 +546,16 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                             )
                             .await;
                         shared.stats.lock().await.published += 1;
+                        if let Some(r) = s.audit {
+                            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+                                rec.publishes += 1;
+                            }
+                        }
                     }
                 }
                 for p in closed {
                     if let Some(mut s) = map.remove(&p) {
-                        close_session(&shared, &mut s).await;
+                        close_session(&shared, &mut s, 0x0008).await;
                     }
                 }
             }
@@ -471,23 +583,23 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                     .lock()
                     .await
                     .remove(&peer)
-                    .unwrap_or_else(Session::new);
+                    .unwrap_or_else(|| Session::new(peer, local_port));
                 let action = handle(&shared, &mut s, h, &body).await;
-                let keep = match action {
+                let (keep, why) = match action {
                     Action::Reply(r) => {
                         let _ = sock.send_to(&r, peer).await;
-                        s.open
+                        (s.open, 0)
                     }
                     Action::ReplyAndClose(r) => {
                         let _ = sock.send_to(&r, peer).await;
-                        false
+                        (false, 0)
                     }
-                    Action::Close => false,
+                    Action::Close => (false, 0x0004),
                 };
                 if keep {
                     sessions.lock().await.insert(peer, s);
                 } else {
-                    close_session(&shared, &mut s).await;
+                    close_session(&shared, &mut s, why).await;
                 }
             }
         });
@@ -505,9 +617,13 @@ async fn serve_tcp(listener: TcpListener, shared: Arc<Shared>) {
 }
 
 async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
+    let peer = stream
+        .peer_addr()
+        .unwrap_or_else(|_| SocketAddr::from(([0, 0, 0, 0], 0)));
+    let local_port = stream.local_addr().map_or(0, |a| a.port());
     let (mut rd, wr) = stream.into_split();
     let wr = Arc::new(Mutex::new(wr));
-    let mut s = Session::new();
+    let mut s = Session::new(peer, local_port);
     let mut buf: Vec<u8> = vec![];
     let mut bursts = shared.bursts.subscribe();
     let mut tmp = [0u8; 4096];
@@ -522,17 +638,17 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                     match handle(&shared, &mut s, h, &body).await {
                         Action::Reply(r) => {
                             if wr.lock().await.write_all(&r).await.is_err() {
-                                close_session(&shared, &mut s).await;
+                                close_session(&shared, &mut s, 0x0004).await;
                                 return;
                             }
                         }
                         Action::ReplyAndClose(r) => {
                             let _ = wr.lock().await.write_all(&r).await;
-                            close_session(&shared, &mut s).await;
+                            close_session(&shared, &mut s, 0).await;
                             return;
                         }
                         Action::Close => {
-                            close_session(&shared, &mut s).await;
+                            close_session(&shared, &mut s, 0x0004).await;
                             return;
                         }
                     }
@@ -545,7 +661,7 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                 Err(_) => {
                     // A stream that cannot be split any more: this session ends.
                     shared.stats.lock().await.malformed += 1;
-                    close_session(&shared, &mut s).await;
+                    close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
             }
@@ -554,8 +670,12 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
         tokio::select! {
             r = tokio::time::timeout(timer, rd.read(&mut tmp)) => match r {
                 Ok(Ok(n)) if n > 0 => buf.extend_from_slice(&tmp[..n]),
+                Err(_) => {
+                    close_session(&shared, &mut s, 0x0008).await;
+                    return;
+                }
                 _ => {
-                    close_session(&shared, &mut s).await;
+                    close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
             },
@@ -564,7 +684,7 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                 *seq = seq.wrapping_add(1);
                 let m = message(MessageType::Publish, MessageId::TokenPassingPdu, 0, *seq, &b);
                 if wr.lock().await.write_all(&m).await.is_err() {
-                    close_session(&shared, &mut s).await;
+                    close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
                 shared.stats.lock().await.published += 1;

@@ -55,6 +55,39 @@ fn udp_and_tcp_sessions_reach_the_devices() {
         }
         let st = server.stats().await;
         assert_eq!(st.sessions_opened, 2);
+        // Read audit log: both sessions, with their request counts.
+        let probe = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let udp = server.udp_addr.unwrap();
+        let mut buf = [0u8; 2048];
+        probe
+            .send_to(&[1, 0, 0, 0, 0, 1, 0, 13, 1, 0, 0, 0xEA, 0x60], udp)
+            .await
+            .unwrap();
+        probe.recv_from(&mut buf).await.unwrap();
+        probe
+            .send_to(&[1, 0, 5, 0, 0, 2, 0, 10, 0, 10], udp)
+            .await
+            .unwrap();
+        let (n, _) = probe.recv_from(&mut buf).await.unwrap();
+        let (m, _) = hart_ip::Message::parse(&buf[..n]).unwrap();
+        let b = m.body;
+        assert_eq!(
+            (b[0], b[1]),
+            (0, 3),
+            "three sessions so far (two clients and this probe)"
+        );
+        assert_eq!(u16::from_be_bytes([b[20], b[21]]), 58, "record size");
+        let rec = &b[22..80];
+        assert_eq!(&rec[0..4], &[127, 0, 0, 1], "client IPv4");
+        assert!(
+            u32::from_be_bytes([rec[50], rec[51], rec[52], rec[53]]) >= 3,
+            "request PDUs"
+        );
+        assert_ne!(
+            u16::from_be_bytes([rec[40], rec[41]]) & 0x0010,
+            0,
+            "insecure (v1) session"
+        );
         assert!(st.forwarded >= 6 && st.published >= 2, "{st:?}");
     });
 }
