@@ -95,9 +95,17 @@ pub struct Server {
     /// TCP address actually bound.
     pub tcp_addr: Option<SocketAddr>,
     shared: Arc<Shared>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
 impl Server {
+    /// Stops serving: every task ends and the sockets close.
+    pub fn stop(self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+
     /// Counters so far.
     pub async fn stats(&self) -> Stats {
         *self.shared.stats.lock().await
@@ -111,18 +119,19 @@ impl Server {
 pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io::Result<Server> {
     let (bursts, _) = broadcast::channel(64);
     let subs = Arc::new(Mutex::new(vec![]));
+    let mut tasks = vec![];
     let mut senders = vec![];
     for (channel, client) in loops.into_iter().enumerate() {
         let (tx, rx) = mpsc::channel::<LoopRequest>(256);
         senders.push(tx);
-        tokio::task::spawn_local(backend(
+        tasks.push(tokio::task::spawn_local(backend(
             client,
             channel as u8,
             config.scan_to,
             subs.clone(),
             rx,
             bursts.clone(),
-        ));
+        )));
     }
     let mux = Mux {
         identity: config.identity.clone(),
@@ -143,7 +152,7 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
     if config.udp {
         let sock = Arc::new(UdpSocket::bind(config.bind).await?);
         udp_addr = Some(sock.local_addr()?);
-        tokio::task::spawn_local(serve_udp(sock, shared.clone()));
+        tasks.push(tokio::task::spawn_local(serve_udp(sock, shared.clone())));
     }
     if config.tcp {
         let bind = match udp_addr {
@@ -152,12 +161,16 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
         };
         let listener = TcpListener::bind(bind).await?;
         tcp_addr = Some(listener.local_addr()?);
-        tokio::task::spawn_local(serve_tcp(listener, shared.clone()));
+        tasks.push(tokio::task::spawn_local(serve_tcp(
+            listener,
+            shared.clone(),
+        )));
     }
     Ok(Server {
         udp_addr,
         tcp_addr,
         shared,
+        tasks,
     })
 }
 
@@ -296,6 +309,15 @@ impl AuditRecord {
         b[50..54].copy_from_slice(&self.requests.to_be_bytes());
         b[54..58].copy_from_slice(&self.responses.to_be_bytes());
         b
+    }
+}
+
+/// Aborts a task when dropped (children of a server task end with it).
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
     }
 }
 
@@ -515,9 +537,9 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
     let local_port = sock.local_addr().map_or(0, |a| a.port());
     let sessions: Arc<Mutex<HashMap<SocketAddr, Session>>> = Arc::new(Mutex::new(HashMap::new()));
     // Publish bursts and close idle sessions.
-    {
+    let _publisher = {
         let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
-        tokio::task::spawn_local(async move {
+        AbortOnDrop(tokio::task::spawn_local(async move {
             let mut bursts = shared.bursts.subscribe();
             loop {
                 let burst = tokio::select! {
@@ -559,8 +581,8 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                     }
                 }
             }
-        });
-    }
+        }))
+    };
     let mut buf = vec![0u8; 65536];
     loop {
         let Ok((n, peer)) = sock.recv_from(&mut buf).await else {
@@ -568,51 +590,66 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
         };
         let data = buf[..n].to_vec();
         let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
-        tokio::task::spawn_local(async move {
-            let mut rest = &data[..];
-            while !rest.is_empty() {
-                let (h, body, used) = match Message::parse(rest) {
-                    Ok((m, used)) => (m.header, m.body.to_vec(), used),
-                    Err(_) => {
-                        shared.stats.lock().await.malformed += 1;
-                        return;
-                    }
-                };
-                rest = &rest[used..];
-                let mut s = sessions
-                    .lock()
-                    .await
-                    .remove(&peer)
-                    .unwrap_or_else(|| Session::new(peer, local_port));
-                let action = handle(&shared, &mut s, h, &body).await;
-                let (keep, why) = match action {
-                    Action::Reply(r) => {
-                        let _ = sock.send_to(&r, peer).await;
-                        (s.open, 0)
-                    }
-                    Action::ReplyAndClose(r) => {
-                        let _ = sock.send_to(&r, peer).await;
-                        (false, 0)
-                    }
-                    Action::Close => (false, 0x0004),
-                };
-                if keep {
-                    sessions.lock().await.insert(peer, s);
-                } else {
-                    close_session(&shared, &mut s, why).await;
-                }
+        tokio::task::spawn_local(udp_datagram(sock, shared, sessions, peer, local_port, data));
+    }
+}
+
+async fn udp_datagram(
+    sock: Arc<UdpSocket>,
+    shared: Arc<Shared>,
+    sessions: Arc<Mutex<HashMap<SocketAddr, Session>>>,
+    peer: SocketAddr,
+    local_port: u16,
+    data: Vec<u8>,
+) {
+    let mut rest = &data[..];
+    while !rest.is_empty() {
+        let (h, body, used) = match Message::parse(rest) {
+            Ok((m, used)) => (m.header, m.body.to_vec(), used),
+            Err(_) => {
+                shared.stats.lock().await.malformed += 1;
+                return;
             }
-        });
+        };
+        rest = &rest[used..];
+        let mut s = sessions
+            .lock()
+            .await
+            .remove(&peer)
+            .unwrap_or_else(|| Session::new(peer, local_port));
+        let action = handle(&shared, &mut s, h, &body).await;
+        let (keep, why) = match action {
+            Action::Reply(r) => {
+                let _ = sock.send_to(&r, peer).await;
+                (s.open, 0)
+            }
+            Action::ReplyAndClose(r) => {
+                let _ = sock.send_to(&r, peer).await;
+                (false, 0)
+            }
+            Action::Close => (false, 0x0004),
+        };
+        if keep {
+            sessions.lock().await.insert(peer, s);
+        } else {
+            close_session(&shared, &mut s, why).await;
+        }
     }
 }
 
 async fn serve_tcp(listener: TcpListener, shared: Arc<Shared>) {
+    // Sessions end with the server.
+    let mut sessions: Vec<AbortOnDrop> = vec![];
     loop {
         let Ok((stream, _)) = listener.accept().await else {
             continue;
         };
         let _ = stream.set_nodelay(true);
-        tokio::task::spawn_local(tcp_session(stream, shared.clone()));
+        sessions.retain(|s: &AbortOnDrop| !s.0.is_finished());
+        sessions.push(AbortOnDrop(tokio::task::spawn_local(tcp_session(
+            stream,
+            shared.clone(),
+        ))));
     }
 }
 

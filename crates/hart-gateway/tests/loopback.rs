@@ -259,3 +259,47 @@ fn multiplexer_routes_to_sub_devices() {
         let _ = std::fs::remove_file(&plant2);
     });
 }
+
+/// The client reconnects when the server restarts, over UDP and TCP.
+#[test]
+fn client_survives_a_server_restart() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        for tcp in [false, true] {
+            let server = start(config(), vec![Client::new(open("sim?virtual").unwrap())])
+                .await
+                .unwrap();
+            let addr = if tcp {
+                server.tcp_addr.unwrap()
+            } else {
+                server.udp_addr.unwrap()
+            };
+            let mut c = connect(addr, tcp).await;
+            let d = c.resolve(&DeviceRef::Poll(1)).await.unwrap();
+            assert!(c.command(&d, 1, &[]).await.is_ok());
+            server.stop();
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            let again = start(
+                Config {
+                    bind: addr,
+                    udp: !tcp,
+                    tcp,
+                    ..config()
+                },
+                vec![Client::new(open("sim?virtual").unwrap())],
+            )
+            .await
+            .unwrap();
+            assert!(
+                c.command(&d, 1, &[]).await.is_ok(),
+                "after the restart over {}",
+                if tcp { "TCP" } else { "UDP" }
+            );
+            again.stop();
+        }
+    });
+}

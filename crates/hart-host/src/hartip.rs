@@ -21,6 +21,8 @@ enum Socket {
 /// A HART-IP session.
 pub struct HartIpTransport {
     socket: Socket,
+    addr: String,
+    tcp: bool,
     peer: SocketAddr,
     start: Instant,
     sequence: u16,
@@ -30,39 +32,49 @@ pub struct HartIpTransport {
     pending: Vec<(u8, Micros)>,
     /// Sequence numbers of requests awaiting a reply.
     outstanding: Vec<u16>,
+    /// The last request PDU and when it went out (to repeat it after a reconnect).
+    last_request: Option<(Vec<u8>, Instant, bool)>,
 }
 
 fn proto_err(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidData, msg)
 }
 
+async fn open_socket(addr: &str, tcp: bool) -> io::Result<(Socket, SocketAddr)> {
+    let peer: SocketAddr = tokio::net::lookup_host(addr)
+        .await?
+        .next()
+        .ok_or_else(|| io::Error::new(io::ErrorKind::NotFound, format!("{addr}: no address")))?;
+    let socket = if tcp {
+        let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
+            .await
+            .map_err(|_| {
+                io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!("HART-IP server {peer}: TCP connect timed out"),
+                )
+            })??;
+        s.set_nodelay(true)?;
+        Socket::Tcp(s, vec![])
+    } else {
+        let local: SocketAddr = if peer.is_ipv4() {
+            "0.0.0.0:0".parse().unwrap()
+        } else {
+            "[::]:0".parse().unwrap()
+        };
+        Socket::Udp(UdpSocket::bind(local).await?)
+    };
+    Ok((socket, peer))
+}
+
 impl HartIpTransport {
     /// Connects and initiates a session (primary master, `timer_ms` inactivity timer).
     pub async fn connect(addr: &str, tcp: bool, timer_ms: u32) -> io::Result<Self> {
-        let peer: SocketAddr = tokio::net::lookup_host(addr).await?.next().ok_or_else(|| {
-            io::Error::new(io::ErrorKind::NotFound, format!("{addr}: no address"))
-        })?;
-        let socket = if tcp {
-            let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
-                .await
-                .map_err(|_| {
-                    io::Error::new(
-                        io::ErrorKind::TimedOut,
-                        format!("HART-IP server {peer}: TCP connect timed out"),
-                    )
-                })??;
-            s.set_nodelay(true)?;
-            Socket::Tcp(s, vec![])
-        } else {
-            let local: SocketAddr = if peer.is_ipv4() {
-                "0.0.0.0:0".parse().unwrap()
-            } else {
-                "[::]:0".parse().unwrap()
-            };
-            Socket::Udp(UdpSocket::bind(local).await?)
-        };
+        let (socket, peer) = open_socket(addr, tcp).await?;
         let mut t = HartIpTransport {
             socket,
+            addr: addr.to_string(),
+            tcp,
             peer,
             start: Instant::now(),
             sequence: 0,
@@ -70,20 +82,31 @@ impl HartIpTransport {
             last_tx: Instant::now(),
             pending: vec![],
             outstanding: vec![],
+            last_request: None,
         };
-        let seq = t
+        t.initiate(Duration::from_secs(3)).await?;
+        Ok(t)
+    }
+
+    /// Session initiate on the current socket.
+    async fn initiate(&mut self, wait: Duration) -> io::Result<()> {
+        let timer = self.timer_ms;
+        let seq = self
             .send_message(
                 MessageId::SessionInitiate,
-                &hart_ip::session_initiate_body(1, timer_ms),
+                &hart_ip::session_initiate_body(1, timer),
             )
             .await?;
-        let deadline = Instant::now() + Duration::from_secs(3);
+        let deadline = Instant::now() + wait;
         loop {
-            let Some((header, body)) = t.read_message(deadline).await? else {
-                return Err(io::Error::new(io::ErrorKind::TimedOut, format!("HART-IP server {peer} did not answer the session initiate; is a server running there ({})?", if tcp { "TCP" } else { "UDP" })));
+            let Some((header, body)) = self.read_message(deadline).await? else {
+                return Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!("HART-IP server {} did not answer the session initiate; is a server running there ({})?", self.peer, if self.tcp { "TCP" } else { "UDP" }),
+                ));
             };
             if header.message_id == MessageId::SessionInitiate && header.sequence == seq {
-                match header.status {
+                return match header.status {
                     status::SUCCESS
                     | status::SET_TO_NEAREST
                     | status::VERSION_NOT_SUPPORTED
@@ -91,19 +114,38 @@ impl HartIpTransport {
                         if let Ok(Body::SessionInitiate(s)) =
                             Body::parse(header.message_id, header.message_type, &body)
                         {
-                            t.timer_ms = s.inactivity_timer_ms.max(1000);
+                            self.timer_ms = s.inactivity_timer_ms.max(1000);
                         }
-                        return Ok(t);
+                        Ok(())
                     }
-                    code => {
-                        return Err(proto_err(format!(
-                            "HART-IP server {peer} refused the session: {} ({code})",
-                            status::name(code)
-                        )))
-                    }
-                }
+                    code => Err(proto_err(format!(
+                        "HART-IP server {} refused the session: {} ({code})",
+                        self.peer,
+                        status::name(code)
+                    ))),
+                };
             }
         }
+    }
+
+    /// A new connection and session after the server went away, then the last request
+    /// again.
+    async fn reconnect(&mut self) -> io::Result<()> {
+        let (socket, peer) = open_socket(&self.addr, self.tcp).await?;
+        self.socket = socket;
+        self.peer = peer;
+        self.outstanding.clear();
+        self.initiate(Duration::from_secs(2)).await?;
+        self.resend().await
+    }
+
+    async fn resend(&mut self) -> io::Result<()> {
+        if let Some((pdu, _, _)) = self.last_request.clone() {
+            let seq = self.send_message(MessageId::TokenPassingPdu, &pdu).await?;
+            self.outstanding.push(seq);
+            self.last_request = Some((pdu, Instant::now(), true));
+        }
+        Ok(())
     }
 
     async fn send_message(&mut self, id: MessageId, body: &[u8]) -> io::Result<u16> {
@@ -204,6 +246,7 @@ impl Transport for HartIpTransport {
             .send_message(MessageId::TokenPassingPdu, &bytes[pre..])
             .await?;
         self.outstanding.push(seq);
+        self.last_request = Some((bytes[pre..].to_vec(), Instant::now(), false));
         Ok(())
     }
 
@@ -220,9 +263,43 @@ impl Transport for HartIpTransport {
             if self.last_tx.elapsed() >= Duration::from_millis(u64::from(self.timer_ms) / 3) {
                 self.send_message(MessageId::KeepAlive, &[]).await?;
             }
+            // A UDP request unanswered for a second: the server may have restarted and
+            // forgotten the session; initiate a new one and repeat the request once.
+            if let (false, Some((_, sent, false))) = (self.tcp, &self.last_request) {
+                if !self.outstanding.is_empty() && sent.elapsed() > Duration::from_secs(1) {
+                    if self.initiate(Duration::from_millis(500)).await.is_ok() {
+                        self.outstanding.clear();
+                        self.resend().await?;
+                    } else if let Some(r) = &mut self.last_request {
+                        r.2 = true;
+                    }
+                }
+            }
             let keepalive_at = self.last_tx + Duration::from_millis(u64::from(self.timer_ms) / 3);
             let until = self.start + Duration::from_micros(deadline);
-            let Some((h, body)) = self.read_message(until.min(keepalive_at)).await? else {
+            let recheck = Instant::now() + Duration::from_millis(250);
+            let got = match self
+                .read_message(until.min(keepalive_at).min(recheck))
+                .await
+            {
+                Ok(g) => g,
+                // A TCP server that went away: connect again and repeat the request.
+                Err(e)
+                    if self.tcp
+                        && matches!(
+                            e.kind(),
+                            io::ErrorKind::ConnectionReset
+                                | io::ErrorKind::ConnectionAborted
+                                | io::ErrorKind::BrokenPipe
+                                | io::ErrorKind::UnexpectedEof
+                        ) =>
+                {
+                    self.reconnect().await?;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let Some((h, body)) = got else {
                 continue;
             };
             match (h.message_type, h.message_id) {
