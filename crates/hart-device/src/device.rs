@@ -501,7 +501,8 @@ impl Device {
         s
     }
 
-    fn identity(&self) -> cmd::Identity {
+    /// The command 0 identity this device reports.
+    pub fn identity(&self) -> cmd::Identity {
         let id = &self.cfg.identity;
         cmd::Identity {
             expansion_code: 254,

@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use hart_host::target::AnyTransport;
 use hart_host::Client;
 use hart_ip::{encode, status, Body, Header, Message, MessageId, MessageType, HEADER_LEN};
+use hart_link::master::RetryPolicy;
 use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream, UdpSocket};
@@ -84,7 +85,7 @@ struct Shared {
     stats: Mutex<Stats>,
     mux: Mux,
     bursts: broadcast::Sender<Vec<u8>>,
-    audit: Mutex<Vec<AuditRecord>>,
+    audit: Mutex<AuditLog>,
     power_up: u64,
 }
 
@@ -110,6 +111,11 @@ impl Server {
     pub async fn stats(&self) -> Stats {
         *self.shared.stats.lock().await
     }
+
+    /// Sessions open now (UDP and TCP).
+    pub async fn active_sessions(&self) -> usize {
+        *self.shared.sessions.lock().await
+    }
 }
 
 /// Starts the server with `client` reaching the loop; returns once the sockets are
@@ -117,22 +123,47 @@ impl Server {
 /// (the loop's client is not `Send`: serial ports and simulated plants stay on one
 /// thread).
 pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io::Result<Server> {
-    let (bursts, _) = broadcast::channel(64);
-    let subs = Arc::new(Mutex::new(vec![]));
-    let mut tasks = vec![];
     let mut senders = vec![];
-    for (channel, client) in loops.into_iter().enumerate() {
+    let mut receivers = vec![];
+    for _ in 0..loops.len() {
         let (tx, rx) = mpsc::channel::<LoopRequest>(256);
         senders.push(tx);
-        tasks.push(tokio::task::spawn_local(backend(
-            client,
-            channel as u8,
-            config.scan_to,
-            subs.clone(),
-            rx,
-            bursts.clone(),
-        )));
+        receivers.push(rx);
     }
+    let scan_to = config.scan_to;
+    start_with(config, senders, move |bursts, subs| {
+        loops
+            .into_iter()
+            .zip(receivers)
+            .enumerate()
+            .map(|(channel, (client, rx))| {
+                tokio::task::spawn_local(backend(
+                    client,
+                    channel as u8,
+                    scan_to,
+                    subs.clone(),
+                    rx,
+                    bursts.clone(),
+                ))
+            })
+            .collect()
+    })
+    .await
+}
+
+/// Starts the sockets with loop request queues `senders`, whose consumers `spawn`
+/// starts.
+async fn start_with(
+    config: Config,
+    senders: Vec<mpsc::Sender<LoopRequest>>,
+    spawn: impl FnOnce(
+        broadcast::Sender<Vec<u8>>,
+        Arc<Mutex<Vec<SubDevice>>>,
+    ) -> Vec<tokio::task::JoinHandle<()>>,
+) -> std::io::Result<Server> {
+    let (bursts, _) = broadcast::channel(64);
+    let subs = Arc::new(Mutex::new(vec![]));
+    let mut tasks = spawn(bursts.clone(), subs.clone());
     let mux = Mux {
         identity: config.identity.clone(),
         loops: senders,
@@ -144,7 +175,7 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
         stats: Mutex::new(Stats::default()),
         mux,
         bursts: bursts.clone(),
-        audit: Mutex::new(vec![]),
+        audit: Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
     let mut udp_addr = None;
@@ -174,6 +205,115 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
     })
 }
 
+/// Starts the server with field devices answered in memory, without a simulated line
+/// (for benchmarks and tests of the server itself): requests are answered by the
+/// device with that address at once; burst messages are published when due. Call it
+/// inside a `tokio::task::LocalSet`.
+pub async fn start_in_memory(
+    config: Config,
+    devices: Vec<hart_device::Device>,
+) -> std::io::Result<Server> {
+    let (tx, rx) = mpsc::channel::<LoopRequest>(1024);
+    let server = start_with(config, vec![tx], |bursts, subs| {
+        vec![tokio::task::spawn_local(memory_backend(
+            devices, subs, rx, bursts,
+        ))]
+    })
+    .await?;
+    Ok(server)
+}
+
+async fn memory_backend(
+    mut devices: Vec<hart_device::Device>,
+    subs: Arc<Mutex<Vec<SubDevice>>>,
+    mut requests: mpsc::Receiver<LoopRequest>,
+    bursts: broadcast::Sender<Vec<u8>>,
+) {
+    use hart_link::slave::Handler;
+    use hart_proto::frame::{Address, LongAddress};
+    let start = Instant::now();
+    let now = || start.elapsed().as_micros() as u64;
+    {
+        let mut s = subs.lock().await;
+        for d in &devices {
+            let c = d.config();
+            let identity = d.identity();
+            s.push(SubDevice {
+                channel: 0,
+                info: hart_host::DeviceInfo {
+                    polling_address: Some(c.polling_address),
+                    identity,
+                    tag: Some(c.tag.clone()),
+                    descriptor: Some(c.descriptor.clone()),
+                    long_tag: Some(c.long_tag.clone()),
+                },
+            });
+        }
+    }
+    loop {
+        let req = tokio::select! {
+            r = requests.recv() => match r { Some(r) => Some(r), None => return },
+            _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+        };
+        let t = now();
+        if let Some(r) = req {
+            let reply = Frame::parse_pdu(&r.pdu).ok().and_then(|f| {
+                let d = devices.iter_mut().find(|d| {
+                    let c = d.config();
+                    match f.address {
+                        Address::Short(a) => a.polling_address == c.polling_address,
+                        Address::Long(a) => {
+                            a.id == d.unique_id()
+                                || (a.id.is_broadcast() && matches!(f.command, 11 | 21))
+                        }
+                    }
+                })?;
+                let (code, status, data) = d.handle(&f, t)?;
+                let spec = FrameSpec {
+                    preambles: 0,
+                    frame_type: FrameType::Ack,
+                    extended: f.extended,
+                    status: Some((code, status)),
+                    ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
+                };
+                let mut out = vec![0u8; spec.encoded_len()];
+                let n = spec.encode(&mut out).ok()?;
+                out.truncate(n);
+                Some(out)
+            });
+            let _ = r.reply.send(reply);
+        }
+        // Burst messages that are due.
+        for d in &mut devices {
+            if d.burst_mode() && d.burst_due(t).is_some_and(|due| due <= t) {
+                let mut reply = hart_link::slave::Reply::default();
+                let command = d.burst(&mut reply, t);
+                let id = d.unique_id();
+                let spec = FrameSpec {
+                    preambles: 0,
+                    frame_type: FrameType::Back,
+                    status: Some((reply.response_code, reply.device_status)),
+                    extended: command > 255,
+                    ..FrameSpec::request(
+                        Address::Long(LongAddress {
+                            master: hart_proto::MasterKind::Primary,
+                            burst: true,
+                            id,
+                        }),
+                        command,
+                        reply.data(),
+                    )
+                };
+                let mut out = vec![0u8; spec.encoded_len()];
+                if let Ok(n) = spec.encode(&mut out) {
+                    out.truncate(n);
+                    let _ = bursts.send(out);
+                }
+            }
+        }
+    }
+}
+
 /// The one task that talks to a loop: requests in turn; between them, one polling
 /// address of the scan at a time (so requests never wait long) and listening for
 /// burst frames.
@@ -199,10 +339,21 @@ async fn backend(
         match (req, next_scan) {
             (Some(r), _) => {
                 let reply = client.forward(&r.pdu).await.ok();
+                if let Some(reply) = &reply {
+                    learn(&subs, channel, &r.pdu, reply).await;
+                }
                 let _ = r.reply.send(reply);
             }
             (None, Some(poll)) => {
-                if let Ok(mut info) = client.identify(poll).await {
+                // One retry only: an empty address must not hold the line (and the
+                // requests queued behind it) for four slave time-outs.
+                client.set_policy(RetryPolicy {
+                    retries: 1,
+                    ..RetryPolicy::default()
+                });
+                let found = client.identify(poll).await;
+                client.set_policy(RetryPolicy::default());
+                if let Ok(mut info) = found {
                     if info.revision() >= 6 {
                         if let Ok(r) = client.command(&info, 20, &[]).await {
                             info.long_tag = Some(
@@ -216,7 +367,7 @@ async fn backend(
                             );
                         }
                     }
-                    subs.lock().await.push(SubDevice { channel, info });
+                    remember(&subs, SubDevice { channel, info }).await;
                 }
                 next_scan = (poll < scan_to.unwrap_or(0).min(63)).then_some(poll + 1);
             }
@@ -228,6 +379,52 @@ async fn backend(
             let _ = bursts.send(b);
         }
     }
+}
+
+/// Adds a sub-device, or updates the one with the same unique ID.
+async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
+    let mut subs = subs.lock().await;
+    match subs
+        .iter_mut()
+        .find(|s| s.info.unique_id() == sub.info.unique_id())
+    {
+        Some(s) => {
+            let old = std::mem::replace(s, sub);
+            // Keep what the new sighting did not learn.
+            s.info.polling_address = s.info.polling_address.or(old.info.polling_address);
+            s.info.tag = s.info.tag.take().or(old.info.tag);
+            s.info.descriptor = s.info.descriptor.take().or(old.info.descriptor);
+            s.info.long_tag = s.info.long_tag.take().or(old.info.long_tag);
+        }
+        None => subs.push(sub),
+    }
+}
+
+/// Learns sub-devices from the identity replies (commands 0, 11 and 21) that clients'
+/// requests bring back, so devices connected after the start-up scan are routed too.
+async fn learn(subs: &Mutex<Vec<SubDevice>>, channel: u8, request: &[u8], reply: &[u8]) {
+    use hart_proto::wire::{Reader, Wire};
+    let (Ok(req), Ok(rep)) = (Frame::parse_pdu(request), Frame::parse_pdu(reply)) else {
+        return;
+    };
+    if !matches!(rep.command, 0 | 11 | 21) || rep.response_code.unwrap_or(0xFF) != 0 {
+        return;
+    }
+    let Ok(identity) = hart_proto::command::Identity::decode(&mut Reader::new(rep.data)) else {
+        return;
+    };
+    let polling_address = match req.address {
+        hart_proto::frame::Address::Short(a) => Some(a.polling_address),
+        hart_proto::frame::Address::Long(_) => None,
+    };
+    let info = hart_host::DeviceInfo {
+        polling_address,
+        identity,
+        tag: None,
+        descriptor: None,
+        long_tag: None,
+    };
+    remember(subs, SubDevice { channel, info }).await;
 }
 
 fn message(ty: MessageType, id: MessageId, st: u8, seq: u16, body: &[u8]) -> Vec<u8> {
@@ -266,8 +463,37 @@ struct Session {
     publish_seq: u16,
     peer: SocketAddr,
     local_port: u16,
-    /// Index of this session's audit record.
-    audit: Option<usize>,
+    /// Number of this session's audit record.
+    audit: Option<u64>,
+}
+
+/// Audit records kept: the newest sessions, oldest dropped first. Read Audit Log
+/// addresses records with one byte, so a client can reach at most 256 anyway.
+pub const AUDIT_RECORDS: usize = 128;
+
+/// The newest [`AUDIT_RECORDS`] session records; record 0 of a read is the oldest kept.
+#[derive(Default)]
+struct AuditLog {
+    records: std::collections::VecDeque<AuditRecord>,
+    /// Number of the oldest record kept (records are numbered from 0 at power-up).
+    first: u64,
+}
+
+impl AuditLog {
+    fn push(&mut self, r: AuditRecord) -> u64 {
+        if self.records.len() == AUDIT_RECORDS {
+            self.records.pop_front();
+            self.first += 1;
+        }
+        self.records.push_back(r);
+        self.first + self.records.len() as u64 - 1
+    }
+
+    /// The record numbered `n`, while it is still kept.
+    fn get_mut(&mut self, n: u64) -> Option<&mut AuditRecord> {
+        let i = usize::try_from(n.checked_sub(self.first)?).ok()?;
+        self.records.get_mut(i)
+    }
 }
 
 /// One session in the audit log (58 bytes on the wire).
@@ -369,10 +595,8 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
                 *n += 1;
                 s.open = true;
                 shared.stats.lock().await.sessions_opened += 1;
-                let mut audit = shared.audit.lock().await;
-                s.audit = Some(audit.len());
                 // Every HART-IP v1 session is an insecure session (0x0010).
-                audit.push(AuditRecord {
+                s.audit = Some(shared.audit.lock().await.push(AuditRecord {
                     client: s.peer,
                     server_port: s.local_port,
                     connected: unix_now(),
@@ -381,7 +605,7 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
                     publishes: 0,
                     requests: 0,
                     responses: 0,
-                });
+                }));
             }
             let timer = asked.max(MIN_TIMER_MS);
             s.timer = Duration::from_millis(u64::from(timer));
@@ -490,6 +714,7 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
             };
             let audit = shared.audit.lock().await;
             let records: Vec<&AuditRecord> = audit
+                .records
                 .iter()
                 .skip(usize::from(start))
                 .take(usize::from(count))
@@ -533,9 +758,23 @@ async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
     }
 }
 
+/// UDP sessions by client address. Each session has its own lock, so datagrams from
+/// one client are handled one after another, in the order they arrived, while other
+/// clients' requests go on. Lock order: a session, then the table.
+type UdpSessions = Arc<Mutex<HashMap<SocketAddr, Arc<Mutex<Session>>>>>;
+
+/// Drops a closed session from the table unless another task still holds it (that task
+/// may reopen it, or the next sweep drops it).
+async fn forget_udp_session(sessions: &UdpSessions, peer: SocketAddr, cell: &Arc<Mutex<Session>>) {
+    let mut map = sessions.lock().await;
+    if map.get(&peer).is_some_and(|c| Arc::ptr_eq(c, cell)) && Arc::strong_count(cell) == 2 {
+        map.remove(&peer);
+    }
+}
+
 async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
     let local_port = sock.local_addr().map_or(0, |a| a.port());
-    let sessions: Arc<Mutex<HashMap<SocketAddr, Session>>> = Arc::new(Mutex::new(HashMap::new()));
+    let sessions: UdpSessions = Arc::new(Mutex::new(HashMap::new()));
     // Publish bursts and close idle sessions.
     let _publisher = {
         let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
@@ -546,39 +785,53 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                     b = bursts.recv() => b.ok(),
                     _ = tokio::time::sleep(Duration::from_millis(200)) => None,
                 };
-                let mut map = sessions.lock().await;
-                let mut closed = vec![];
-                for (peer, s) in map.iter_mut() {
-                    if s.last_rx.elapsed() > s.timer {
-                        closed.push(*peer);
-                        continue;
-                    }
-                    if let Some(b) = &burst {
-                        s.publish_seq = s.publish_seq.wrapping_add(1);
-                        let _ = sock
-                            .send_to(
-                                &message(
-                                    MessageType::Publish,
-                                    MessageId::TokenPassingPdu,
-                                    0,
-                                    s.publish_seq,
-                                    b,
-                                ),
-                                peer,
-                            )
-                            .await;
-                        shared.stats.lock().await.published += 1;
-                        if let Some(r) = s.audit {
-                            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
-                                rec.publishes += 1;
-                            }
+                let mut idle = vec![];
+                for (peer, cell) in sessions.lock().await.iter() {
+                    // A session busy with a request is not idle.
+                    if let Ok(s) = cell.try_lock() {
+                        if !s.open || s.last_rx.elapsed() > s.timer {
+                            idle.push((*peer, cell.clone()));
+                            continue;
                         }
                     }
+                    if let Some(b) = &burst {
+                        // Each session gets its publish message after the reply it is
+                        // working on, without holding up the others.
+                        let (sock, shared, cell, b) =
+                            (sock.clone(), shared.clone(), cell.clone(), b.clone());
+                        let peer = *peer;
+                        tokio::task::spawn_local(async move {
+                            let mut s = cell.lock().await;
+                            if !s.open {
+                                return;
+                            }
+                            s.publish_seq = s.publish_seq.wrapping_add(1);
+                            let m = message(
+                                MessageType::Publish,
+                                MessageId::TokenPassingPdu,
+                                0,
+                                s.publish_seq,
+                                &b,
+                            );
+                            let _ = sock.send_to(&m, peer).await;
+                            shared.stats.lock().await.published += 1;
+                            if let Some(r) = s.audit {
+                                if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+                                    rec.publishes += 1;
+                                }
+                            }
+                        });
+                    }
                 }
-                for p in closed {
-                    if let Some(mut s) = map.remove(&p) {
+                for (peer, cell) in idle {
+                    {
+                        let mut s = cell.lock().await;
+                        if s.open && s.last_rx.elapsed() <= s.timer {
+                            continue; // a request came in meanwhile
+                        }
                         close_session(&shared, &mut s, 0x0008).await;
                     }
+                    forget_udp_session(&sessions, peer, &cell).await;
                 }
             }
         }))
@@ -597,43 +850,58 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
 async fn udp_datagram(
     sock: Arc<UdpSocket>,
     shared: Arc<Shared>,
-    sessions: Arc<Mutex<HashMap<SocketAddr, Session>>>,
+    sessions: UdpSessions,
     peer: SocketAddr,
     local_port: u16,
     data: Vec<u8>,
 ) {
+    let cell = sessions
+        .lock()
+        .await
+        .entry(peer)
+        .or_insert_with(|| Arc::new(Mutex::new(Session::new(peer, local_port))))
+        .clone();
+    let mut s = cell.lock().await;
     let mut rest = &data[..];
     while !rest.is_empty() {
         let (h, body, used) = match Message::parse(rest) {
             Ok((m, used)) => (m.header, m.body.to_vec(), used),
             Err(_) => {
                 shared.stats.lock().await.malformed += 1;
-                return;
+                break;
             }
         };
         rest = &rest[used..];
-        let mut s = sessions
-            .lock()
-            .await
-            .remove(&peer)
-            .unwrap_or_else(|| Session::new(peer, local_port));
         let action = handle(&shared, &mut s, h, &body).await;
-        let (keep, why) = match action {
+        let why = match action {
             Action::Reply(r) => {
                 let _ = sock.send_to(&r, peer).await;
-                (s.open, 0)
+                if s.open {
+                    continue;
+                }
+                0x0004
             }
             Action::ReplyAndClose(r) => {
                 let _ = sock.send_to(&r, peer).await;
-                (false, 0)
+                0
             }
-            Action::Close => (false, 0x0004),
+            Action::Close => 0x0004,
         };
-        if keep {
-            sessions.lock().await.insert(peer, s);
-        } else {
-            close_session(&shared, &mut s, why).await;
-        }
+        close_session(&shared, &mut s, why).await;
+        break;
+    }
+    let open = s.open;
+    if open {
+        // Back in the table if a sweep dropped it while this datagram waited.
+        sessions
+            .lock()
+            .await
+            .entry(peer)
+            .or_insert_with(|| cell.clone());
+    }
+    drop(s);
+    if !open {
+        forget_udp_session(&sessions, peer, &cell).await;
     }
 }
 

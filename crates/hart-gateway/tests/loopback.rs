@@ -303,3 +303,46 @@ fn client_survives_a_server_restart() {
         }
     });
 }
+
+/// A device that does not answer on the loop: the server says so with an empty
+/// response, and the client reports it at once, without repeating the request (the
+/// server already made the retries on the loop).
+#[test]
+fn absent_device_is_reported_by_the_server() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let server = start(
+            Config {
+                scan_to: None,
+                ..config()
+            },
+            vec![Client::new(open("sim?virtual").unwrap())],
+        )
+        .await
+        .unwrap();
+        for (addr, tcp) in [
+            (server.udp_addr.unwrap(), false),
+            (server.tcp_addr.unwrap(), true),
+        ] {
+            let mut c = connect(addr, tcp).await;
+            let before = server.stats().await.forwarded;
+            match c.resolve(&DeviceRef::Poll(9)).await {
+                Err(e @ HostError::NoReplyBehindServer { .. }) => {
+                    let msg = e.to_string();
+                    assert!(msg.starts_with("no reply from polling address 9"), "{msg}");
+                    assert!(msg.contains("did not answer on its loop"), "{msg}");
+                    assert_eq!(e.exit_code(), 3);
+                }
+                other => panic!("{other:?}"),
+            }
+            assert_eq!(server.stats().await.forwarded, before + 1, "one request");
+            // The session goes on.
+            assert!(c.resolve(&DeviceRef::Poll(1)).await.is_ok());
+        }
+        server.stop();
+    });
+}

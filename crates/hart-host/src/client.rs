@@ -233,6 +233,12 @@ impl<T: Transport> Client<T> {
         self.master
             .request(&spec, self.transport.now())
             .map_err(|e| HostError::Usage(e.to_string()))?;
+        let reply = self.run(what).await?;
+        self.finish(reply.as_slice(), command, what)
+    }
+
+    /// Drives the master's transaction in progress to its end: the reply's PDU.
+    async fn run(&mut self, what: &str) -> Result<hart_proto::frame::FrameBuf, HostError> {
         loop {
             let now = self.transport.now();
             while let Some(out) = self.master.poll(now) {
@@ -244,7 +250,7 @@ impl<T: Transport> Client<T> {
                         self.transport.send(&bytes).await?;
                         self.master.transmitted(self.transport.now());
                     }
-                    MasterOutput::Done(Ok(fb)) => return self.finish(fb.as_slice(), command, what),
+                    MasterOutput::Done(Ok(fb)) => return Ok(fb),
                     MasterOutput::Done(Err(e)) => {
                         let sto_ms = self.transport.profile().sto / 1000;
                         let port = self.transport.describe();
@@ -276,6 +282,15 @@ impl<T: Transport> Client<T> {
                 .clamp(now + 1, now + 200_000);
             let bytes = self.transport.recv(deadline).await?;
             self.feed(&bytes);
+            if let Some(status) = self.transport.take_no_reply() {
+                if self.master.abandon().is_some() {
+                    return Err(HostError::NoReplyBehindServer {
+                        target: what.to_string(),
+                        port: self.transport.describe(),
+                        status,
+                    });
+                }
+            }
         }
     }
 
@@ -321,50 +336,7 @@ impl<T: Transport> Client<T> {
             )
             .map_err(|e| HostError::Usage(e.to_string()))?;
         let what = f.address.to_string();
-        loop {
-            let now = self.transport.now();
-            while let Some(out) = self.master.poll(now) {
-                match out {
-                    MasterOutput::Transmit(frame, pre) => {
-                        let mut bytes = vec![0xFF; pre];
-                        bytes.extend_from_slice(frame.as_slice());
-                        self.log(Direction::Tx, &bytes, self.transport.now());
-                        self.transport.send(&bytes).await?;
-                        self.master.transmitted(self.transport.now());
-                    }
-                    MasterOutput::Done(Ok(fb)) => return Ok(fb.as_slice().to_vec()),
-                    MasterOutput::Done(Err(e)) => {
-                        let sto_ms = self.transport.profile().sto / 1000;
-                        let port = self.transport.describe();
-                        return Err(match e {
-                            LinkError::NoReply { attempts } => HostError::NoReply {
-                                target: what,
-                                attempts,
-                                sto_ms,
-                                port,
-                            },
-                            LinkError::CommunicationError {
-                                attempts,
-                                last_error,
-                            } => HostError::Communication {
-                                target: what,
-                                attempts,
-                                last_error,
-                            },
-                        });
-                    }
-                    MasterOutput::Burst(fb) => self.bursts.push_back(fb.as_slice().to_vec()),
-                }
-            }
-            let now = self.transport.now();
-            let deadline = self
-                .master
-                .next_deadline()
-                .unwrap_or(now + 50_000)
-                .clamp(now + 1, now + 200_000);
-            let bytes = self.transport.recv(deadline).await?;
-            self.feed(&bytes);
-        }
+        Ok(self.run(&what).await?.as_slice().to_vec())
     }
 
     /// Identifies the device at polling address `poll` (command 0 in a short frame).

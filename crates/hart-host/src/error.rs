@@ -16,6 +16,16 @@ pub enum HostError {
         /// The port, described.
         port: String,
     },
+    /// A HART-IP server answered that the device did not reply on its loop (the
+    /// server made the retries there).
+    NoReplyBehindServer {
+        /// The device asked.
+        target: String,
+        /// The server, described.
+        port: String,
+        /// The HART-IP status the server gave.
+        status: String,
+    },
     /// Replies arrived damaged on every attempt.
     Communication {
         /// The device asked.
@@ -47,7 +57,9 @@ impl HostError {
     /// 5 I/O, 2 usage and decoding.
     pub fn exit_code(&self) -> u8 {
         match self {
-            HostError::NoReply { .. } | HostError::Communication { .. } => 3,
+            HostError::NoReply { .. }
+            | HostError::NoReplyBehindServer { .. }
+            | HostError::Communication { .. } => 3,
             HostError::Device { .. } => 4,
             HostError::Io(_) => 5,
             HostError::Decode(_) | HostError::Usage(_) => 2,
@@ -58,9 +70,21 @@ impl HostError {
 impl fmt::Display for HostError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            HostError::NoReply { target, attempts, sto_ms, port } => write!(
+            HostError::NoReply { target, attempts, sto_ms, port } => {
+                write!(f, "no reply from {target} after {attempts} tries (STO {sto_ms} ms) on {port}; ")?;
+                f.write_str(if port.starts_with("serial") {
+                    "is the modem's RTS set right (--port ...?rts=high-tx|low-tx|none), and is a device at that address?"
+                } else if port.starts_with("RS-485") {
+                    "are A and B the right way round, is the bit rate right (--port rs485:...?baud=N), and is a device at that address?"
+                } else if port.starts_with("HART-IP") {
+                    "is the server still running, and does a firewall let its replies through?"
+                } else {
+                    "is a device at that address?"
+                })
+            }
+            HostError::NoReplyBehindServer { target, port, status } => write!(
                 f,
-                "no reply from {target} after {attempts} tries (STO {sto_ms} ms) on {port}; is the modem's RTS set right (--port ...?rts=high-tx|low-tx|none), and is a device at that address?"
+                "no reply from {target}: {port} reports that the device did not answer on its loop ({status}); is a device at that address (hartkit scan through the server), and is the server's loop connected?"
             ),
             HostError::Communication { target, attempts, last_error } => write!(
                 f,

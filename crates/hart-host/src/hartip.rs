@@ -32,8 +32,12 @@ pub struct HartIpTransport {
     pending: Vec<(u8, Micros)>,
     /// Sequence numbers of requests awaiting a reply.
     outstanding: Vec<u16>,
-    /// The last request PDU and when it went out (to repeat it after a reconnect).
-    last_request: Option<(Vec<u8>, Instant, bool)>,
+    /// The last request PDU (to repeat it after a reconnect, and to tell a retry of it
+    /// from a new request).
+    last_request: Option<Vec<u8>>,
+    /// The server answered the request in progress with an empty response: the device
+    /// did not reply on its loop (the status, named).
+    no_reply: Option<String>,
 }
 
 fn proto_err(msg: String) -> io::Error {
@@ -83,13 +87,15 @@ impl HartIpTransport {
             pending: vec![],
             outstanding: vec![],
             last_request: None,
+            no_reply: None,
         };
-        t.initiate(Duration::from_secs(3)).await?;
+        t.initiate(Duration::from_secs(3), false).await?;
         Ok(t)
     }
 
-    /// Session initiate on the current socket.
-    async fn initiate(&mut self, wait: Duration) -> io::Result<()> {
+    /// Session initiate on the current socket. `again`: the session may still be open
+    /// at the server, which some servers answer with "access restricted" (16).
+    async fn initiate(&mut self, wait: Duration, again: bool) -> io::Result<()> {
         let timer = self.timer_ms;
         let seq = self
             .send_message(
@@ -118,6 +124,7 @@ impl HartIpTransport {
                         }
                         Ok(())
                     }
+                    status::ACCESS_RESTRICTED if again => Ok(()),
                     code => Err(proto_err(format!(
                         "HART-IP server {} refused the session: {} ({code})",
                         self.peer,
@@ -135,15 +142,10 @@ impl HartIpTransport {
         self.socket = socket;
         self.peer = peer;
         self.outstanding.clear();
-        self.initiate(Duration::from_secs(2)).await?;
-        self.resend().await
-    }
-
-    async fn resend(&mut self) -> io::Result<()> {
-        if let Some((pdu, _, _)) = self.last_request.clone() {
+        self.initiate(Duration::from_secs(2), false).await?;
+        if let Some(pdu) = self.last_request.clone() {
             let seq = self.send_message(MessageId::TokenPassingPdu, &pdu).await?;
             self.outstanding.push(seq);
-            self.last_request = Some((pdu, Instant::now(), true));
         }
         Ok(())
     }
@@ -242,12 +244,41 @@ impl Transport for HartIpTransport {
 
     async fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
         let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
-        let seq = self
-            .send_message(MessageId::TokenPassingPdu, &bytes[pre..])
-            .await?;
+        let pdu = &bytes[pre..];
+        let retry = !self.outstanding.is_empty() && self.last_request.as_deref() == Some(pdu);
+        if retry {
+            // The master repeats a request the server has not answered within STO.
+            if self.tcp {
+                // The stream lost nothing: the server is still working on it (a slow
+                // loop or a queue); a second copy would only lengthen the queue.
+                return Ok(());
+            }
+            // The datagram or its reply may be lost, or the server restarted and
+            // forgot the session: open it again (harmless if it still exists), then
+            // repeat. A late reply to the first copy answers the repeat too.
+            if let Err(e) = self.initiate(Duration::from_secs(1), true).await {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!(
+                        "HART-IP server {} stopped answering: no reply to a request within {} s, nor to a new session initiate",
+                        self.peer,
+                        self.profile().sto / 1_000_000
+                    ),
+                ));
+            }
+        } else {
+            // A new request: replies to earlier ones are stale from now on.
+            self.outstanding.clear();
+            self.last_request = Some(pdu.to_vec());
+        }
+        self.no_reply = None;
+        let seq = self.send_message(MessageId::TokenPassingPdu, pdu).await?;
         self.outstanding.push(seq);
-        self.last_request = Some((bytes[pre..].to_vec(), Instant::now(), false));
         Ok(())
+    }
+
+    fn take_no_reply(&mut self) -> Option<String> {
+        self.no_reply.take()
     }
 
     async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>> {
@@ -262,18 +293,6 @@ impl Transport for HartIpTransport {
             // Keep the session alive well before the inactivity timer runs out.
             if self.last_tx.elapsed() >= Duration::from_millis(u64::from(self.timer_ms) / 3) {
                 self.send_message(MessageId::KeepAlive, &[]).await?;
-            }
-            // A UDP request unanswered for a second: the server may have restarted and
-            // forgotten the session; initiate a new one and repeat the request once.
-            if let (false, Some((_, sent, false))) = (self.tcp, &self.last_request) {
-                if !self.outstanding.is_empty() && sent.elapsed() > Duration::from_secs(1) {
-                    if self.initiate(Duration::from_millis(500)).await.is_ok() {
-                        self.outstanding.clear();
-                        self.resend().await?;
-                    } else if let Some(r) = &mut self.last_request {
-                        r.2 = true;
-                    }
-                }
             }
             let keepalive_at = self.last_tx + Duration::from_millis(u64::from(self.timer_ms) / 3);
             let until = self.start + Duration::from_micros(deadline);
@@ -303,13 +322,20 @@ impl Transport for HartIpTransport {
                 continue;
             };
             match (h.message_type, h.message_id) {
-                (MessageType::Response, MessageId::TokenPassingPdu) => {
-                    if let Some(i) = self.outstanding.iter().position(|&s| s == h.sequence) {
-                        self.outstanding.remove(i);
-                        if !body.is_empty() {
-                            self.deliver(&body);
-                        }
+                (MessageType::Response, MessageId::TokenPassingPdu)
+                    if self.outstanding.contains(&h.sequence) =>
+                {
+                    // One answer ends the request, whichever copy it answers.
+                    self.outstanding.clear();
+                    if body.is_empty() {
+                        self.no_reply = Some(format!(
+                            "HART-IP status {}: {}",
+                            h.status,
+                            status::name(h.status)
+                        ));
+                        return Ok(vec![]);
                     }
+                    self.deliver(&body);
                 }
                 (MessageType::Publish, MessageId::TokenPassingPdu) => self.deliver(&body),
                 (MessageType::Response, MessageId::SessionClose) | (MessageType::Nak, _) => {

@@ -53,6 +53,13 @@ impl Transport for AnyTransport {
             AnyTransport::HartIp(t) => t.describe(),
         }
     }
+    fn take_no_reply(&mut self) -> Option<String> {
+        match self {
+            AnyTransport::Serial(t) => t.take_no_reply(),
+            AnyTransport::Sim(t) => t.take_no_reply(),
+            AnyTransport::HartIp(t) => t.take_no_reply(),
+        }
+    }
 }
 
 fn query(q: &str) -> Vec<(&str, &str)> {

@@ -31,6 +31,12 @@ pub trait Transport {
     async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>>;
     /// A short description for messages ("serial /dev/ttyUSB0 at 1200 bit/s").
     fn describe(&self) -> String;
+    /// Whether the far end has reported that the request in progress will get no
+    /// reply (a HART-IP server whose device did not answer on its loop, after its own
+    /// retries): the reason, taken once. Lines with no such far end never report it.
+    fn take_no_reply(&mut self) -> Option<String> {
+        None
+    }
 }
 
 /// RTS keying of a HART modem.

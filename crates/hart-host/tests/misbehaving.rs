@@ -62,7 +62,7 @@ impl Transport for Scripted {
         Ok(vec![])
     }
     fn describe(&self) -> String {
-        "scripted device".into()
+        "serial scripted device at 1200 bit/s".into()
     }
 }
 
@@ -221,7 +221,7 @@ async fn silent_device_names_the_address_and_the_port() {
     let e = c.resolve(&DeviceRef::Poll(3)).await.unwrap_err();
     assert_eq!(
         e.to_string(),
-        "no reply from polling address 3 after 4 tries (STO 256 ms) on scripted device; is the modem's RTS set right (--port ...?rts=high-tx|low-tx|none), and is a device at that address?"
+        "no reply from polling address 3 after 4 tries (STO 256 ms) on serial scripted device at 1200 bit/s; is the modem's RTS set right (--port ...?rts=high-tx|low-tx|none), and is a device at that address?"
     );
     // Each request went out with 5 preambles in a short frame to address 3.
     let f = Frame::parse(&c.transport().requests[0]).unwrap();

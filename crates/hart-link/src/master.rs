@@ -223,6 +223,17 @@ impl Master {
         Ok(())
     }
 
+    /// Ends the transaction in progress without an outcome, because the far end has
+    /// reported that no reply will come (a HART-IP gateway whose device did not answer
+    /// on its loop already made the retries). Returns the transmissions made, or `None`
+    /// when nothing was in progress. Counts as a failed transaction.
+    pub fn abandon(&mut self) -> Option<u8> {
+        let p = self.pending.take()?;
+        self.state = State::Idle;
+        self.stats.failed += 1;
+        Some(p.attempts)
+    }
+
     /// The carrier-detect line changed (optional: stations also work from received
     /// characters alone, but carrier detect lets a reply that starts just before STO
     /// count as started).

@@ -95,14 +95,15 @@ impl TimingProfile {
     }
 
     /// HART-IP: frames travel whole inside UDP/TCP messages, so the line timers only
-    /// pace the master: STO 2 s (gateways forward to slow loops), RT1 5 ms / 10 ms,
+    /// pace the master: STO 5 s (a gateway forwards to a 1200 bit/s loop, where it may
+    /// queue behind other sessions and make its own retries), RT1 5 ms / 10 ms,
     /// RT2 2 ms, HOLD 0.1 ms, a "character" of 10 µs.
     pub const fn hart_ip() -> Self {
         TimingProfile {
             name: "hart-ip",
             baud: 0,
             char_time: 10,
-            sto: 2_000_000,
+            sto: 5_000_000,
             rt1_primary: 5_000,
             rt1_secondary: 10_000,
             rt2: 2_000,

@@ -5,6 +5,7 @@
 //! `.ci/run` installs tshark; without it (or without permission to capture) the test
 //! says so and passes.
 
+use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
@@ -48,13 +49,19 @@ fn wireshark_decodes_our_hart_ip_traffic() {
             "--sim",
             "pressure",
             "temperature",
+            // Ended by the test; the limit only stops a server the test left behind.
             "--run-for",
-            "40",
+            "600",
         ])
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    // The server says where it listens once its sockets are bound.
+    // (The pipe stays open until the end, so later output cannot fail.)
+    let mut server_out = BufReader::new(server.stdout.take().unwrap());
+    let mut ready = String::new();
+    let _ = server_out.read_line(&mut ready);
+    assert!(ready.contains("hart-ip"), "server did not start: {ready}");
     let udp = format!("udp://127.0.0.1:{port}");
     let tcp = format!("tcp://127.0.0.1:{port}");
     let (c1, _, e1) = hartkit(&["read", "-p", &udp, "--poll", "1", "dynamic"]);
@@ -73,7 +80,8 @@ fn wireshark_decodes_our_hart_ip_traffic() {
         "1",
     ]);
     let (c5, _, e5) = hartkit(&["burst", "-p", &tcp, "--poll", "1", "on"]);
-    let (c6, mon, e6) = hartkit(&["monitor", "-p", &udp, "--duration", "3"]);
+    // The device bursts every second; a few seconds of listening hear several.
+    let (c6, mon, e6) = hartkit(&["monitor", "-p", &udp, "--duration", "5"]);
     std::thread::sleep(Duration::from_millis(500));
     let _ = Command::new("kill")
         .args(["-INT", &capture.id().to_string()])
@@ -81,6 +89,7 @@ fn wireshark_decodes_our_hart_ip_traffic() {
     let _ = capture.wait();
     let _ = server.kill();
     let _ = server.wait();
+    drop(server_out);
     assert_eq!(c1, 0, "{e1}");
     assert_eq!(c2, 0, "{e2}");
     assert_eq!(c3, 4, "command 1024 is not implemented: {e3}");
