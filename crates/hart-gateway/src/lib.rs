@@ -448,12 +448,162 @@ fn local_reply(f: &Frame<'_>, rc: u8) -> Vec<u8> {
     out
 }
 
+/// The gateway's own reply to a request frame: response code `code` and `data` (left
+/// out for error codes), the field device status 0.
+fn local_frame(f: &Frame<'_>, code: u8, data: &[u8]) -> Vec<u8> {
+    let data =
+        if hart_proto::tables::response_class(code) == hart_proto::tables::ResponseClass::Error {
+            &[][..]
+        } else {
+            data
+        };
+    let spec = FrameSpec {
+        preambles: 0,
+        frame_type: FrameType::Ack,
+        extended: f.extended,
+        status: Some((code, 0)),
+        ..FrameSpec::request(f.address, f.command, data)
+    };
+    let mut out = vec![0u8; spec.encoded_len()];
+    let n = spec.encode(&mut out).unwrap_or(0);
+    out.truncate(n);
+    out
+}
+
 /// What to do with one received message of a session.
 enum Action {
     Reply(Vec<u8>),
     ReplyAndClose(Vec<u8>),
     Close,
+    /// Forward a token-passing request to a loop and answer with sequence number `seq`
+    /// when the reply comes (over TCP, other requests and publish messages go on
+    /// meanwhile).
+    Forward {
+        channel: usize,
+        pdu: Vec<u8>,
+        seq: u16,
+    },
 }
+
+/// Waits for a loop's reply to a forwarded request and builds the response message:
+/// the reply PDU with status 0, or an empty response with status 6 when the device did
+/// not answer (so the client stops waiting at once).
+async fn forwarded(shared: &Shared, channel: usize, pdu: Vec<u8>, seq: u16) -> Vec<u8> {
+    let (st, body) = match shared.mux.forward(channel, pdu).await {
+        Some(reply) => (status::SUCCESS, reply),
+        None => (status::DEVICE_SPECIFIC, vec![]),
+    };
+    message(
+        MessageType::Response,
+        MessageId::TokenPassingPdu,
+        st,
+        seq,
+        &body,
+    )
+}
+
+/// Publish-message subscription flags (command 533).
+pub mod subscription {
+    /// Process data (burst messages).
+    pub const PROCESS_DATA: u16 = 0x0001;
+    /// Event notifications.
+    pub const EVENT_NOTIFICATION: u16 = 0x0002;
+    /// Device status.
+    pub const DEVICE_STATUS: u16 = 0x0004;
+    /// Device configuration.
+    pub const DEVICE_CONFIGURATION: u16 = 0x0008;
+}
+
+/// A session's publish subscriptions: `None` until the client writes one with command
+/// 533 (every burst message is published to it then, as HART-IP clients that predate
+/// subscriptions expect); then the list of (target, flags), where the all-zero unique
+/// ID stands for every device and excludes entries for single devices.
+type Subscriptions = Option<Vec<([u8; 5], u16)>>;
+
+/// Whether a burst frame goes to a session with `subs`.
+fn subscribed(subs: &Subscriptions, pdu: &[u8]) -> bool {
+    let Some(list) = subs else {
+        return true;
+    };
+    let Ok(f) = Frame::parse_pdu(pdu) else {
+        return false;
+    };
+    let id = match f.address {
+        hart_proto::frame::Address::Long(a) => a.id.to_bytes(),
+        hart_proto::frame::Address::Short(_) => [0xFF; 5],
+    };
+    list.iter()
+        .any(|(t, _)| *t == [0; 5] || (t[0] & 0x3F, &t[1..]) == (id[0] & 0x3F, &id[1..]))
+}
+
+/// Commands 532 (read client subscription summary) and 533 (write client subscription
+/// flags), answered by the server for the session: request data is the target unique
+/// ID (5 bytes, all zero for every device), for 533 followed by the flags (u16); the
+/// reply data is the unique ID and the flags. Response codes: 5 too few data bytes, 9
+/// individual subscription not allowed (a subscription to every device is in place),
+/// 65 unknown unique ID (no such sub-device, or no subscription to read).
+async fn subscription_command(
+    shared: &Shared,
+    subs: &mut Subscriptions,
+    command: u16,
+    data: &[u8],
+) -> (u8, Vec<u8>) {
+    use hart_proto::tables::rc;
+    let need = if command == 533 { 7 } else { 5 };
+    if data.len() < need {
+        return (rc::TOO_FEW_DATA_BYTES, vec![]);
+    }
+    let mut target = [0u8; 5];
+    target.copy_from_slice(&data[..5]);
+    // The burst and master bits are not part of the device's identity.
+    target[0] &= 0x3F;
+    let all = target == [0; 5];
+    let same = |t: &[u8; 5]| *t == target;
+    let list = subs.get_or_insert_with(|| vec![([0; 5], subscription::PROCESS_DATA)]);
+    let broadcast_in_place = list.iter().any(|(t, _)| *t == [0; 5]);
+    if command == 532 {
+        if broadcast_in_place && !all {
+            return (UNKNOWN_OR_NOT_ALLOWED.0, vec![]);
+        }
+        return match list.iter().find(|(t, _)| same(t) || *t == [0; 5]) {
+            Some((t, flags)) => {
+                let mut d = t.to_vec();
+                d.extend(flags.to_be_bytes());
+                (rc::SUCCESS, d)
+            }
+            None => (UNKNOWN_OR_NOT_ALLOWED.1, vec![]),
+        };
+    }
+    let flags = u16::from_be_bytes([data[5], data[6]]);
+    if all {
+        list.clear();
+        if flags != 0 {
+            list.push(([0; 5], flags));
+        }
+    } else {
+        if broadcast_in_place {
+            return (UNKNOWN_OR_NOT_ALLOWED.0, vec![]);
+        }
+        let known = shared.mux.subs.lock().await.iter().any(|s| {
+            s.info.unique_id().to_bytes()[0] & 0x3F == target[0]
+                && s.info.unique_id().to_bytes()[1..] == target[1..]
+        });
+        if !known && !list.iter().any(|(t, _)| same(t)) {
+            return (UNKNOWN_OR_NOT_ALLOWED.1, vec![]);
+        }
+        list.retain(|(t, _)| !same(t));
+        if flags != 0 {
+            list.push((target, flags));
+        }
+    }
+    let mut d = target.to_vec();
+    d.extend(flags.to_be_bytes());
+    (rc::SUCCESS, d)
+}
+
+/// Response codes of commands 532/533: individual subscription not allowed (9), unknown
+/// unique ID (65).
+const UNKNOWN_OR_NOT_ALLOWED: (u8, u8) = (9, 65);
 
 /// Session state shared by UDP and TCP.
 struct Session {
@@ -465,6 +615,8 @@ struct Session {
     local_port: u16,
     /// Number of this session's audit record.
     audit: Option<u64>,
+    /// Publish subscriptions (commands 532/533).
+    subs: Subscriptions,
 }
 
 /// Audit records kept: the newest sessions, oldest dropped first. Read Audit Log
@@ -563,6 +715,7 @@ impl Session {
             peer,
             local_port,
             audit: None,
+            subs: None,
         }
     }
 }
@@ -650,35 +803,25 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
                     &local_reply(&f, hart_proto::tables::rc::ACCESS_RESTRICTED),
                 ));
             }
+            if matches!(f.command, 532 | 533) {
+                // Subscriptions belong to this session: the server answers them whatever
+                // the address.
+                let (code, data) =
+                    subscription_command(shared, &mut s.subs, f.command, f.data).await;
+                return Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)));
+            }
             let route = shared.mux.route(&f).await;
             match route {
                 Route::Local => {
                     let (code, data) = shared.mux.local(f.command, f.data).await;
-                    let data = if hart_proto::tables::response_class(code)
-                        == hart_proto::tables::ResponseClass::Error
-                    {
-                        vec![]
-                    } else {
-                        data
-                    };
-                    let spec = FrameSpec {
-                        preambles: 0,
-                        frame_type: FrameType::Ack,
-                        extended: f.extended,
-                        status: Some((code, 0)),
-                        ..FrameSpec::request(f.address, f.command, &data)
-                    };
-                    let mut out = vec![0u8; spec.encoded_len()];
-                    let n = spec.encode(&mut out).unwrap_or(0);
-                    out.truncate(n);
-                    Action::Reply(reply(status::SUCCESS, &out))
+                    Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)))
                 }
                 Route::Loop(channel) => {
                     shared.stats.lock().await.forwarded += 1;
-                    match shared.mux.forward(channel, body.to_vec()).await {
-                        Some(pdu) => Action::Reply(reply(status::SUCCESS, &pdu)),
-                        // The device did not answer: an empty response, so the client stops waiting.
-                        None => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+                    Action::Forward {
+                        channel,
+                        pdu: body.to_vec(),
+                        seq: h.sequence,
                     }
                 }
                 Route::Nowhere => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
@@ -802,7 +945,7 @@ async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                         let peer = *peer;
                         tokio::task::spawn_local(async move {
                             let mut s = cell.lock().await;
-                            if !s.open {
+                            if !s.open || !subscribed(&s.subs, &b) {
                                 return;
                             }
                             s.publish_seq = s.publish_seq.wrapping_add(1);
@@ -881,6 +1024,12 @@ async fn udp_datagram(
                 }
                 0x0004
             }
+            Action::Forward { channel, pdu, seq } => {
+                // In order, per client: the session waits for its loop's reply.
+                let r = forwarded(&shared, channel, pdu, seq).await;
+                let _ = sock.send_to(&r, peer).await;
+                continue;
+            }
             Action::ReplyAndClose(r) => {
                 let _ = sock.send_to(&r, peer).await;
                 0
@@ -929,6 +1078,7 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
     let (mut rd, wr) = stream.into_split();
     let wr = Arc::new(Mutex::new(wr));
     let mut s = Session::new(peer, local_port);
+    let mut in_flight: Vec<AbortOnDrop> = vec![];
     let mut buf: Vec<u8> = vec![];
     let mut bursts = shared.bursts.subscribe();
     let mut tmp = [0u8; 4096];
@@ -955,6 +1105,18 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                         Action::Close => {
                             close_session(&shared, &mut s, 0x0004).await;
                             return;
+                        }
+                        Action::Forward { channel, pdu, seq } => {
+                            // Several requests may be in flight on one connection: each
+                            // reply goes out when its loop answers, with its sequence
+                            // number, while this task reads on and publishes. The
+                            // replies' writers end with the session.
+                            let (shared, wr) = (shared.clone(), wr.clone());
+                            in_flight.retain(|t: &AbortOnDrop| !t.0.is_finished());
+                            in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
+                                let r = forwarded(&shared, channel, pdu, seq).await;
+                                let _ = wr.lock().await.write_all(&r).await;
+                            })));
                         }
                     }
                 }
@@ -985,6 +1147,9 @@ async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                 }
             },
             b = bursts.recv() => if let (Ok(b), true) = (b, s.open) {
+                if !subscribed(&s.subs, &b) {
+                    continue;
+                }
                 let mut seq = publish_seq.lock().await;
                 *seq = seq.wrapping_add(1);
                 let m = message(MessageType::Publish, MessageId::TokenPassingPdu, 0, *seq, &b);

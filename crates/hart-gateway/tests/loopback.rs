@@ -346,3 +346,172 @@ fn absent_device_is_reported_by_the_server() {
         server.stop();
     });
 }
+
+/// One raw HART-IP session over UDP, for tests that look at single messages.
+struct RawSession {
+    sock: tokio::net::UdpSocket,
+    seq: u16,
+}
+
+impl RawSession {
+    async fn open(server: std::net::SocketAddr) -> Self {
+        let sock = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        sock.connect(server).await.unwrap();
+        let mut s = RawSession { sock, seq: 0 };
+        let (h, _) = s
+            .request(
+                hart_ip::MessageId::SessionInitiate,
+                &hart_ip::session_initiate_body(1, 60_000),
+            )
+            .await;
+        assert_eq!(h.status, 0);
+        s
+    }
+
+    async fn send(&mut self, id: hart_ip::MessageId, body: &[u8]) -> u16 {
+        self.seq += 1;
+        let mut buf = vec![0u8; 8 + body.len()];
+        hart_ip::encode(
+            1,
+            hart_ip::MessageType::Request,
+            id,
+            0,
+            self.seq,
+            body,
+            &mut buf,
+        )
+        .unwrap();
+        self.sock.send(&buf).await.unwrap();
+        self.seq
+    }
+
+    /// Next message within `ms` (publish messages included).
+    async fn next(&self, ms: u64) -> Option<(hart_ip::Header, Vec<u8>)> {
+        let mut r = [0u8; 600];
+        let n = tokio::time::timeout(Duration::from_millis(ms), self.sock.recv(&mut r))
+            .await
+            .ok()?
+            .ok()?;
+        let (m, _) = hart_ip::Message::parse(&r[..n]).ok()?;
+        Some((m.header, m.body.to_vec()))
+    }
+
+    /// A request and its response (publish messages meanwhile are dropped).
+    async fn request(&mut self, id: hart_ip::MessageId, body: &[u8]) -> (hart_ip::Header, Vec<u8>) {
+        let seq = self.send(id, body).await;
+        loop {
+            let (h, b) = self.next(3000).await.expect("a response");
+            if h.message_type == hart_ip::MessageType::Response && h.sequence == seq {
+                return (h, b);
+            }
+        }
+    }
+
+    /// Command `cmd` (extended through command 31 when above 255) to the broadcast long
+    /// address: the response code and data of the reply.
+    async fn command(&mut self, cmd: u16, data: &[u8]) -> (u8, Vec<u8>) {
+        use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress, UniqueId};
+        let spec = FrameSpec {
+            preambles: 0,
+            ..FrameSpec::request(
+                Address::Long(LongAddress {
+                    master: hart_proto::MasterKind::Primary,
+                    burst: false,
+                    id: UniqueId::from_bytes([0; 5]),
+                }),
+                cmd,
+                data,
+            )
+        };
+        let mut pdu = vec![0u8; spec.encoded_len()];
+        let n = spec.encode(&mut pdu).unwrap();
+        pdu.truncate(n);
+        let (_, body) = self
+            .request(hart_ip::MessageId::TokenPassingPdu, &pdu)
+            .await;
+        let f = Frame::parse_pdu(&body).unwrap();
+        assert_eq!(f.command, cmd);
+        (f.response_code.unwrap(), f.data.to_vec())
+    }
+
+    /// Unique IDs of the devices whose publish messages arrive within `ms`.
+    async fn publishers(&self, ms: u64) -> std::collections::BTreeSet<[u8; 5]> {
+        let end = tokio::time::Instant::now() + Duration::from_millis(ms);
+        let mut ids = std::collections::BTreeSet::new();
+        while let Some(left) = end.checked_duration_since(tokio::time::Instant::now()) {
+            let Some((h, b)) = self.next(left.as_millis() as u64 + 1).await else {
+                break;
+            };
+            if h.message_type == hart_ip::MessageType::Publish {
+                let f = hart_proto::frame::Frame::parse_pdu(&b).unwrap();
+                if let hart_proto::frame::Address::Long(a) = f.address {
+                    ids.insert(a.id.to_bytes());
+                }
+            }
+        }
+        ids
+    }
+}
+
+/// Publish subscriptions (commands 532 and 533): a session that never subscribes gets
+/// every burst message; one that does gets what it subscribed to, and the rules for
+/// mixing a subscription to every device with single ones hold.
+#[test]
+fn publish_subscriptions_with_commands_532_and_533() {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let mut devices = vec![];
+        for (profile, poll) in [("pressure", 1), ("temperature", 2)] {
+            let mut c = hart_device::profiles::load(profile).unwrap();
+            c.polling_address = poll;
+            c.burst[0].control = 1;
+            c.burst[0].update_period = 16_000; // 0.5 s
+            c.burst[0].max_update_period = 16_000;
+            devices.push(hart_device::Device::new(c));
+        }
+        let ids: Vec<[u8; 5]> = devices.iter().map(|d| d.unique_id().to_bytes()).collect();
+        let server = hart_gateway::start_in_memory(config(), devices)
+            .await
+            .unwrap();
+        let addr = server.udp_addr.unwrap();
+        let everything: std::collections::BTreeSet<_> = ids.iter().copied().collect();
+
+        // Never subscribed: every device's burst messages; 532 shows that default.
+        let mut a = RawSession::open(addr).await;
+        assert_eq!(a.publishers(1500).await, everything);
+        assert_eq!(
+            a.command(532, &[0; 5]).await,
+            (0, vec![0, 0, 0, 0, 0, 0, 1])
+        );
+
+        // Subscribed to nothing: no publish messages, and nothing to read back.
+        let mut b = RawSession::open(addr).await;
+        assert_eq!(b.command(533, &[0, 0, 0, 0, 0, 0, 0]).await.0, 0);
+        assert!(b.publishers(1500).await.is_empty());
+        assert_eq!(b.command(532, &[0; 5]).await.0, 65, "no subscription");
+
+        // One device only.
+        let mut req = ids[1].to_vec();
+        req.extend([0x00, 0x01]);
+        assert_eq!(b.command(533, &req).await, (0, req.clone()));
+        assert_eq!(b.publishers(1500).await, [ids[1]].into());
+        assert_eq!(b.command(532, &ids[1]).await, (0, req.clone()));
+        assert_eq!(b.command(532, &ids[0]).await.0, 65);
+        // An unknown device, and too few data bytes.
+        assert_eq!(b.command(533, &[0x26, 0x99, 1, 2, 3, 0, 1]).await.0, 65);
+        assert_eq!(b.command(533, &[0, 0, 0]).await.0, 5);
+
+        // Every device again; single subscriptions are then refused.
+        assert_eq!(b.command(533, &[0, 0, 0, 0, 0, 0, 1]).await.0, 0);
+        assert_eq!(b.command(533, &req).await.0, 9);
+        assert_eq!(b.command(532, &ids[1]).await.0, 9);
+        assert_eq!(b.publishers(1500).await, everything);
+        // The other session was never affected.
+        assert_eq!(a.publishers(1500).await, everything);
+        server.stop();
+    });
+}
