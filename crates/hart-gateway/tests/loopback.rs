@@ -515,3 +515,123 @@ fn publish_subscriptions_with_commands_532_and_533() {
         server.stop();
     });
 }
+
+/// Two loops behind one server and several requests in flight on one TCP session: a
+/// request to the fast loop is answered while a request to the slow loop (a real-time
+/// 1200 bit/s line) is still on its way.
+#[test]
+fn requests_to_different_loops_run_side_by_side() {
+    use hart_host::hartip::HartIpSession;
+    use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress};
+    use std::sync::Arc;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async {
+        let dir = std::env::temp_dir().join(format!("hartkit-loops-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let plant = |name: &str, profile: &str, poll: u8| {
+            let p = dir.join(name);
+            std::fs::write(
+                &p,
+                format!("[[device]]\nprofile = \"{profile}\"\npoll = {poll}\n"),
+            )
+            .unwrap();
+            p.display().to_string()
+        };
+        let slow = open(&format!("sim:{}", plant("slow.toml", "pressure", 1))).unwrap();
+        let fast = open(&format!(
+            "sim:{}?virtual",
+            plant("fast.toml", "temperature", 2)
+        ))
+        .unwrap();
+        let server = start(
+            Config {
+                scan_to: Some(2),
+                ..config()
+            },
+            vec![Client::new(slow), Client::new(fast)],
+        )
+        .await
+        .unwrap();
+        let session = Arc::new(
+            HartIpSession::connect(&server.tcp_addr.unwrap().to_string(), true, 60_000)
+                .await
+                .unwrap(),
+        );
+        let frame = |id: hart_proto::frame::UniqueId, cmd: u16, data: &[u8]| {
+            let spec = FrameSpec {
+                preambles: 0,
+                ..FrameSpec::request(
+                    Address::Long(LongAddress {
+                        master: hart_proto::MasterKind::Primary,
+                        burst: false,
+                        id,
+                    }),
+                    cmd,
+                    data,
+                )
+            };
+            let mut pdu = vec![0u8; spec.encoded_len()];
+            let n = spec.encode(&mut pdu).unwrap();
+            pdu.truncate(n);
+            pdu
+        };
+        // Wait until the start-up scan has found both devices (command 84 to the
+        // gateway itself names sub-device 1).
+        let gateway = hart_proto::frame::UniqueId::new(0x26FF, 1);
+        let mut ids = vec![];
+        for _ in 0..100 {
+            ids.clear();
+            for ix in [0u8, 1] {
+                let r = session
+                    .request(&frame(gateway, 84, &[0, ix]), Duration::from_secs(5))
+                    .await
+                    .unwrap();
+                let f = Frame::parse_pdu(&r).unwrap();
+                if f.response_code == Some(0) {
+                    // Data: index (2), card, channel, manufacturer (2), type (2), ID (3).
+                    let d = f.data;
+                    let id = hart_proto::frame::UniqueId::new(
+                        u16::from_be_bytes([d[6], d[7]]),
+                        u32::from_be_bytes([0, d[8], d[9], d[10]]),
+                    );
+                    ids.push((d[3], id));
+                }
+            }
+            if ids.len() == 2 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        ids.sort_by_key(|x| x.0);
+        assert_eq!(ids.len(), 2, "both loops scanned: {ids:?}");
+        let done = Arc::new(std::sync::Mutex::new(vec![]));
+        let mut tasks = vec![];
+        for (channel, id) in ids {
+            let (session, done) = (session.clone(), done.clone());
+            let pdu = frame(id, 0, &[]);
+            tasks.push(tokio::task::spawn_local(async move {
+                let r = session
+                    .request(&pdu, Duration::from_secs(10))
+                    .await
+                    .unwrap();
+                assert_eq!(Frame::parse_pdu(&r).unwrap().response_code, Some(0));
+                done.lock().unwrap().push(channel);
+            }));
+            tokio::task::yield_now().await;
+        }
+        for t in tasks {
+            t.await.unwrap();
+        }
+        assert_eq!(
+            *done.lock().unwrap(),
+            [1, 0],
+            "the fast loop's reply came first although its request went second"
+        );
+        server.stop();
+        let _ = std::fs::remove_dir_all(&dir);
+    });
+}

@@ -221,6 +221,44 @@ impl HartIpTransport {
         }
     }
 
+    /// Subscribes this session to the process data (burst messages) of every device
+    /// behind the server (command 533 to the broadcast address, flags 0x0001). Servers
+    /// that publish only to subscribers need it; others answer "not implemented", which
+    /// is fine. Returns the response code, or `None` without an answer in 2 s.
+    pub async fn subscribe_all(&mut self) -> io::Result<Option<u8>> {
+        use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress, UniqueId};
+        let data = [0, 0, 0, 0, 0, 0x00, 0x01];
+        let spec = FrameSpec {
+            preambles: 0,
+            ..FrameSpec::request(
+                Address::Long(LongAddress {
+                    master: hart_proto::MasterKind::Primary,
+                    burst: false,
+                    id: UniqueId::from_bytes([0; 5]),
+                }),
+                533,
+                &data,
+            )
+        };
+        let mut pdu = vec![0u8; spec.encoded_len()];
+        let n = spec
+            .encode(&mut pdu)
+            .map_err(|e| proto_err(e.to_string()))?;
+        pdu.truncate(n);
+        let seq = self.send_message(MessageId::TokenPassingPdu, &pdu).await?;
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while let Some((h, body)) = self.read_message(deadline).await? {
+            match (h.message_type, h.message_id) {
+                (MessageType::Response, MessageId::TokenPassingPdu) if h.sequence == seq => {
+                    return Ok(Frame::parse_pdu(&body).ok().and_then(|f| f.response_code));
+                }
+                (MessageType::Publish, MessageId::TokenPassingPdu) => self.deliver(&body),
+                _ => {}
+            }
+        }
+        Ok(None)
+    }
+
     /// Closes the session (best effort).
     pub async fn close(&mut self) {
         let _ = self.send_message(MessageId::SessionClose, &[]).await;
@@ -391,5 +429,290 @@ impl Drop for HartIpTransport {
                 }
             }
         }
+    }
+}
+
+/// The writing half of a [`HartIpSession`]'s socket.
+enum SessionWriter {
+    Udp(std::sync::Arc<UdpSocket>),
+    Tcp(tokio::net::tcp::OwnedWriteHalf),
+}
+
+/// Requests awaiting their response, by sequence number: the status and body.
+type Waiters = std::sync::Arc<
+    std::sync::Mutex<std::collections::HashMap<u16, tokio::sync::oneshot::Sender<(u8, Vec<u8>)>>>,
+>;
+
+/// A HART-IP session that carries several requests at once: each token-passing request
+/// is matched to its response by sequence number, whatever order the server answers
+/// in (a gateway with several loops answers each when its loop does). Publish messages
+/// arrive on [`HartIpSession::next_publish`]. Share it between tasks behind an `Arc`.
+///
+/// The data-link master ([`crate::Client`] over [`HartIpTransport`]) runs one
+/// transaction at a time, as on a wire; this is the lower-level path for hosts that
+/// poll many devices behind one server.
+pub struct HartIpSession {
+    writer: tokio::sync::Mutex<SessionWriter>,
+    /// Where requests go (a UDP server may answer from another port; the session
+    /// follows it).
+    peer: std::sync::Arc<std::sync::Mutex<SocketAddr>>,
+    sequence: std::sync::atomic::AtomicU16,
+    waiters: Waiters,
+    publishes: tokio::sync::Mutex<tokio::sync::mpsc::Receiver<Vec<u8>>>,
+    reader: tokio::task::JoinHandle<()>,
+    timer_ms: u32,
+}
+
+impl HartIpSession {
+    /// Connects to `addr` (`HOST:PORT`) over TCP or UDP and initiates a session as
+    /// primary master with the inactivity timer `timer_ms`.
+    pub async fn connect(addr: &str, tcp: bool, timer_ms: u32) -> io::Result<Self> {
+        let (socket, peer) = open_socket(addr, tcp).await?;
+        let waiters: Waiters = Default::default();
+        let peer = std::sync::Arc::new(std::sync::Mutex::new(peer));
+        let (ptx, prx) = tokio::sync::mpsc::channel(256);
+        let (writer, reader) = match socket {
+            Socket::Udp(s) => {
+                let s = std::sync::Arc::new(s);
+                let (r, w, p) = (s.clone(), waiters.clone(), peer.clone());
+                let reader = tokio::spawn(async move {
+                    let mut buf = [0u8; 4096];
+                    while let Ok((n, from)) = r.recv_from(&mut buf).await {
+                        if let Ok(mut p) = p.lock() {
+                            if from.ip() != p.ip() {
+                                continue;
+                            }
+                            *p = from;
+                        }
+                        let mut rest = &buf[..n];
+                        while let Ok((m, used)) = Message::parse(rest) {
+                            dispatch(&w, &ptx, m.header, m.body);
+                            rest = &rest[used..];
+                        }
+                    }
+                });
+                (SessionWriter::Udp(s), reader)
+            }
+            Socket::Tcp(s, _) => {
+                let (mut rd, wr) = s.into_split();
+                let w = waiters.clone();
+                let reader = tokio::spawn(async move {
+                    let mut buf = vec![];
+                    let mut tmp = [0u8; 4096];
+                    loop {
+                        while let Ok((m, used)) = Message::parse(&buf) {
+                            dispatch(&w, &ptx, m.header, m.body);
+                            buf.drain(..used);
+                        }
+                        match rd.read(&mut tmp).await {
+                            Ok(n) if n > 0 && buf.len() < 65_536 => {
+                                buf.extend_from_slice(&tmp[..n])
+                            }
+                            // Closed (or a stream that cannot be split): every waiter
+                            // learns it from its dropped sender.
+                            _ => {
+                                if let Ok(mut w) = w.lock() {
+                                    w.clear();
+                                }
+                                return;
+                            }
+                        }
+                    }
+                });
+                (SessionWriter::Tcp(wr), reader)
+            }
+        };
+        let mut session = HartIpSession {
+            writer: tokio::sync::Mutex::new(writer),
+            peer,
+            sequence: std::sync::atomic::AtomicU16::new(0),
+            waiters,
+            publishes: tokio::sync::Mutex::new(prx),
+            reader,
+            timer_ms,
+        };
+        let what = session.describe();
+        let (st, body) = session
+            .exchange(
+                MessageId::SessionInitiate,
+                &hart_ip::session_initiate_body(1, timer_ms),
+                Duration::from_secs(3),
+            )
+            .await
+            .map_err(|e| match e.kind() {
+                io::ErrorKind::TimedOut => io::Error::new(
+                    e.kind(),
+                    format!(
+                        "{what} did not answer the session initiate; is a server running there?"
+                    ),
+                ),
+                _ => e,
+            })?;
+        match st {
+            status::SUCCESS
+            | status::SET_TO_NEAREST
+            | status::VERSION_NOT_SUPPORTED
+            | status::INSECURE_SESSION_EXISTS => {
+                if let Ok(Body::SessionInitiate(s)) =
+                    Body::parse(MessageId::SessionInitiate, MessageType::Response, &body)
+                {
+                    session.timer_ms = s.inactivity_timer_ms;
+                }
+                Ok(session)
+            }
+            code => Err(proto_err(format!(
+                "{what} refused the session: {} ({code})",
+                status::name(code)
+            ))),
+        }
+    }
+
+    fn describe(&self) -> String {
+        let peer = self
+            .peer
+            .lock()
+            .map_or_else(|_| "?".into(), |p| p.to_string());
+        format!("HART-IP server {peer}")
+    }
+
+    /// Sends a request message and waits up to `timeout` for the response with its
+    /// sequence number: the status and body.
+    async fn exchange(
+        &self,
+        id: MessageId,
+        body: &[u8],
+        timeout: Duration,
+    ) -> io::Result<(u8, Vec<u8>)> {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let mut buf = vec![0u8; HEADER_LEN + body.len()];
+        let seq = {
+            // The sequence number and the send go together, so messages leave in order,
+            // and the waiter is in place before a fast response can arrive.
+            let mut writer = self.writer.lock().await;
+            let seq = self
+                .sequence
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                .wrapping_add(1);
+            encode(1, MessageType::Request, id, 0, seq, body, &mut buf)
+                .map_err(|e| proto_err(e.to_string()))?;
+            if let Ok(mut w) = self.waiters.lock() {
+                w.insert(seq, tx);
+            }
+            let peer = self.peer.lock().map(|p| *p).ok();
+            let sent = match (&mut *writer, peer) {
+                (SessionWriter::Udp(s), Some(peer)) => s.send_to(&buf, peer).await.map(|_| ()),
+                (SessionWriter::Tcp(s), _) => s.write_all(&buf).await,
+                (_, None) => Err(io::Error::other("session state poisoned")),
+            };
+            if let Err(e) = sent {
+                self.forget(seq);
+                return Err(e);
+            }
+            seq
+        };
+        match tokio::time::timeout(timeout, rx).await {
+            Ok(Ok(r)) => Ok(r),
+            Ok(Err(_)) => Err(io::Error::new(
+                io::ErrorKind::ConnectionReset,
+                format!("{} closed the session", self.describe()),
+            )),
+            Err(_) => {
+                self.forget(seq);
+                Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!(
+                        "{} did not answer message {seq} within {} ms",
+                        self.describe(),
+                        timeout.as_millis()
+                    ),
+                ))
+            }
+        }
+    }
+
+    /// Sends a token-passing request (a frame from the delimiter through the check
+    /// byte) and waits up to `timeout` for its reply PDU. Other requests may be in
+    /// flight meanwhile. An empty response (the device did not answer on the server's
+    /// loop) is an error of kind `NotFound` that names the status.
+    pub async fn request(&self, pdu: &[u8], timeout: Duration) -> io::Result<Vec<u8>> {
+        let (st, body) = self
+            .exchange(MessageId::TokenPassingPdu, pdu, timeout)
+            .await?;
+        if body.is_empty() {
+            return Err(io::Error::new(
+                io::ErrorKind::NotFound,
+                format!(
+                    "{}: no reply from the device on its loop (status {st}: {})",
+                    self.describe(),
+                    status::name(st)
+                ),
+            ));
+        }
+        Ok(body)
+    }
+
+    fn forget(&self, seq: u16) {
+        if let Ok(mut w) = self.waiters.lock() {
+            w.remove(&seq);
+        }
+    }
+
+    /// Requests awaiting their reply now.
+    pub fn in_flight(&self) -> usize {
+        self.waiters.lock().map_or(0, |w| w.len())
+    }
+
+    /// The next publish message's PDU (a burst frame), or `None` once the session is
+    /// over.
+    pub async fn next_publish(&self) -> Option<Vec<u8>> {
+        self.publishes.lock().await.recv().await
+    }
+
+    /// A keep-alive round trip (send one at least every third of
+    /// [`HartIpSession::timer_ms`] while no request goes out).
+    pub async fn keep_alive(&self) -> io::Result<()> {
+        self.exchange(MessageId::KeepAlive, &[], Duration::from_secs(3))
+            .await
+            .map(|_| ())
+    }
+
+    /// The inactivity timer the server granted, ms.
+    pub fn timer_ms(&self) -> u32 {
+        self.timer_ms
+    }
+
+    /// Closes the session and waits briefly for the server to confirm.
+    pub async fn close(self) {
+        let _ = self
+            .exchange(MessageId::SessionClose, &[], Duration::from_millis(500))
+            .await;
+    }
+}
+
+impl Drop for HartIpSession {
+    fn drop(&mut self) {
+        self.reader.abort();
+    }
+}
+
+/// Hands a received message to the request waiting for it, or to the publish queue.
+fn dispatch(
+    waiters: &Waiters,
+    publishes: &tokio::sync::mpsc::Sender<Vec<u8>>,
+    h: hart_ip::Header,
+    body: &[u8],
+) {
+    match h.message_type {
+        MessageType::Response | MessageType::Nak => {
+            let w = waiters.lock().ok().and_then(|mut w| w.remove(&h.sequence));
+            if let Some(w) = w {
+                let _ = w.send((h.status, body.to_vec()));
+            }
+        }
+        MessageType::Publish if h.message_id == MessageId::TokenPassingPdu => {
+            // A full queue drops the newest: nobody is reading.
+            let _ = publishes.try_send(body.to_vec());
+        }
+        _ => {}
     }
 }

@@ -707,6 +707,12 @@ pub async fn monitor(
     as_json: bool,
     out: &mut dyn std::io::Write,
 ) -> Result<(), Failure> {
+    if let AnyTransport::HartIp(h) = t {
+        // Servers that publish only to subscribers need to be asked.
+        h.subscribe_all()
+            .await
+            .map_err(|e| fail(HostError::Io(e)))?;
+    }
     let start = t.now();
     let end = duration.map(|d| start + (d * 1e6) as u64);
     let mut deframer = Deframer::default();
