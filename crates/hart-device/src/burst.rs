@@ -154,6 +154,12 @@ impl Device {
 }
 
 /// Builds the BACK content of the message due first and records its publication.
+///
+/// A BACK is the reply the published command would give, with that reply's response
+/// code, and the field device status as the master whose address bit the BACK carries
+/// ([`Device::burst_master`]) sees it. Publishing changes nothing the masters see: no
+/// status bit is reset or acknowledged (a burst of command 38 or 48 included), and cold
+/// start stays reported until that master's next request.
 pub fn publish(device: &mut Device, reply: &mut Reply, now: Micros) -> u16 {
     device.tick(now);
     let (due, m) = (0..device.config().burst.len())
@@ -169,15 +175,18 @@ pub fn publish(device: &mut Device, reply: &mut Reply, now: Micros) -> u16 {
     } else {
         now
     };
-    let (command, data) = device.burst_data(m, now);
+    let (command, code, data) = device.burst_reply(m, now);
     let value = device.trigger_value(m).map(|x| x.0);
-    let status = device.device_status(MasterKind::Primary);
-    let rt = &mut device.burst_runtime()[m];
-    rt.last_publish = Some(published);
-    rt.last_value = value;
-    rt.last_status = Some(status);
+    // The on-change trigger compares the primary master's view of the status.
+    let trigger_status = device.device_status(MasterKind::Primary);
+    let status = device.device_status(device.burst_master());
+    if let Some(rt) = device.burst_runtime().get_mut(m) {
+        rt.last_publish = Some(published);
+        rt.last_value = value;
+        rt.last_status = Some(trigger_status);
+    }
     device.count_back();
-    reply.response_code = 0;
+    reply.response_code = code;
     reply.device_status = status;
     reply.set_data(&data);
     command

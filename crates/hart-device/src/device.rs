@@ -111,6 +111,8 @@ pub struct Device {
     travel: f32,
     dirty: bool,
     reset_pending: bool,
+    /// The master whose address bit the next BACK carries.
+    burst_to: MasterKind,
 }
 
 impl Device {
@@ -152,6 +154,7 @@ impl Device {
             travel,
             dirty: false,
             reset_pending: false,
+            burst_to: MasterKind::Primary,
         };
         // Start every filter at its input, as a device that has been running.
         for i in 0..n {
@@ -186,6 +189,20 @@ impl Device {
     /// Sets the loop current a valve positioner receives from its controller, mA.
     pub fn set_input_current(&mut self, ma: f32) {
         self.cfg.valve.input_current = ma;
+    }
+
+    /// The master whose address bit the next burst frame (BACK) carries: its status
+    /// byte is the field device status as that master sees it.
+    pub fn burst_master(&self) -> MasterKind {
+        self.burst_to
+    }
+
+    /// Tells the device which master the next BACK goes to. The data link alternates
+    /// the master bit from one BACK to the next, starting with the primary; [`crate::Node`]
+    /// keeps this in step with its slave. A caller that publishes with a fixed master
+    /// bit leaves it at that master.
+    pub fn set_burst_master(&mut self, master: MasterKind) {
+        self.burst_to = master;
     }
 
     /// True once the configuration changed since the last [`Device::take_dirty`].
@@ -569,29 +586,41 @@ impl Device {
             }
             _ => {}
         }
+        // Command 38 is a write in the table, but it only resets the asking master's own
+        // flag: write protection, access restriction and the self test do not stop it.
         let writes = info.is_some_and(|i| i.writes) && command != 38;
-        if writes && self.write_protect {
-            return err(rc::WRITE_PROTECTED);
-        }
-        if writes && master == MasterKind::Secondary && self.cfg.restrict_secondary_writes {
-            return err(rc::ACCESS_RESTRICTED);
-        }
-        // While the self test runs the device cannot take configuration changes.
-        if writes
-            && self
-                .delayed
-                .as_ref()
-                .is_some_and(|d| d.command == 41 && !d.dead && now < d.done_at)
-        {
-            return err(rc::BUSY);
+        if writes {
+            if let Some(code) = self.write_refused(master, now) {
+                return err(code);
+            }
         }
         let Some(request) = request else {
-            return self.custom(command, data);
+            return self.custom(command, data, master, now);
         };
         self.command(request, data, master, now)
     }
 
-    fn custom(&mut self, command: u16, data: &[u8]) -> Outcome {
+    /// Why a write from `master` is refused now, if it is: write protection (7), a
+    /// restricted secondary master (16), or the self test running (32).
+    fn write_refused(&self, master: MasterKind, now: Micros) -> Option<u8> {
+        if self.write_protect {
+            return Some(rc::WRITE_PROTECTED);
+        }
+        if master == MasterKind::Secondary && self.cfg.restrict_secondary_writes {
+            return Some(rc::ACCESS_RESTRICTED);
+        }
+        // While the self test runs the device cannot take configuration changes.
+        if self
+            .delayed
+            .as_ref()
+            .is_some_and(|d| d.command == 41 && !d.dead && now < d.done_at)
+        {
+            return Some(rc::BUSY);
+        }
+        None
+    }
+
+    fn custom(&mut self, command: u16, data: &[u8], master: MasterKind, now: Micros) -> Outcome {
         let Some(c) = self
             .cfg
             .commands
@@ -616,15 +645,16 @@ impl Device {
             Some("setpoint") => ok(float_reply(57, self.setpoint())),
             Some("input_current") => ok(float_reply(39, self.cfg.valve.input_current)),
             Some("write_setpoint") | Some("write_input_current") => {
-                if self.write_protect {
-                    return err(rc::WRITE_PROTECTED);
-                }
                 let Some(v) = data
                     .get(..4)
                     .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]))
                 else {
                     return err(rc::TOO_FEW_DATA_BYTES);
                 };
+                // Device-specific writes follow the same rules as the table's writes.
+                if let Some(code) = self.write_refused(master, now) {
+                    return err(code);
+                }
                 if !v.is_finite() {
                     return err(rc::INVALID_SELECTION);
                 }
@@ -664,16 +694,11 @@ impl Device {
         }
     }
 
-    fn command(
-        &mut self,
-        request: Request,
-        raw: &[u8],
-        master: MasterKind,
-        now: Micros,
-    ) -> Outcome {
+    /// The process reads 1, 2, 3, 9 and 33: what a master reads and what burst messages
+    /// publish. They only look at the device (`&self`), so publishing has no side effects.
+    fn process_read(&self, request: &Request, now: Micros) -> Outcome {
         use Request as R;
         match request {
-            R::ReadUniqueIdentifier(_) => ok(encode(&self.identity())),
             R::ReadPrimaryVariable(_) => {
                 let (pv, units, _) = self.pv();
                 ok(encode(&cmd::ReadPvResponse {
@@ -703,6 +728,69 @@ impl Device {
                     variables,
                 }))
             }
+            R::ReadDeviceVariablesWithStatus(r) => {
+                let mut slots = List::<cmd::VariableSlot, 8>::default();
+                for code in r.slots.as_slice() {
+                    if code.0 >= 251 {
+                        return err(rc::INVALID_SELECTION);
+                    }
+                    let slot = match self.read_code(code.0) {
+                        Some((v, u, s, c)) => cmd::VariableSlot {
+                            code: *code,
+                            classification: Classification(c),
+                            units: UnitCode(u),
+                            value: v,
+                            status: VariableStatus(s),
+                        },
+                        None => cmd::VariableSlot {
+                            code: *code,
+                            classification: Classification(0),
+                            units: UnitCode(250),
+                            value: hart_nan(),
+                            status: VariableStatus(0x30),
+                        },
+                    };
+                    let _ = slots.push(slot);
+                }
+                ok(encode(&cmd::ReadDeviceVariablesResponse {
+                    extended_status: ExtendedStatus(self.extended_status()),
+                    data: cmd::SlotsWithTimestamp {
+                        slots,
+                        timestamp: Some(Self::time_of_day(now)),
+                    },
+                }))
+            }
+            R::ReadDeviceVariables(r) => {
+                let mut variables = List::<cmd::CodeUnitValue, 4>::default();
+                for code in r.slots.as_slice() {
+                    let (v, u, _, _) = self.read_code(code.0).unwrap_or((hart_nan(), 250, 0x30, 0));
+                    let _ = variables.push(cmd::CodeUnitValue {
+                        code: *code,
+                        units: UnitCode(u),
+                        value: v,
+                    });
+                }
+                ok(encode(&cmd::ReadVariablesResponse { variables }))
+            }
+            _ => err(rc::NOT_IMPLEMENTED),
+        }
+    }
+
+    fn command(
+        &mut self,
+        request: Request,
+        raw: &[u8],
+        master: MasterKind,
+        now: Micros,
+    ) -> Outcome {
+        use Request as R;
+        match request {
+            R::ReadUniqueIdentifier(_) => ok(encode(&self.identity())),
+            R::ReadPrimaryVariable(_)
+            | R::ReadLoopCurrent(_)
+            | R::ReadDynamicVariables(_)
+            | R::ReadDeviceVariablesWithStatus(_)
+            | R::ReadDeviceVariables(_) => self.process_read(&request, now),
             R::WritePollingAddress(r) => {
                 if r.polling_address > 63 {
                     return err(rc::INVALID_SELECTION);
@@ -737,38 +825,6 @@ impl Device {
                     sv_classification: c(1),
                     tv_classification: c(2),
                     qv_classification: c(3),
-                }))
-            }
-            R::ReadDeviceVariablesWithStatus(r) => {
-                let mut slots = List::<cmd::VariableSlot, 8>::default();
-                for code in r.slots.as_slice() {
-                    if code.0 >= 251 {
-                        return err(rc::INVALID_SELECTION);
-                    }
-                    let slot = match self.read_code(code.0) {
-                        Some((v, u, s, c)) => cmd::VariableSlot {
-                            code: *code,
-                            classification: Classification(c),
-                            units: UnitCode(u),
-                            value: v,
-                            status: VariableStatus(s),
-                        },
-                        None => cmd::VariableSlot {
-                            code: *code,
-                            classification: Classification(0),
-                            units: UnitCode(250),
-                            value: hart_nan(),
-                            status: VariableStatus(0x30),
-                        },
-                    };
-                    let _ = slots.push(slot);
-                }
-                ok(encode(&cmd::ReadDeviceVariablesResponse {
-                    extended_status: ExtendedStatus(self.extended_status()),
-                    data: cmd::SlotsWithTimestamp {
-                        slots,
-                        timestamp: Some(Self::time_of_day(now)),
-                    },
                 }))
             }
             R::ReadUniqueIdentifierByTag(r) => {
@@ -852,18 +908,6 @@ impl Device {
                 self.cfg.long_tag = r.long_tag.to_string();
                 self.changed();
                 ok(encode(&r))
-            }
-            R::ReadDeviceVariables(r) => {
-                let mut variables = List::<cmd::CodeUnitValue, 4>::default();
-                for code in r.slots.as_slice() {
-                    let (v, u, _, _) = self.read_code(code.0).unwrap_or((hart_nan(), 250, 0x30, 0));
-                    let _ = variables.push(cmd::CodeUnitValue {
-                        code: *code,
-                        units: UnitCode(u),
-                        value: v,
-                    });
-                }
-                ok(encode(&cmd::ReadVariablesResponse { variables }))
             }
             R::WritePvDamping(r) => {
                 let d = r.damping.0;
@@ -1518,38 +1562,60 @@ impl Device {
         )
     }
 
-    /// Reply data of `command` for burst message `m` (what a BACK carries).
-    pub(crate) fn burst_data(&mut self, m: usize, now: Micros) -> (u16, Vec<u8>) {
-        let b = self.cfg.burst[m].clone();
-        let data: Vec<u8> = match b.command {
-            9 => {
-                let codes: Vec<u8> = b.slots.iter().copied().take_while(|&c| c != 250).collect();
-                let codes = if codes.is_empty() { vec![0] } else { codes };
-                self.dispatch_read(9, &codes, now)
-            }
-            33 => {
-                let codes: Vec<u8> = b
-                    .slots
-                    .iter()
-                    .copied()
-                    .take(4)
-                    .take_while(|&c| c != 250)
-                    .collect();
-                let codes = if codes.is_empty() { vec![0] } else { codes };
-                self.dispatch_read(33, &codes, now)
-            }
-            c => self.dispatch_read(c, &[], now),
+    /// What a BACK of burst message `m` carries: the command number, the response code
+    /// and the data of that command's reply.
+    ///
+    /// Publishing is not a request from a master, so this only looks at the device
+    /// (`&self`): a burst of command 38 resets no configuration-changed flag and a burst
+    /// of command 48 acknowledges no status for either master.
+    pub(crate) fn burst_reply(&self, m: usize, now: Micros) -> (u16, u8, Vec<u8>) {
+        let Some(b) = self.cfg.burst.get(m) else {
+            return (0, rc::NOT_IMPLEMENTED, vec![]);
         };
-        (b.command, data)
-    }
-
-    fn dispatch_read(&mut self, command: u16, data: &[u8], now: Micros) -> Vec<u8> {
-        match hart_proto::decode_request(command, data) {
-            Some(Ok(req)) => match self.command(req, data, MasterKind::Primary, now) {
-                Outcome::Reply(_, d) => d,
-                Outcome::Silent => vec![],
-            },
-            _ => vec![],
+        let slots = |max: usize| -> Vec<u8> {
+            let codes: Vec<u8> = b
+                .slots
+                .iter()
+                .copied()
+                .take(max)
+                .take_while(|&c| c != 250)
+                .collect();
+            if codes.is_empty() {
+                vec![0]
+            } else {
+                codes
+            }
+        };
+        let outcome = match b.command {
+            // The reply to a master's command 38, without resetting its flag.
+            38 => ok(encode(&cmd::ResetConfigChanged {
+                config_change_counter: Some(self.cfg.config_change_counter),
+            })),
+            // The reply to a legacy command 48, without acknowledging anything.
+            48 => ok(self.additional_status().to_vec()),
+            c @ (1 | 2 | 3 | 9 | 33) => {
+                let request = match c {
+                    9 => slots(8),
+                    33 => slots(4),
+                    _ => vec![],
+                };
+                match hart_proto::decode_request(c, &request) {
+                    Some(Ok(r)) => self.process_read(&r, now),
+                    _ => err(rc::TOO_FEW_DATA_BYTES),
+                }
+            }
+            // Only a hand-written profile or state file can name another command.
+            _ => err(rc::NOT_IMPLEMENTED),
+        };
+        match outcome {
+            Outcome::Reply(code, data)
+                if hart_proto::tables::response_class(code)
+                    != hart_proto::tables::ResponseClass::Error =>
+            {
+                (b.command, code, data)
+            }
+            Outcome::Reply(code, _) => (b.command, code, vec![]),
+            Outcome::Silent => (b.command, rc::NOT_IMPLEMENTED, vec![]),
         }
     }
 

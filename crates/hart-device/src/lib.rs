@@ -27,6 +27,7 @@ use std::path::PathBuf;
 use hart_link::slave::{Slave, SlaveConfig};
 use hart_link::{Micros, TimingProfile};
 use hart_proto::deframer::UartFlags;
+use hart_proto::frame::{Frame, FrameType, MasterKind};
 
 pub use config::DeviceConfig;
 pub use device::Device;
@@ -38,6 +39,8 @@ pub struct Node {
     /// The device.
     pub device: Device,
     state_path: Option<PathBuf>,
+    /// The master bit of a BACK handed out by [`Node::poll`] and not yet transmitted.
+    back_to: Option<MasterKind>,
 }
 
 impl Node {
@@ -58,6 +61,7 @@ impl Node {
             slave,
             device,
             state_path: None,
+            back_to: None,
         };
         n.sync(now);
         n
@@ -87,7 +91,11 @@ impl Node {
             .slave
             .poll(now, &mut self.device)
             .map(|t| t.bytes.to_vec());
-        if out.is_some() {
+        if let Some(bytes) = &out {
+            self.back_to = Frame::parse(bytes)
+                .ok()
+                .filter(|f| f.frame_type() == FrameType::Back)
+                .map(|f| f.address.master());
             self.sync(now);
         }
         out
@@ -96,6 +104,11 @@ impl Node {
     /// The last transmission has left.
     pub fn transmitted(&mut self, now: Micros) {
         self.slave.transmitted(now);
+        // The slave alternates the master bit after each BACK; the device puts the
+        // status of the master the next BACK goes to in it.
+        if let Some(to) = self.back_to.take() {
+            self.device.set_burst_master(to.other());
+        }
         self.sync(now);
     }
 

@@ -6,7 +6,8 @@ mod common;
 
 use common::*;
 use hart_device::config::Waveform;
-use hart_proto::frame::{Address, LongAddress, MasterKind, UniqueId};
+use hart_link::Micros;
+use hart_proto::frame::{Address, Frame, FrameType, LongAddress, MasterKind, UniqueId};
 use hart_proto::types::PackedString;
 
 const SUCCESS: u8 = 0;
@@ -268,51 +269,179 @@ fn writes_17_18_19_22_read_back() {
     assert_eq!(h.ask(16, &[]).data, vec![1, 2, 3]);
 }
 
+/// How the device answers one write command.
+struct WriteRule {
+    command: u16,
+    /// Build the device from the valve profile instead of a pressure transmitter.
+    valve: bool,
+    /// Requests that bring the device where the write is accepted (as the primary).
+    setup: Vec<(u16, Vec<u8>)>,
+    /// A request the device accepts.
+    data: Vec<u8>,
+    /// Reply to the command with no data; `None` when the command takes no data.
+    empty: Option<u8>,
+    /// Reply with the write-protect jumper set.
+    protected: u8,
+    /// Reply to the secondary master when the device restricts it.
+    secondary: u8,
+    /// Reply while the self test (41) runs.
+    self_test: u8,
+}
+
+/// The common rule: 5 without data, 7 with the jumper, 16 to a restricted secondary,
+/// 32 during the self test.
+fn write(command: u16, data: Vec<u8>) -> WriteRule {
+    WriteRule {
+        command,
+        valve: false,
+        setup: vec![],
+        data,
+        empty: Some(5),
+        protected: 7,
+        secondary: 16,
+        self_test: 32,
+    }
+}
+
+impl WriteRule {
+    fn after(mut self, command: u16, data: Vec<u8>) -> Self {
+        self.setup.push((command, data));
+        self
+    }
+
+    fn on_the_valve(mut self) -> Self {
+        self.valve = true;
+        self
+    }
+
+    fn host(&self, restrict_secondary: bool) -> Host {
+        let mut c = if self.valve {
+            hart_device::profiles::load("valve").unwrap()
+        } else {
+            constant_transmitter(50.0)
+        };
+        c.restrict_secondary_writes = restrict_secondary;
+        let mut h = Host::new(c);
+        for (command, data) in &self.setup {
+            let rc = h.ask(*command, data).rc;
+            assert_eq!(rc, SUCCESS, "setup {command} of command {}", self.command);
+        }
+        h
+    }
+}
+
+fn write_rules() -> Vec<WriteRule> {
+    let range = [vec![12], float(100.0).to_vec(), float(0.0).to_vec()].concat();
+    let mut tdd = PackedString::<6>::new("FT-7").unwrap().0.to_vec();
+    tdd.extend(PackedString::<12>::new("FLOW").unwrap().0);
+    tdd.extend([1, 1, 125]);
+    let simulate = [vec![0, 1, 12], float(1.0).to_vec(), vec![0xC0]].concat();
+    let burst_period = [vec![0], period(1.0), period(2.0)].concat();
+    let continuous = [vec![0, 0, 0, 250], float(0.0).to_vec()].concat();
+    let no_data = |mut w: WriteRule| {
+        w.empty = None;
+        w
+    };
+    vec![
+        write(6, vec![1, 1]),
+        write(17, vec![0; 24]),
+        write(18, tdd),
+        write(19, vec![0; 3]),
+        write(22, vec![0; 32]),
+        write(34, float(1.0).to_vec()),
+        write(35, range),
+        // 36, 37 and 43 take the applied process as their value: they have no data.
+        no_data(write(36, vec![])),
+        no_data(write(37, vec![])),
+        // Command 38 changes nothing but the asking master's own flag (and leaves the
+        // configuration change counter alone), so a master can always acknowledge a
+        // change: in write protection, when restricted, and during the self test. With
+        // no data it is the legacy form, without the counter.
+        WriteRule {
+            empty: Some(SUCCESS),
+            protected: SUCCESS,
+            secondary: SUCCESS,
+            self_test: SUCCESS,
+            ..write(38, vec![])
+        },
+        write(40, float(12.0).to_vec()),
+        no_data(write(43, vec![])),
+        write(44, vec![7]),
+        write(45, float(4.0).to_vec()).after(40, float(4.0).to_vec()),
+        write(46, float(20.0).to_vec()).after(40, float(20.0).to_vec()),
+        write(51, vec![1, 0]),
+        write(53, vec![1, 33]),
+        write(59, vec![6]),
+        write(79, simulate),
+        write(103, burst_period),
+        write(104, continuous),
+        write(107, vec![0, 250, 250, 250, 250, 250, 250, 250, 0]),
+        write(108, vec![0, 1, 0]),
+        write(109, vec![1, 0]),
+        // The valve positioner's device-specific writes follow the same rules.
+        write(129, float(25.0).to_vec()).on_the_valve(),
+        write(131, float(12.0).to_vec()).on_the_valve(),
+    ]
+}
+
 #[test]
-fn write_protect_jumper_refuses_every_write() {
+fn every_write_command_refuses_short_protected_restricted_and_busy() {
+    let rules = write_rules();
+    // The table holds every write command of the command table, and only those.
+    let typed: Vec<u16> = rules
+        .iter()
+        .map(|w| w.command)
+        .filter(|&c| hart_proto::command::info(c).is_some())
+        .collect();
+    let writes: Vec<u16> = hart_proto::command::COMMANDS
+        .iter()
+        .filter(|c| c.writes)
+        .map(|c| c.number)
+        .collect();
+    assert_eq!(typed, writes, "one rule per write command");
+    for w in &rules {
+        let c = w.command;
+        if let Some(info) = hart_proto::command::info(c) {
+            assert_eq!(
+                w.empty.is_none() || w.empty == Some(SUCCESS),
+                info.request_min == 0,
+                "command {c}: only commands that need data answer 5 without it"
+            );
+        }
+        let accepted = w.host(false).ask(c, &w.data).rc;
+        assert!(
+            matches!(accepted, SUCCESS | 8 | 14),
+            "command {c}: the request is accepted ({accepted})"
+        );
+        if let Some(code) = w.empty {
+            assert_eq!(
+                w.host(false).ask(c, &[]).rc,
+                code,
+                "command {c} with no data"
+            );
+        }
+        let mut h = w.host(false);
+        h.device().set_write_protect(true);
+        assert_eq!(h.ask(c, &w.data).rc, w.protected, "command {c}, jumper set");
+        let mut h = w.host(true);
+        h.master = MasterKind::Secondary;
+        assert_eq!(h.ask(c, &w.data).rc, w.secondary, "command {c}, secondary");
+        h.master = MasterKind::Primary;
+        let a = h.ask(c, &w.data).rc;
+        assert!(
+            matches!(a, SUCCESS | 8 | 14),
+            "command {c}: the primary is not restricted ({a})"
+        );
+        let mut h = w.host(false);
+        assert_eq!(h.ask(41, &[]).rc, 33, "self test initiated");
+        assert_eq!(h.ask(c, &w.data).rc, w.self_test, "command {c}, self test");
+    }
+}
+
+#[test]
+fn write_protect_jumper_is_reported_and_reads_go_on() {
     let mut h = Host::profile("pressure");
     h.device().set_write_protect(true);
-    for (cmd, data) in [
-        (6u16, vec![1u8, 1]),
-        (17, vec![0; 24]),
-        (18, vec![0; 21]),
-        (19, vec![0; 3]),
-        (22, vec![0; 32]),
-        (34, float(1.0).to_vec()),
-        (
-            35,
-            [vec![12], float(100.0).to_vec(), float(0.0).to_vec()].concat(),
-        ),
-        (36, vec![]),
-        (37, vec![]),
-        (40, float(12.0).to_vec()),
-        (43, vec![]),
-        (44, vec![7]),
-        (45, float(4.0).to_vec()),
-        (46, float(20.0).to_vec()),
-        (51, vec![1, 0]),
-        (53, vec![1, 33]),
-        (59, vec![6]),
-        (
-            79,
-            [vec![0, 1, 12], float(1.0).to_vec(), vec![0xC0]].concat(),
-        ),
-        (
-            103,
-            [
-                vec![0],
-                32000u32.to_be_bytes().to_vec(),
-                64000u32.to_be_bytes().to_vec(),
-            ]
-            .concat(),
-        ),
-        (104, [vec![0, 0, 0, 250], float(0.0).to_vec()].concat()),
-        (107, vec![0, 250, 250, 250, 250, 250, 250, 250, 0]),
-        (108, vec![0, 1, 0]),
-        (109, vec![1, 0]),
-    ] {
-        assert_eq!(h.ask(cmd, &data).rc, 7, "command {cmd} in write protect");
-    }
     assert_eq!(h.ask(15, &[]).data[15], 1, "write protect code");
     assert_eq!(h.ask(13, &[]).rc, SUCCESS);
 }
@@ -812,6 +941,218 @@ fn burst_triggers_window_rising_falling_on_change() {
     // On change: the ramp changes continuously, so at the minimum period.
     let change = run(4, 0.0);
     assert!(change.len() > 300, "on change: {}", change.len());
+}
+
+#[test]
+fn burst_on_change_with_a_constant_value_publishes_at_the_maximum_period() {
+    let mut h = Host::new(constant_transmitter(50.0));
+    h.ask(108, &[0, 1, 0]);
+    h.ask(103, &[vec![0], period(0.5), period(16.0)].concat());
+    let on_change = [vec![0, 4, 0, 250], float(0.0).to_vec()].concat();
+    assert_eq!(h.ask(104, &on_change).rc, SUCCESS);
+    h.ask(109, &[1, 0]);
+    h.backs.clear();
+    // Neither the PV nor the device status changes: the maximum period only.
+    h.wait(170_000_000);
+    let times: Vec<Micros> = h.backs.iter().map(|b| b.0).collect();
+    assert!(
+        (10..=12).contains(&times.len()),
+        "{} BACKs in 170 s",
+        times.len()
+    );
+    for w in times.windows(2) {
+        let gap = (w[1] - w[0]) as f64 / 1e6;
+        assert!((gap - 16.0).abs() < 0.1, "published {gap} s apart");
+    }
+    // A change (here the PV simulated by command 79) is published at once, then the
+    // constant value again only at the maximum period.
+    let last = *times.last().unwrap();
+    h.backs.clear();
+    let simulate = [vec![0, 1, 12], float(60.0).to_vec(), vec![0xC0]].concat();
+    assert_eq!(h.ask(79, &simulate).rc, SUCCESS);
+    let changed_at = h.now;
+    h.wait(40_000_000);
+    let after: Vec<Micros> = h.backs.iter().map(|b| b.0).collect();
+    assert!(after.len() >= 2, "{} BACKs after the change", after.len());
+    assert!(
+        after[0] - changed_at < 1_000_000 && after[0] - last < 16_000_000,
+        "the change is published within the minimum period"
+    );
+    assert_eq!(f32_at(&h.backs[0].3, 1), 60.0);
+    for w in after.windows(2) {
+        let gap = (w[1] - w[0]) as f64 / 1e6;
+        assert!((gap - 16.0).abs() < 0.1, "then {gap} s apart");
+    }
+}
+
+/// A BACK as heard on the line, with its status bytes.
+#[derive(Debug, Clone)]
+struct Back {
+    command: u16,
+    master: MasterKind,
+    rc: u8,
+    status: u8,
+    data: Vec<u8>,
+}
+
+/// Lets `us` of virtual time pass like `Host::wait`, keeping every BACK whole.
+fn listen(h: &mut Host, us: Micros) -> Vec<Back> {
+    let end = h.now + us;
+    let mut heard = vec![];
+    loop {
+        let next = h.node.next_deadline(h.now).unwrap_or(end).max(h.now + 1);
+        if next > end {
+            h.now = end;
+            h.device().tick(end);
+            return heard;
+        }
+        h.now = next;
+        if let Some(bytes) = h.node.poll(h.now) {
+            h.now += P.chars(bytes.len());
+            h.node.transmitted(h.now);
+            let f = Frame::parse(&bytes).expect("device sent a valid frame");
+            assert_eq!(f.frame_type(), FrameType::Back, "nobody asked");
+            heard.push(Back {
+                command: f.command,
+                master: f.address.master(),
+                rc: f.response_code.expect("response code"),
+                status: f.device_status.expect("device status"),
+                data: f.data.to_vec(),
+            });
+        }
+    }
+}
+
+/// Configures burst message 0 to publish `command` every 0.5 s and turns it on.
+fn burst_every_half_second(h: &mut Host, command: u16) {
+    let mut cmd = command.to_be_bytes().to_vec();
+    cmd.push(0);
+    assert_eq!(h.ask(108, &cmd).rc, SUCCESS);
+    h.ask(103, &[vec![0], period(0.5), period(0.5)].concat());
+    assert_eq!(h.ask(109, &[1, 0]).rc, SUCCESS);
+}
+
+fn with_master(backs: &[Back], master: MasterKind) -> Vec<Back> {
+    backs
+        .iter()
+        .filter(|b| b.master == master)
+        .cloned()
+        .collect()
+}
+
+#[test]
+fn burst_of_cmd38_resets_no_configuration_changed_flag() {
+    let mut h = Host::new(constant_transmitter(50.0));
+    assert_eq!(h.ask(19, &[0, 0, 42]).rc, SUCCESS, "configuration changed");
+    burst_every_half_second(&mut h, 38);
+    let id = h.ask(0, &[]).data;
+    let counter = [id[14], id[15]];
+    let backs = listen(&mut h, 20_000_000);
+    assert!(backs.len() >= 38, "{} BACKs in 20 s", backs.len());
+    for b in &backs {
+        assert_eq!((b.command, b.rc), (38, SUCCESS));
+        assert_eq!(
+            b.data,
+            counter.to_vec(),
+            "the command 38 reply: the counter"
+        );
+        assert_ne!(b.status & 0x40, 0, "{:?} still sees the change", b.master);
+    }
+    assert_ne!(
+        h.ask(1, &[]).status & 0x40,
+        0,
+        "the primary still sees the configuration changed"
+    );
+    h.master = MasterKind::Secondary;
+    assert_ne!(h.ask(1, &[]).status & 0x40, 0, "and so does the secondary");
+    h.master = MasterKind::Primary;
+    assert_eq!(
+        h.ask(38, &counter).rc,
+        SUCCESS,
+        "command 38 still resets it"
+    );
+    assert_eq!(h.ask(1, &[]).status & 0x40, 0);
+    // From now on the BACKs to the primary show it reset, those to the secondary not.
+    let backs = listen(&mut h, 5_000_000);
+    let primary = with_master(&backs, MasterKind::Primary);
+    let secondary = with_master(&backs, MasterKind::Secondary);
+    assert!(primary.len() >= 4 && secondary.len() >= 4);
+    assert!(primary.iter().all(|b| b.status & 0x40 == 0));
+    assert!(secondary.iter().all(|b| b.status & 0x40 != 0));
+}
+
+#[test]
+fn burst_of_cmd48_acknowledges_no_status() {
+    let mut h = Host::new(constant_transmitter(50.0));
+    // Simulating a device variable sets "more status available" for both masters.
+    let simulate = [vec![1, 1, 32], float(25.0).to_vec(), vec![0xC0]].concat();
+    assert_eq!(h.ask(79, &simulate).rc, SUCCESS);
+    burst_every_half_second(&mut h, 48);
+    let backs = listen(&mut h, 20_000_000);
+    assert!(backs.len() >= 38, "{} BACKs in 20 s", backs.len());
+    assert!(backs.windows(2).all(|w| w[0].master != w[1].master));
+    for b in &backs {
+        assert_eq!((b.command, b.rc, b.data.len()), (48, SUCCESS, 14));
+        assert_eq!(b.data[8] & 0x01, 0x01, "simulation active");
+        assert_ne!(b.status & 0x10, 0, "{:?}: more status available", b.master);
+    }
+    assert_ne!(
+        h.ask(1, &[]).status & 0x10,
+        0,
+        "not acknowledged for the primary"
+    );
+    h.master = MasterKind::Secondary;
+    assert_ne!(
+        h.ask(1, &[]).status & 0x10,
+        0,
+        "nor for the secondary, whose bit half the BACKs carry"
+    );
+    // Only a master's own command 48 acknowledges, and only for that master.
+    let status = h.ask(48, &[]).data;
+    assert_eq!(h.ask(48, &status[..9]).rc, SUCCESS);
+    assert_eq!(h.ask(1, &[]).status & 0x10, 0);
+    h.master = MasterKind::Primary;
+    assert_ne!(h.ask(1, &[]).status & 0x10, 0);
+}
+
+#[test]
+fn burst_status_byte_is_that_of_the_master_whose_bit_the_back_carries() {
+    let mut h = Host::new(constant_transmitter(50.0));
+    burst_every_half_second(&mut h, 1);
+    let primary_view = h.ask(1, &[]).status;
+    assert_eq!(primary_view & 0x20, 0, "cold start reported to the primary");
+    let backs = listen(&mut h, 5_000_000);
+    assert!(backs.windows(2).all(|w| w[0].master != w[1].master));
+    let to_primary = with_master(&backs, MasterKind::Primary);
+    let to_secondary = with_master(&backs, MasterKind::Secondary);
+    assert!(to_primary.len() >= 4 && to_secondary.len() >= 4);
+    assert!(backs.iter().all(|b| b.rc == SUCCESS && b.data.len() == 5));
+    assert!(
+        to_primary.iter().all(|b| b.status == primary_view),
+        "the primary's status: {:02X?}",
+        to_primary.iter().map(|b| b.status).collect::<Vec<_>>()
+    );
+    // The secondary has not talked to the device since power-up: cold start is still
+    // set for it, in its BACKs as in its first reply.
+    h.master = MasterKind::Secondary;
+    let secondary_view = h.ask(1, &[]).status;
+    assert_ne!(
+        secondary_view & 0x20,
+        0,
+        "cold start, as the secondary sees it"
+    );
+    assert!(
+        to_secondary.iter().all(|b| b.status == secondary_view),
+        "the secondary's status: {:02X?}",
+        to_secondary.iter().map(|b| b.status).collect::<Vec<_>>()
+    );
+    // That reply reported cold start to the secondary; its BACKs now show it cleared.
+    let backs = listen(&mut h, 5_000_000);
+    let to_secondary = with_master(&backs, MasterKind::Secondary);
+    assert!(!to_secondary.is_empty());
+    assert!(to_secondary
+        .iter()
+        .all(|b| b.status == secondary_view & !0x20));
 }
 
 // ------------------------------------------------------------------ persistence
