@@ -15,7 +15,7 @@ use hart_proto::types::{Latin1String, PackedString};
 use hart_proto::wire::{Reader, Wire};
 
 use crate::error::HostError;
-use crate::transport::Transport;
+use crate::transport::{RxChar, Transport};
 
 /// A reply from a device.
 #[derive(Debug, Clone, PartialEq)]
@@ -124,6 +124,10 @@ pub struct Client<T: Transport> {
     bursts: VecDeque<Vec<u8>>,
     log: Option<LogSink>,
     known: Vec<DeviceInfo>,
+    /// Since when the transport's carrier detect has been on.
+    carrier_since: Option<Micros>,
+    /// When the last character arrived.
+    last_rx: Micros,
 }
 
 impl<T: Transport> Client<T> {
@@ -145,6 +149,8 @@ impl<T: Transport> Client<T> {
             bursts: VecDeque::new(),
             log: None,
             known: vec![],
+            carrier_since: None,
+            last_rx: 0,
         }
     }
 
@@ -193,7 +199,7 @@ impl<T: Transport> Client<T> {
     pub async fn listen(&mut self, duration: Micros) -> Result<(), HostError> {
         let end = self.transport.now() + duration;
         while self.transport.now() < end {
-            let bytes = self.transport.recv(end).await?;
+            let bytes = self.transport.recv_flagged(end).await?;
             self.feed(&bytes);
             while let Some(out) = self.master.poll(self.transport.now()) {
                 if let MasterOutput::Burst(f) = out {
@@ -204,16 +210,40 @@ impl<T: Transport> Client<T> {
         Ok(())
     }
 
-    fn feed(&mut self, bytes: &[(u8, Micros)]) {
-        if bytes.is_empty() {
+    /// Passes received characters, with the UART's error flags, and the carrier-detect
+    /// line to the data-link master.
+    fn feed(&mut self, chars: &[RxChar]) {
+        if let Some(last) = chars.last() {
+            let raw: Vec<u8> = chars.iter().map(|c| c.byte).collect();
+            self.log(Direction::Rx, &raw, last.at);
+            for c in chars {
+                self.master.receive(c.byte, c.flags, c.at);
+            }
+            self.last_rx = last.at;
+        }
+        self.sense_carrier();
+    }
+
+    /// Tells the master whether the transport's carrier-detect line is on, for
+    /// transports that watch one. A carrier that has stayed on for longer than STO
+    /// with no character arriving is taken as stuck (a modem holding DCD on all the
+    /// time) and ignored until it drops: a carrier holds the master's transmissions
+    /// back, and a stuck one would hold them back for ever.
+    fn sense_carrier(&mut self) {
+        let Some(on) = self.transport.carrier() else {
             return;
-        }
-        let raw: Vec<u8> = bytes.iter().map(|b| b.0).collect();
-        self.log(Direction::Rx, &raw, bytes[bytes.len() - 1].1);
-        for &(b, at) in bytes {
-            self.master
-                .receive(b, hart_proto::deframer::UartFlags::OK, at);
-        }
+        };
+        let now = self.transport.now();
+        self.carrier_since = match (on, self.carrier_since) {
+            (false, _) => None,
+            (true, Some(since)) => Some(since),
+            (true, None) => Some(now),
+        };
+        let sto = self.transport.profile().sto;
+        let heard = self
+            .carrier_since
+            .is_some_and(|since| now.saturating_sub(since.max(self.last_rx)) <= sto);
+        self.master.carrier(heard);
     }
 
     /// One transaction with retries, busy and delayed-response handling (by the
@@ -280,7 +310,7 @@ impl<T: Transport> Client<T> {
                 .next_deadline()
                 .unwrap_or(now + 50_000)
                 .clamp(now + 1, now + 200_000);
-            let bytes = self.transport.recv(deadline).await?;
+            let bytes = self.transport.recv_flagged(deadline).await?;
             self.feed(&bytes);
             if let Some(status) = self.transport.take_no_reply() {
                 if self.master.abandon().is_some() {

@@ -1,16 +1,20 @@
-//! Target strings: which transport to open.
+//! Target strings: which transport to open. [`parse`] reads one, [`open`] and
+//! [`open_async`] open it: serial HART modems, RS-485, simulated plants and HART-IP
+//! servers (`udp://HOST[:PORT]`, `tcp://HOST[:PORT]`).
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use hart_link::{Micros, TimingProfile};
 
-use crate::transport::{Plant, Rts, SerialOptions, SerialTransport, SimTransport, Transport};
+use crate::transport::{
+    Plant, Rts, SerialOptions, SerialTransport, SimTransport, Transport, BAUD_RATES,
+};
 
 /// Any transport, chosen at run time.
 pub enum AnyTransport {
     /// Serial or RS-485.
-    Serial(SerialTransport),
+    Serial(Box<SerialTransport>),
     /// Simulated plant.
     Sim(Box<SimTransport>),
     /// HART-IP session.
@@ -60,59 +64,181 @@ impl Transport for AnyTransport {
             AnyTransport::HartIp(t) => t.take_no_reply(),
         }
     }
-}
-
-fn query(q: &str) -> Vec<(&str, &str)> {
-    q.split('&')
-        .filter(|s| !s.is_empty())
-        .map(|kv| kv.split_once('=').unwrap_or((kv, "")))
-        .collect()
-}
-
-/// Opens a transport from a target string.
-///
-/// * `/dev/ttyUSB0`, `serial:/dev/ttyUSB0?baud=1200&rts=high-tx&rts_pre_ms=5&rts_post_ms=2`
-/// * `rs485:/dev/ttyUSB1?baud=19200`
-/// * `sim` (the demo plant), `sim:plant.toml`, with `?virtual` for virtual time
-/// * `udp://HOST:5094`, `tcp://HOST:5094`: HART-IP, not yet available
-pub fn open(target: &str) -> Result<AnyTransport, String> {
-    let (base, q) = target.split_once('?').unwrap_or((target, ""));
-    let params = query(q);
-    let get = |k: &str| params.iter().find(|(key, _)| *key == k).map(|(_, v)| *v);
-    for (k, _) in &params {
-        if !["baud", "rts", "rts_pre_ms", "rts_post_ms", "virtual"].contains(k) {
-            return Err(format!("--port {target}: unknown option {k:?} (baud, rts, rts_pre_ms, rts_post_ms, virtual)"));
+    async fn recv_flagged(
+        &mut self,
+        deadline: Micros,
+    ) -> std::io::Result<Vec<crate::transport::RxChar>> {
+        match self {
+            AnyTransport::Serial(t) => t.recv_flagged(deadline).await,
+            AnyTransport::Sim(t) => t.recv_flagged(deadline).await,
+            AnyTransport::HartIp(t) => t.recv_flagged(deadline).await,
         }
     }
-    if base == "sim" || base.starts_with("sim:") {
-        let plant = match base.strip_prefix("sim:") {
-            Some(path) => Plant::load(std::path::Path::new(path))?,
-            None => Plant::demo(),
-        };
-        return Ok(AnyTransport::Sim(Box::new(SimTransport::new(
-            &plant,
-            get("virtual").is_some(),
-        )?)));
+    fn carrier(&mut self) -> Option<bool> {
+        match self {
+            AnyTransport::Serial(t) => t.carrier(),
+            AnyTransport::Sim(t) => t.carrier(),
+            AnyTransport::HartIp(t) => t.carrier(),
+        }
     }
-    if base.starts_with("udp://") || base.starts_with("tcp://") {
-        return Err(format!(
-            "--port {target}: HART-IP is not available in this version yet"
-        ));
+}
+
+/// What a target string asks for, before anything is opened.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Target {
+    /// A HART modem on a serial port, or baseband RS-485 (`rs485` set).
+    Serial(SerialOptions),
+    /// A simulated plant: the demo plant or a plant file, in real or virtual time.
+    Sim {
+        /// Plant file (`sim:PLANT.toml`); `None` for the built-in demo plant.
+        plant: Option<PathBuf>,
+        /// Virtual time (`?virtual`): waiting costs nothing.
+        virtual_time: bool,
+    },
+    /// A HART-IP server.
+    HartIp {
+        /// `HOST:PORT` (port 5094 when the target names none).
+        address: String,
+        /// TCP (`tcp://`) rather than UDP (`udp://`).
+        tcp: bool,
+    },
+}
+
+/// Options each kind of target takes.
+const SERIAL_OPTIONS: &[&str] = &["baud", "rts", "rts_pre_ms", "rts_post_ms", "carrier"];
+const RS485_OPTIONS: &[&str] = &["baud", "rts", "rts_pre_ms", "rts_post_ms"];
+const SIM_OPTIONS: &[&str] = &["virtual"];
+
+/// Reads a target string without opening anything:
+///
+/// * `/dev/ttyUSB0`, `serial:/dev/ttyUSB0?baud=1200&rts=high-tx&rts_pre_ms=5&rts_post_ms=2&carrier=dcd`
+///   (`baud` one of [`BAUD_RATES`], default 1200; `rts` `high-tx`, `low-tx` or `none`
+///   (default); `rts_pre_ms`, `rts_post_ms` whole milliseconds, default 0; `carrier`
+///   `dcd` to take the modem's DCD line as carrier detect, or `none` (default))
+/// * `rs485:/dev/ttyUSB1?baud=19200` (default 19200; `rts` options as for serial)
+/// * `sim` (the demo plant), `sim:plant.toml`, with `?virtual` for virtual time
+/// * `udp://HOST[:PORT]`, `tcp://HOST[:PORT]`: HART-IP, port 5094 by default
+///
+/// Errors name the option and what it takes.
+pub fn parse(target: &str) -> Result<Target, String> {
+    let (base, q) = target.split_once('?').unwrap_or((target, ""));
+    let mut params: Vec<(&str, &str)> = vec![];
+    for kv in q.split('&').filter(|s| !s.is_empty()) {
+        let (k, v) = kv.split_once('=').unwrap_or((kv, ""));
+        if params.iter().any(|(key, _)| *key == k) {
+            return Err(format!("--port {target}: option {k:?} given twice"));
+        }
+        params.push((k, v));
+    }
+    let get = |k: &str| params.iter().find(|(key, _)| *key == k).map(|(_, v)| *v);
+    let check = |kind: &str, allowed: &[&str]| -> Result<(), String> {
+        match params.iter().find(|(k, _)| !allowed.contains(k)) {
+            None => Ok(()),
+            Some((k, _)) if allowed.is_empty() => Err(format!(
+                "--port {target}: unknown option {k:?}: a {kind} target takes no options"
+            )),
+            Some((k, _)) => Err(format!(
+                "--port {target}: unknown option {k:?} for a {kind} target (it takes {})",
+                allowed.join(", ")
+            )),
+        }
+    };
+    if base == "sim" || base.starts_with("sim:") {
+        check("simulated plant", SIM_OPTIONS)?;
+        let plant = match base.strip_prefix("sim:") {
+            Some("") => {
+                return Err(format!(
+                    "--port {target}: no plant file after sim: (sim for the demo plant, sim:PLANT.toml for a file)"
+                ))
+            }
+            Some(path) => Some(PathBuf::from(path)),
+            None => None,
+        };
+        let virtual_time = match get("virtual") {
+            None => false,
+            Some("" | "1" | "true" | "yes") => true,
+            Some("0" | "false" | "no") => false,
+            Some(v) => {
+                return Err(format!(
+                    "--port {target}: virtual={v}: expected virtual alone, or virtual=1|0"
+                ))
+            }
+        };
+        return Ok(Target::Sim {
+            plant,
+            virtual_time,
+        });
+    }
+    for (scheme, tcp) in [("udp://", false), ("tcp://", true)] {
+        if let Some(rest) = base.strip_prefix(scheme) {
+            check("HART-IP", &[])?;
+            let port_of = |p: &str| -> Result<u16, String> {
+                p.parse::<u16>()
+                    .ok()
+                    .filter(|&p| p != 0)
+                    .ok_or_else(|| format!("--port {target}: port {p:?} must be a number 1-65535"))
+            };
+            let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
+                // [IPv6]:PORT or [IPv6]
+                let (addr, after) = v6
+                    .split_once(']')
+                    .ok_or_else(|| format!("--port {target}: no ] after the IPv6 address"))?;
+                let port = match after {
+                    "" => hart_ip::PORT,
+                    p => port_of(p.strip_prefix(':').unwrap_or(p))?,
+                };
+                (format!("[{addr}]"), port)
+            } else if rest.matches(':').count() > 1 {
+                // A bare IPv6 address: its colons are not a port.
+                (format!("[{rest}]"), hart_ip::PORT)
+            } else if let Some((host, p)) = rest.split_once(':') {
+                (host.to_string(), port_of(p)?)
+            } else {
+                (rest.to_string(), hart_ip::PORT)
+            };
+            if host.is_empty() || host == "[]" {
+                return Err(format!(
+                    "--port {target}: no host after {scheme} (e.g. {scheme}192.168.1.20:5094)"
+                ));
+            }
+            let address = format!("{host}:{port}");
+            return Ok(Target::HartIp { address, tcp });
+        }
     }
     let (rs485, path) = if let Some(p) = base.strip_prefix("rs485:") {
         (true, p)
     } else if let Some(p) = base.strip_prefix("serial:") {
         (false, p)
+    } else if base.contains("://") {
+        return Err(format!(
+            "--port {target}: unknown scheme (udp:// or tcp:// for HART-IP, serial:, rs485:, sim)"
+        ));
     } else {
         (false, base)
     };
+    if path.is_empty() {
+        return Err(format!(
+            "--port {target}: no device path (e.g. serial:/dev/ttyUSB0, rs485:/dev/ttyUSB1)"
+        ));
+    }
+    if rs485 {
+        check("RS-485", RS485_OPTIONS)?;
+    } else {
+        check("serial", SERIAL_OPTIONS)?;
+    }
     let num = |k: &str, default: u64| -> Result<u64, String> {
         get(k).map_or(Ok(default), |v| {
             v.parse()
-                .map_err(|_| format!("--port {target}: {k} must be a number"))
+                .map_err(|_| format!("--port {target}: {k}={v}: must be a whole number"))
         })
     };
-    let baud = num("baud", if rs485 { 19200 } else { 1200 })? as u32;
+    let baud = num("baud", if rs485 { 19200 } else { 1200 })?;
+    if !BAUD_RATES.iter().any(|&b| u64::from(b) == baud) {
+        return Err(format!(
+            "--port {target}: baud={baud}: not a supported rate (one of {})",
+            BAUD_RATES.map(|b| b.to_string()).join(", ")
+        ));
+    }
     let rts = match get("rts").unwrap_or("none") {
         "none" => Rts::None,
         "high-tx" => Rts::HighTx,
@@ -123,38 +249,60 @@ pub fn open(target: &str) -> Result<AnyTransport, String> {
             ))
         }
     };
-    let opts = SerialOptions {
+    let carrier_detect = match get("carrier").unwrap_or("none") {
+        "none" => false,
+        "dcd" => true,
+        other => {
+            return Err(format!(
+                "--port {target}: carrier={other}: expected dcd (the modem drives DCD while it hears a carrier) or none"
+            ))
+        }
+    };
+    Ok(Target::Serial(SerialOptions {
         path: PathBuf::from(path),
-        baud,
+        baud: baud as u32,
         rts,
         rts_pre: Duration::from_millis(num("rts_pre_ms", 0)?),
         rts_post: Duration::from_millis(num("rts_post_ms", 0)?),
         rs485,
-    };
-    SerialTransport::open(opts)
-        .map(AnyTransport::Serial)
-        .map_err(|e| e.to_string())
+        carrier_detect,
+    }))
+}
+
+/// Opens a transport from a target string (see [`parse`]). HART-IP targets need the
+/// runtime to connect: open them with [`open_async`].
+pub fn open(target: &str) -> Result<AnyTransport, String> {
+    match parse(target)? {
+        Target::Sim {
+            plant,
+            virtual_time,
+        } => {
+            let plant = match plant {
+                Some(path) => Plant::load(&path)?,
+                None => Plant::demo(),
+            };
+            Ok(AnyTransport::Sim(Box::new(SimTransport::new(
+                &plant,
+                virtual_time,
+            )?)))
+        }
+        Target::HartIp { .. } => Err(format!(
+            "--port {target}: HART-IP targets are opened with target::open_async (they connect first)"
+        )),
+        Target::Serial(opts) => SerialTransport::open(opts)
+            .map(|t| AnyTransport::Serial(Box::new(t)))
+            .map_err(|e| e.to_string()),
+    }
 }
 
 /// Opens any target, including HART-IP (`udp://HOST[:PORT]`, `tcp://HOST[:PORT]`,
 /// default port 5094), which needs the runtime to connect.
 pub async fn open_async(target: &str) -> Result<AnyTransport, String> {
-    let (base, _) = target.split_once('?').unwrap_or((target, ""));
-    for (scheme, tcp) in [("udp://", false), ("tcp://", true)] {
-        if let Some(rest) = base.strip_prefix(scheme) {
-            let addr = if rest
-                .rsplit_once(':')
-                .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
-            {
-                rest.to_string()
-            } else {
-                format!("{rest}:{}", hart_ip::PORT)
-            };
-            return crate::hartip::HartIpTransport::connect(&addr, tcp, 60_000)
-                .await
-                .map(|t| AnyTransport::HartIp(Box::new(t)))
-                .map_err(|e| format!("--port {target}: {e}"));
-        }
+    if let Target::HartIp { address, tcp } = parse(target)? {
+        return crate::hartip::HartIpTransport::connect(&address, tcp, 60_000)
+            .await
+            .map(|t| AnyTransport::HartIp(Box::new(t)))
+            .map_err(|e| format!("--port {target}: {e}"));
     }
     open(target)
 }

@@ -1,7 +1,8 @@
 //! Transports: how bytes reach the line. One trait; a target string selects one.
 //!
 //! * [`SerialTransport`]: a HART modem on a serial port (or a pseudo-terminal), 1200
-//!   bit/s 8O1 by default, optional RTS keying; or baseband RS-485 with its own
+//!   bit/s 8O1 by default, optional RTS keying, parity and framing errors reported per
+//!   character, optional carrier detect on DCD; or baseband RS-485 with its own
 //!   transmission read back and dropped.
 //! * [`SimTransport`]: an in-process plant of `hart-device` devices on a simulated
 //!   line, in real time or in virtual time (instant).
@@ -29,6 +30,26 @@ pub trait Transport {
     /// Waits until bytes arrive or the clock reaches `deadline`. Returns the bytes with
     /// the time each finished arriving (empty on time-out).
     async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>>;
+    /// Like [`Transport::recv`], with the error flags the UART reported for each
+    /// character (parity, framing, overrun). Lines without a UART (simulated plants,
+    /// HART-IP) keep this default: every character [`UartFlags::OK`].
+    async fn recv_flagged(&mut self, deadline: Micros) -> io::Result<Vec<RxChar>> {
+        Ok(self
+            .recv(deadline)
+            .await?
+            .into_iter()
+            .map(|(byte, at)| RxChar {
+                byte,
+                flags: UartFlags::OK,
+                at,
+            })
+            .collect())
+    }
+    /// The carrier-detect line now, when this transport watches one (a serial port
+    /// opened with `carrier=dcd`); `None` when it does not (the default).
+    fn carrier(&mut self) -> Option<bool> {
+        None
+    }
     /// A short description for messages ("serial /dev/ttyUSB0 at 1200 bit/s").
     fn describe(&self) -> String;
     /// Whether the far end has reported that the request in progress will get no
@@ -37,6 +58,17 @@ pub trait Transport {
     fn take_no_reply(&mut self) -> Option<String> {
         None
     }
+}
+
+/// A received character.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RxChar {
+    /// The character.
+    pub byte: u8,
+    /// Errors the UART reported for it.
+    pub flags: UartFlags,
+    /// When it finished arriving, transport time.
+    pub at: Micros,
 }
 
 /// RTS keying of a HART modem.
@@ -65,6 +97,124 @@ pub struct SerialOptions {
     pub rts_post: Duration,
     /// Baseband RS-485: our own transmission is read back and dropped; RS-485 timing.
     pub rs485: bool,
+    /// Watch the modem's DCD line as carrier detect (`carrier=dcd`): while it is on
+    /// the line counts as busy, even before the first character arrives.
+    pub carrier_detect: bool,
+}
+
+/// Bit rates a serial transport can be opened at.
+pub const BAUD_RATES: [u32; 10] = [
+    300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
+];
+
+/// Decodes the input of a port configured with `PARMRK` and `INPCK`, without `IGNPAR`
+/// (how [`SerialTransport`] opens a port): the line discipline marks a character
+/// received with a parity or framing error as `0xFF 0x00 X`, and doubles a real
+/// `0xFF` (every HART preamble) to `0xFF 0xFF`; any other byte is itself.
+///
+/// The mark does not say which error it was: a marked `0x00` (what a break or a lost
+/// stop bit gives) counts as a framing error, any other marked character as a parity
+/// error. [`SerialTransport`] corrects this from the driver's error counters where
+/// the driver keeps them (`TIOCGICOUNT`). An escape split over two reads is carried
+/// over to the next call.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ParmrkDecoder {
+    /// Bytes of an unfinished escape: 0 none, 1 after `0xFF`, 2 after `0xFF 0x00`.
+    held: u8,
+}
+
+impl ParmrkDecoder {
+    /// A decoder between characters.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Decodes `raw` (as read from the port) onto `out`.
+    pub fn decode(&mut self, raw: &[u8], out: &mut Vec<(u8, UartFlags)>) {
+        for &b in raw {
+            match (self.held, b) {
+                (0, 0xFF) => self.held = 1,
+                (0, b) => out.push((b, UartFlags::OK)),
+                (1, 0xFF) => {
+                    self.held = 0;
+                    out.push((0xFF, UartFlags::OK));
+                }
+                (1, 0x00) => self.held = 2,
+                (1, b) => {
+                    // Not an escape the line discipline makes: pass both through.
+                    self.held = 0;
+                    out.push((0xFF, UartFlags::OK));
+                    out.push((b, UartFlags::OK));
+                }
+                (_, b) => {
+                    self.held = 0;
+                    let flags = UartFlags {
+                        parity: b != 0,
+                        framing: b == 0,
+                        overrun: false,
+                    };
+                    out.push((b, flags));
+                }
+            }
+        }
+    }
+
+    /// True while part of an escape has been read and the rest has not.
+    pub fn in_escape(&self) -> bool {
+        self.held != 0
+    }
+}
+
+/// The driver's error counters (`struct serial_icounter_struct`, Linux).
+#[cfg(target_os = "linux")]
+#[repr(C)]
+#[derive(Default, Clone, Copy)]
+struct IcounterRaw {
+    cts: libc::c_int,
+    dsr: libc::c_int,
+    rng: libc::c_int,
+    dcd: libc::c_int,
+    rx: libc::c_int,
+    tx: libc::c_int,
+    frame: libc::c_int,
+    overrun: libc::c_int,
+    parity: libc::c_int,
+    brk: libc::c_int,
+    buf_overrun: libc::c_int,
+    reserved: [libc::c_int; 9],
+}
+
+/// Error counts of the UART: parity, framing (breaks included), overruns (in the
+/// hardware and in the kernel's buffer).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct ErrorCounts {
+    parity: u32,
+    framing: u32,
+    overrun: u32,
+}
+
+/// Reads the driver's error counters; `None` where the driver keeps none (USB
+/// adapters without the call, pseudo-terminals, systems other than Linux).
+fn error_counts(fd: i32) -> Option<ErrorCounts> {
+    #[cfg(target_os = "linux")]
+    {
+        let mut c = IcounterRaw::default();
+        // SAFETY: TIOCGICOUNT fills a struct serial_icounter_struct, which IcounterRaw
+        // mirrors.
+        if unsafe { libc::ioctl(fd, libc::TIOCGICOUNT, &mut c) } != 0 {
+            return None;
+        }
+        Some(ErrorCounts {
+            parity: c.parity as u32,
+            framing: c.frame.wrapping_add(c.brk) as u32,
+            overrun: c.overrun.wrapping_add(c.buf_overrun) as u32,
+        })
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = fd;
+        None
+    }
 }
 
 fn os_err(what: &str) -> io::Error {
@@ -79,10 +229,19 @@ pub struct SerialTransport {
     profile: TimingProfile,
     start: Instant,
     echo: Vec<u8>,
+    /// `PARMRK` took effect: the input carries escapes to decode.
+    parmrk: bool,
+    decoder: ParmrkDecoder,
+    /// The driver's error counters as far as they have been accounted for, when it
+    /// keeps them.
+    counts: Option<ErrorCounts>,
+    /// An overrun was counted before any character came to carry it.
+    overrun_pending: bool,
 }
 
 impl SerialTransport {
-    /// Opens and configures the port (raw, 8 data bits, odd parity, 1 stop bit).
+    /// Opens and configures the port (raw, 8 data bits, odd parity, 1 stop bit,
+    /// characters with parity or framing errors marked, see [`ParmrkDecoder`]).
     pub fn open(opts: SerialOptions) -> io::Result<Self> {
         let c = CString::new(opts.path.as_os_str().as_encoded_bytes())
             .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path contains NUL"))?;
@@ -100,7 +259,19 @@ impl SerialTransport {
             ));
         }
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
-        configure(fd.as_raw_fd(), opts.baud)?;
+        let parmrk = configure(fd.as_raw_fd(), opts.baud)?;
+        if opts.carrier_detect && modem_lines(fd.as_raw_fd()).is_err() {
+            let e = io::Error::last_os_error();
+            return Err(io::Error::new(
+                e.kind(),
+                format!(
+                    "carrier=dcd: cannot read the modem lines of {}: {e}; leave out carrier=dcd \
+                     for ports without a DCD line (pseudo-terminals, most RS-485 adapters)",
+                    opts.path.display()
+                ),
+            ));
+        }
+        let counts = error_counts(fd.as_raw_fd());
         let profile = if opts.rs485 && opts.baud > 1200 {
             TimingProfile::rs485(opts.baud)
         } else if opts.rs485 {
@@ -117,6 +288,10 @@ impl SerialTransport {
             profile,
             start: Instant::now(),
             echo: vec![],
+            parmrk,
+            decoder: ParmrkDecoder::new(),
+            counts,
+            overrun_pending: false,
         };
         t.set_rts(false);
         Ok(t)
@@ -137,9 +312,64 @@ impl SerialTransport {
         // SAFETY: ioctl with a pointer to a c_int, as TIOCMBIS/TIOCMBIC expect.
         unsafe { libc::ioctl(self.fd.get_ref().as_raw_fd(), req, &bits) };
     }
+
+    /// Turns what one read returned into characters with their flags: escapes
+    /// decoded, error kinds and overruns taken from the driver's counters where it
+    /// keeps them.
+    fn decode(&mut self, raw: &[u8]) -> Vec<(u8, UartFlags)> {
+        let mut out = Vec::with_capacity(raw.len());
+        if !self.parmrk {
+            out.extend(raw.iter().map(|&b| (b, UartFlags::OK)));
+            return out;
+        }
+        self.decoder.decode(raw, &mut out);
+        let Some(seen) = self.counts else {
+            return out;
+        };
+        let Some(now) = error_counts(self.fd.get_ref().as_raw_fd()) else {
+            return out;
+        };
+        let mut seen = seen;
+        for (_, f) in out.iter_mut().filter(|(_, f)| f.parity || f.framing) {
+            // The counters include every error received so far; each marked character
+            // takes one count of the kind that has counts left.
+            if now.parity.wrapping_sub(seen.parity) as i32 > 0 {
+                seen.parity = seen.parity.wrapping_add(1);
+                (f.parity, f.framing) = (true, false);
+            } else if now.framing.wrapping_sub(seen.framing) as i32 > 0 {
+                seen.framing = seen.framing.wrapping_add(1);
+                (f.parity, f.framing) = (false, true);
+            }
+        }
+        if now.overrun != seen.overrun {
+            seen.overrun = now.overrun;
+            self.overrun_pending = true;
+        }
+        if self.overrun_pending {
+            if let Some((_, f)) = out.first_mut() {
+                // Characters were lost somewhere before the end of this read.
+                f.overrun = true;
+                self.overrun_pending = false;
+            }
+        }
+        self.counts = Some(seen);
+        out
+    }
 }
 
-fn configure(fd: i32, baud: u32) -> io::Result<()> {
+/// The modem control lines (`TIOCM_*` bits).
+fn modem_lines(fd: i32) -> Result<libc::c_int, ()> {
+    let mut bits: libc::c_int = 0;
+    // SAFETY: TIOCMGET writes one c_int.
+    if unsafe { libc::ioctl(fd, libc::TIOCMGET, &mut bits) } != 0 {
+        return Err(());
+    }
+    Ok(bits)
+}
+
+/// Configures the port; returns whether `PARMRK` took effect (it does on serial ports
+/// and pseudo-terminals alike; pseudo-terminals drop only the parity bit).
+fn configure(fd: i32, baud: u32) -> io::Result<bool> {
     // SAFETY: termios is plain data filled by tcgetattr.
     let mut t: libc::termios = unsafe { std::mem::zeroed() };
     if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
@@ -160,7 +390,7 @@ fn configure(fd: i32, baud: u32) -> io::Result<()> {
         _ => {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
-                format!("baud rate {baud} not supported (300-115200)"),
+                format!("baud rate {baud} not supported ({BAUD_RATES:?})"),
             ))
         }
     };
@@ -170,7 +400,11 @@ fn configure(fd: i32, baud: u32) -> io::Result<()> {
     }
     t.c_cflag &= !(libc::CSIZE | libc::CSTOPB);
     t.c_cflag |= libc::CS8 | libc::PARENB | libc::PARODD | libc::CLOCAL | libc::CREAD;
-    t.c_iflag |= libc::INPCK;
+    // Check parity, and mark damaged characters in the input (0xFF 0x00 X) instead of
+    // passing them on as 0x00 or dropping them; a real 0xFF then arrives doubled. A
+    // break is marked too (BRKINT and IGNBRK off, as cfmakeraw leaves them).
+    t.c_iflag |= libc::INPCK | libc::PARMRK;
+    t.c_iflag &= !(libc::IGNPAR | libc::ISTRIP);
     t.c_cc[libc::VMIN] = 0;
     t.c_cc[libc::VTIME] = 0;
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
@@ -181,7 +415,11 @@ fn configure(fd: i32, baud: u32) -> io::Result<()> {
             return Err(os_err("tcsetattr"));
         }
     }
-    Ok(())
+    // tcsetattr succeeds when any of the settings took: see what the port has.
+    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
+        return Err(os_err("tcgetattr"));
+    }
+    Ok(t.c_iflag & libc::PARMRK != 0)
 }
 
 impl Transport for SerialTransport {
@@ -229,6 +467,11 @@ impl Transport for SerialTransport {
     }
 
     async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>> {
+        let chars = self.recv_flagged(deadline).await?;
+        Ok(chars.into_iter().map(|c| (c.byte, c.at)).collect())
+    }
+
+    async fn recv_flagged(&mut self, deadline: Micros) -> io::Result<Vec<RxChar>> {
         let ct = self.profile.char_time;
         loop {
             let now = self.now();
@@ -259,22 +502,36 @@ impl Transport for SerialTransport {
                 tokio::time::sleep(Duration::from_millis(5)).await;
                 continue;
             }
-            let n = n as usize;
             let t = self.now();
+            let chars = self.decode(&buf[..n as usize]);
+            let n = chars.len();
             let mut out = Vec::with_capacity(n);
-            for (i, &b) in buf[..n].iter().enumerate() {
-                // Drop our own transmission read back on a two-wire RS-485 line.
-                if !self.echo.is_empty() && self.echo[0] == b {
+            for (i, (byte, flags)) in chars.into_iter().enumerate() {
+                // Drop our own transmission read back on a two-wire RS-485 line (a
+                // damaged character while it is expected is taken as a damaged echo).
+                if !self.echo.is_empty() && (self.echo[0] == byte || flags.any()) {
                     self.echo.remove(0);
                     continue;
                 }
                 self.echo.clear();
-                out.push((b, t.saturating_sub((n - 1 - i) as Micros * ct)));
+                out.push(RxChar {
+                    byte,
+                    flags,
+                    at: t.saturating_sub((n - 1 - i) as Micros * ct),
+                });
             }
             if !out.is_empty() {
                 return Ok(out);
             }
         }
+    }
+
+    fn carrier(&mut self) -> Option<bool> {
+        if !self.opts.carrier_detect {
+            return None;
+        }
+        let bits = modem_lines(self.fd.get_ref().as_raw_fd()).ok()?;
+        Some(bits & libc::TIOCM_CAR != 0)
     }
 
     fn describe(&self) -> String {

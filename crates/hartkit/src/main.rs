@@ -8,7 +8,8 @@ use hart_proto::frame::{
 };
 use hartkit::{annotate, hex, json};
 
-/// HART toolkit: decode, encode and (in later releases) talk HART.
+/// HART toolkit: decode and encode frames, simulate devices and networks, and talk HART
+/// to devices over serial modems, RS-485 and HART-IP.
 #[derive(Parser)]
 #[command(name = "hartkit", version, about, propagate_version = true)]
 struct Cli {
@@ -140,8 +141,9 @@ enum Top {
 
 #[derive(Args, Clone)]
 struct HostArgs {
-    /// Where the devices are: /dev/ttyUSB0, serial:PATH?baud=1200&rts=high-tx,
-    /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual.
+    /// Where the devices are: /dev/ttyUSB0, serial:PATH?baud=1200&rts=high-tx&carrier=dcd,
+    /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual, udp://HOST[:PORT],
+    /// tcp://HOST[:PORT] (HART-IP, port 5094 by default).
     #[arg(long, short = 'p', value_name = "TARGET")]
     port: String,
     /// Print JSON instead of tables.
