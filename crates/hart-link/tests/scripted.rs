@@ -268,6 +268,138 @@ fn late_reply_after_sto_meets_the_retry() {
     assert_eq!(m.stats().retries, 1);
 }
 
+// ---------------------------------------------------------------- collisions
+
+/// A character that overlapped another station's transmission, as a receiver gets it:
+/// altered, with a framing error.
+fn collided(b: u8) -> (u8, UartFlags) {
+    (
+        b ^ 0x5A,
+        UartFlags {
+            framing: true,
+            ..UartFlags::OK
+        },
+    )
+}
+
+/// Feeds `bytes` one character apart, the first ending at `t`, those whose index
+/// satisfies `hit` garbled by a collision; checks the master never transmits meanwhile.
+/// Returns the time the last one ended.
+fn feed_master_colliding(
+    m: &mut Master,
+    bytes: &[u8],
+    t: Micros,
+    hit: impl Fn(usize) -> bool,
+) -> Micros {
+    let mut now = t;
+    for (i, &b) in bytes.iter().enumerate() {
+        now = t + i as Micros * CT;
+        let (b, flags) = if hit(i) {
+            collided(b)
+        } else {
+            (b, UartFlags::OK)
+        };
+        m.receive(b, flags, now);
+        assert!(
+            transmit_at(m, now).is_none(),
+            "transmitted while character {i} arrived"
+        );
+    }
+    now
+}
+
+#[test]
+fn collision_in_the_reply_is_retried_then_reported_as_a_communication_error() {
+    let mut m = Master::new(MasterKind::Primary, P, RetryPolicy::default(), 0);
+    m.request(&cmd1_request(), 0).unwrap();
+    let reply = ack_to(MasterKind::Primary, 1, 0, &[6, 0x41, 0x48, 0, 0]);
+    let mut at = P.rt1_primary;
+    for attempt in 1..=4u64 {
+        let tx = expect_tx_exactly_at(&mut m, at);
+        assert_eq!(Frame::parse(&tx).unwrap().command, 1);
+        let sent = at + tx.len() as Micros * CT;
+        m.transmitted(sent);
+        // Another station starts in the middle of the reply: from the response code on,
+        // every character is garbled.
+        let end = feed_master_colliding(&mut m, &reply, sent + P.hold + CT, |i| i >= 13);
+        assert_eq!(m.stats().retries, attempt - 1);
+        if attempt < 4 {
+            // Slots after a reply: burst device at HOLD, the master the reply granted
+            // the line at HOLD + 2 characters, the retrying master at HOLD + 4.
+            at = end + P.hold + 4 * CT;
+            continue;
+        }
+        // The fourth damaged reply: no more retries, the error is reported, never a reply.
+        let outcome = (end..end + P.rt1_secondary).find_map(|t| m.poll(t));
+        match outcome {
+            Some(MasterOutput::Done(Err(LinkError::CommunicationError {
+                attempts: 4,
+                last_error,
+            }))) => assert_eq!(last_error & 0x90, 0x90, "framing error reported"),
+            other => panic!("{other:?}"),
+        }
+    }
+    assert_eq!((m.stats().completed, m.stats().failed), (0, 1));
+}
+
+#[test]
+fn late_reply_running_into_the_retry_is_never_taken_for_an_answer() {
+    let mut m = Master::new(MasterKind::Primary, P, RetryPolicy::default(), 0);
+    m.request(&cmd1_request(), 0).unwrap();
+    let tx = transmit_at(&mut m, P.rt1_primary).unwrap();
+    let len = tx.len() as Micros;
+    let sent = P.rt1_primary + len * CT;
+    m.transmitted(sent);
+    // No reply within STO: the retry goes out at STO...
+    let retry_at = sent + P.sto;
+    assert_eq!(expect_tx_exactly_at(&mut m, retry_at), tx);
+    let retry_end = retry_at + len * CT;
+    // ...and the device's reply starts half a character later: the characters that
+    // overlap the retry arrive garbled, the rest intact but without their start.
+    let reply = ack_to(MasterKind::Primary, 1, 0, &[6, 0x41, 0x48, 0, 0]);
+    let first = retry_at + CT / 2 + CT;
+    let mut transmitted = false;
+    let mut end = 0;
+    for (i, &b) in reply.iter().enumerate() {
+        end = first + i as Micros * CT;
+        if !transmitted && end > retry_end {
+            m.transmitted(retry_end);
+            transmitted = true;
+        }
+        let (b, flags) = if end - CT < retry_end {
+            collided(b)
+        } else {
+            (b, UartFlags::OK)
+        };
+        m.receive(b, flags, end);
+        assert!(transmit_at(&mut m, end).is_none());
+    }
+    // Not an answer: the master retries in its slot after what it heard.
+    let again = expect_tx_exactly_at(&mut m, end + P.hold + 4 * CT);
+    assert_eq!(again, tx);
+    assert_eq!((m.stats().completed, m.stats().retries), (0, 2));
+}
+
+#[test]
+fn a_master_hearing_a_collision_waits_its_rt1_after_it() {
+    let mut s = Master::new(MasterKind::Secondary, P, RetryPolicy::default(), 0);
+    s.request(&cmd1_request(), 0).unwrap();
+    // Two stations' frames on top of each other: garbage from the first character on,
+    // still arriving when the secondary's RT1 would expire.
+    let request = frame(FrameSpec::request(Address::short(4), 0, &[]));
+    let reply = ack_to(MasterKind::Primary, 0, 0, &[0; 8]);
+    let start = P.rt1_secondary - 10 * CT;
+    let overlap_end = feed_master_colliding(&mut s, &request, start, |_| true);
+    // The longer frame goes on alone, intact but without its start.
+    let end = feed_master_colliding(&mut s, &reply[request.len()..], overlap_end + CT, |_| false);
+    // Nothing it heard granted it the line: RT1 of silence from the last character.
+    let tx = expect_tx_exactly_at(&mut s, end + P.rt1_secondary);
+    assert_eq!(
+        Frame::parse(&tx).unwrap().address.master(),
+        MasterKind::Secondary
+    );
+}
+
 // ---------------------------------------------------------------- slave
 
 struct Echo {
@@ -564,4 +696,48 @@ fn burst_device_answers_its_own_requests_first() {
     // Its own ACK counts as an ACK on the line: the due BACK follows HOLD later.
     let back = slave_tx(&mut s, &mut h, sent + P.hold).expect("BACK");
     assert_eq!(Frame::parse(&back).unwrap().frame_type(), FrameType::Back);
+}
+
+#[test]
+fn request_hit_by_a_collision_silence_unless_address_and_length_survive() {
+    // Preambles 0-4, delimiter 5, address 6-10, command 11, byte count 12, data 13-16,
+    // check byte 17.
+    let req = frame(FrameSpec::request(Address::long(ID), 1, &[1, 2, 3, 4]));
+    let feed = |from: usize| {
+        let (mut s, mut h) = slave();
+        let mut end = 0;
+        for (i, &b) in req.iter().enumerate() {
+            end = 1000 + i as Micros * CT;
+            let (b, flags) = if i >= from {
+                collided(b)
+            } else {
+                (b, UartFlags::OK)
+            };
+            s.receive(b, flags, end, &mut h);
+        }
+        // Whatever it sends, it sends by STO (at its deadlines: reply delay, or the gap
+        // that ends a frame whose garbled byte count promised more).
+        let mut reply = None;
+        while let Some(t) = s.next_deadline().filter(|&t| t <= end + P.sto) {
+            if let Some(r) = slave_tx(&mut s, &mut h, t) {
+                reply = Some(r);
+                break;
+            }
+        }
+        assert!(
+            h.requests.is_empty(),
+            "the application never sees a collided request"
+        );
+        reply
+    };
+    // The collision starts inside the address: the device cannot know the request was
+    // its own and stays silent.
+    assert_eq!(feed(8), None);
+    // It starts at the byte count: the frame never ends, the gap after it aborts it.
+    assert_eq!(feed(12), None);
+    // It starts in the data: the address is trusted, the reply reports framing.
+    let reply = feed(14).expect("communication-error reply");
+    let f = Frame::parse(&reply).unwrap();
+    assert_eq!(f.response_code.map(|rc| rc & 0xD0), Some(0x90));
+    assert!(f.data.is_empty());
 }

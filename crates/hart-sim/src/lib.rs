@@ -7,16 +7,17 @@
 //! characters; bit errors are injected per receiver; devices can fall silent or answer
 //! slowly. A seeded generator makes every run reproducible bit for bit.
 //!
-//! The masters run a fixed script: the primary discovers the devices with command 0 in
-//! short frames, then polls them round-robin with a chosen command in long frames; an
-//! optional secondary does the same with command 1.
+//! The masters run a fixed script ([`run`]): the primary discovers the devices with
+//! command 0 in short frames, then polls them round-robin with a chosen command in long
+//! frames; an optional secondary does the same with command 1. Or they follow a given
+//! schedule of requests ([`run_schedule`]), one transaction at a time.
 
 pub mod device;
 pub mod rng;
 
 use hart_link::master::{MasterOutput, RetryPolicy, MAX_TX_LEN};
 use hart_link::slave::{BurstConfig, Slave, SlaveConfig};
-use hart_link::{Master, Micros, TimingProfile};
+use hart_link::{LinkError, Master, Micros, TimingProfile};
 use hart_proto::command::Identity;
 use hart_proto::deframer::UartFlags;
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, MasterKind, UniqueId};
@@ -32,6 +33,28 @@ pub struct Faults {
     pub silent_device: Option<(u8, Micros)>,
     /// This polling address answers after this delay instead of HOLD.
     pub slow_device: Option<(u8, Micros)>,
+    /// A device that answers late for a while (see [`LateDevice`]).
+    pub late_device: Option<LateDevice>,
+}
+
+/// A device that, from `from` until `until`, answers `delay` after each request instead
+/// of HOLD (or its [`Faults::slow_device`] delay).
+///
+/// Slaves answer without listening, so a delay beyond STO runs the reply into the
+/// master's retry, which goes out at STO: the one collision the access rules cannot
+/// prevent. Every station then receives the overlapping characters garbled (framing
+/// error); the master reports the transaction failed with
+/// [`LinkError::CommunicationError`] once its retries are used up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LateDevice {
+    /// Polling address of the device.
+    pub poll: u8,
+    /// Delay from the request's last character to the reply's first.
+    pub delay: Micros,
+    /// Requests that end at or after this time are answered late...
+    pub from: Micros,
+    /// ...until this time (exclusive); later ones on time again.
+    pub until: Micros,
 }
 
 /// What to simulate.
@@ -147,14 +170,67 @@ pub struct SimReport {
     pub burst_mean_period_s: f64,
     /// True when every BACK carried the other master bit than the one before.
     pub burst_alternates: bool,
+    /// Characters each station received damaged (altered by a collision or bit errors,
+    /// or flagged by its UART), masters first, then devices by polling address.
+    pub damaged_chars: Vec<(Source, u64)>,
+    /// Every transaction counted in `failed`, with the error its master reported.
+    pub failures: Vec<Failure>,
+    /// With [`run_schedule`]: the outcome of every request a master started, in the
+    /// order they ended.
+    pub outcomes: Vec<Outcome>,
     /// Every transmission, when tracing.
     pub trace: Vec<TraceRecord>,
+}
+
+/// A transaction that failed after all retries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Failure {
+    /// When the master gave up.
+    pub t_us: Micros,
+    /// The master.
+    pub master: Source,
+    /// Polling address of the device it addressed.
+    pub device: u8,
+    /// What the master reported.
+    pub error: LinkError,
+}
+
+/// One request of a master's schedule, for [`run_schedule`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScheduledRequest {
+    /// The master starts the transaction at this time, or when its previous one ends
+    /// if that is later.
+    pub at: Micros,
+    /// Polling address of the device (there may be none at that address).
+    pub device: u8,
+    /// Command number (commands 9 and 33 get one slot, device variable 0).
+    pub command: u16,
+    /// A long frame to the unique ID of the device at that address, instead of a short
+    /// frame.
+    pub long_frame: bool,
+}
+
+/// How a scheduled request ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outcome {
+    /// The master.
+    pub master: Source,
+    /// Index of the request in that master's schedule.
+    pub index: usize,
+    /// When the master started the transaction.
+    pub started_us: Micros,
+    /// When the transaction ended.
+    pub ended_us: Micros,
+    /// The reply's response code, or the error the master reported.
+    pub result: Result<u8, LinkError>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Phase {
     Scan(u8),
     Poll(usize),
+    /// The next request of the schedule.
+    Scheduled(usize),
     Done,
 }
 
@@ -167,6 +243,23 @@ struct MasterStation {
     found: Vec<(u8, UniqueId)>,
     completed: u64,
     failed: u64,
+    /// The requests to make, in schedule mode.
+    schedule: Vec<ScheduledRequest>,
+    /// Unique IDs by polling address, for long frames in schedule mode.
+    directory: Vec<(u8, UniqueId)>,
+    /// Device addressed by the transaction in progress, and when it started.
+    current: (u8, Micros),
+}
+
+impl MasterStation {
+    /// When an idle master next has something to start (`None`: never again).
+    fn wake_at(&self, now: Micros) -> Option<Micros> {
+        match self.phase {
+            Phase::Done => None,
+            Phase::Scheduled(k) => self.schedule.get(k).map(|r| r.at.max(now + 1)),
+            Phase::Scan(_) | Phase::Poll(_) => Some(now + 1),
+        }
+    }
 }
 
 struct SlaveStation {
@@ -213,6 +306,13 @@ impl SlaveStation {
         }
     }
 
+    fn set_reply_delay(&mut self, delay: Option<Micros>) {
+        match &mut self.link {
+            SlaveLink::Simple(sd) => sd.0.set_reply_delay(delay),
+            SlaveLink::Full(n) => n.slave.set_reply_delay(delay),
+        }
+    }
+
     fn transmitted(&mut self, now: Micros) {
         match &mut self.link {
             SlaveLink::Simple(sd) => sd.0.transmitted(now),
@@ -245,6 +345,7 @@ struct Station {
     deadline: Option<Micros>,
     dirty: bool,
     bits_to_error: u64,
+    damaged_chars: u64,
 }
 
 /// A transmission as the access rules see it.
@@ -276,9 +377,41 @@ struct Sent {
     kind: FrameKind,
 }
 
-/// Runs a simulation.
+/// Runs a simulation: the masters scan and then poll (see the [crate documentation](crate)).
 pub fn run(config: &SimConfig) -> SimReport {
     Sim::new(config).run()
+}
+
+/// Runs a simulation in which the masters make the requests of `primary` and
+/// `secondary` (in order, one transaction at a time) instead of scanning and polling;
+/// `config.command` is not used. The secondary master is there when `config.secondary`
+/// is set. Every request a master started gets an [`Outcome`] in the report.
+pub fn run_schedule(
+    config: &SimConfig,
+    primary: &[ScheduledRequest],
+    secondary: &[ScheduledRequest],
+) -> SimReport {
+    let mut sim = Sim::new(config);
+    let directory: Vec<(u8, UniqueId)> = sim
+        .stations
+        .iter()
+        .filter_map(|st| match &st.kind {
+            Kind::Slave(s) => Some((s.poll, s.unique_id())),
+            Kind::Master(_) => None,
+        })
+        .collect();
+    for st in &mut sim.stations {
+        if let Kind::Master(ms) = &mut st.kind {
+            ms.schedule = match ms.role {
+                Source::Secondary => secondary.to_vec(),
+                _ => primary.to_vec(),
+            };
+            ms.directory = directory.clone();
+            ms.phase = Phase::Scheduled(0);
+            ms.m.set_policy(RetryPolicy::default());
+        }
+    }
+    sim.run()
 }
 
 struct Sim<'a> {
@@ -335,18 +468,18 @@ impl<'a> Sim<'a> {
                     found: vec![],
                     completed: 0,
                     failed: 0,
+                    schedule: vec![],
+                    directory: vec![],
+                    current: (0, 0),
                 })),
                 deadline: Some(0),
                 dirty: true,
                 bits_to_error: rng.bits_to_next_error(cfg.ber),
+                damaged_chars: 0,
             });
         }
         for poll in 1..=cfg.devices.min(63) {
-            let reply_delay = cfg
-                .faults
-                .slow_device
-                .filter(|(a, _)| *a == poll)
-                .map(|(_, d)| d);
+            let reply_delay = reply_delay(cfg, poll, 0);
             let link = match cfg.device_profile {
                 None => {
                     let dev = SimpleDevice::new(poll);
@@ -398,6 +531,7 @@ impl<'a> Sim<'a> {
                 deadline: Some(0),
                 dirty: true,
                 bits_to_error: rng.bits_to_next_error(cfg.ber),
+                damaged_chars: 0,
             });
         }
         Sim {
@@ -465,10 +599,18 @@ impl<'a> Sim<'a> {
                     &mut self.rng,
                     self.cfg.ber,
                 );
+                if b != byte || flags != UartFlags::OK {
+                    st.damaged_chars += 1;
+                }
                 match &mut st.kind {
                     Kind::Master(m) => m.m.receive(b, flags, now),
                     Kind::Slave(s) => {
                         if !is_silent(self.cfg, s.poll, now) {
+                            if let Some(late) = self.cfg.faults.late_device {
+                                if late.poll == s.poll {
+                                    s.set_reply_delay(reply_delay(self.cfg, s.poll, now));
+                                }
+                            }
                             s.receive(b, flags, now)
                         }
                     }
@@ -581,8 +723,10 @@ impl<'a> Sim<'a> {
             }
             .map(|d| d.max(now + 1));
             if let Kind::Master(m) = &st.kind {
-                if !m.m.is_busy() && m.phase != Phase::Done {
-                    st.deadline = Some(now + 1);
+                if !m.m.is_busy() {
+                    if let Some(wake) = m.wake_at(now) {
+                        st.deadline = Some(st.deadline.map_or(wake, |d| d.min(wake)));
+                    }
                 }
             }
         }
@@ -592,6 +736,8 @@ impl<'a> Sim<'a> {
         let cfg = self.cfg;
         let mut to_send: Option<Vec<u8>> = None;
         let mut replies: Vec<Vec<u8>> = vec![];
+        let mut failures: Vec<Failure> = vec![];
+        let mut outcomes: Vec<Outcome> = vec![];
         match &mut self.stations[i].kind {
             Kind::Master(ms) => {
                 // Outcomes first (they advance the script), then the next request, then
@@ -606,14 +752,40 @@ impl<'a> Sim<'a> {
                                 break 'outer;
                             }
                             MasterOutput::Done(result) => {
-                                let reply = result.ok();
-                                if let Some(r) = &reply {
-                                    ms.completed += 1;
-                                    replies.push(r.as_slice().to_vec());
-                                } else if matches!(ms.phase, Phase::Poll(_)) {
+                                let (device, started_us) = ms.current;
+                                match &result {
+                                    Ok(r) => {
+                                        ms.completed += 1;
+                                        replies.push(r.as_slice().to_vec());
+                                    }
                                     // An empty polling address during the scan is no failure.
-                                    ms.failed += 1;
+                                    Err(_) if matches!(ms.phase, Phase::Scan(_)) => {}
+                                    Err(error) => {
+                                        ms.failed += 1;
+                                        failures.push(Failure {
+                                            t_us: now,
+                                            master: ms.role,
+                                            device,
+                                            error: *error,
+                                        });
+                                    }
                                 }
+                                if let Phase::Scheduled(index) = ms.phase {
+                                    outcomes.push(Outcome {
+                                        master: ms.role,
+                                        index,
+                                        started_us,
+                                        ended_us: now,
+                                        result: match &result {
+                                            Ok(r) => Ok(Frame::parse_pdu(r.as_slice())
+                                                .ok()
+                                                .and_then(|f| f.response_code)
+                                                .unwrap_or(0)),
+                                            Err(e) => Err(*e),
+                                        },
+                                    });
+                                }
+                                let reply = result.ok();
                                 request_done(ms, reply.as_ref().map(|r| r.as_slice()), now);
                             }
                             MasterOutput::Burst(_) => {}
@@ -642,6 +814,8 @@ impl<'a> Sim<'a> {
                 self.report.wrong_data += 1;
             }
         }
+        self.report.failures.extend(failures);
+        self.report.outcomes.extend(outcomes);
         if let Some(bytes) = to_send {
             self.start_tx(i, &bytes, now);
         }
@@ -669,6 +843,11 @@ impl<'a> Sim<'a> {
         let mut r = std::mem::take(&mut self.report);
         r.virtual_seconds = end as f64 / 1e6;
         for st in &self.stations {
+            let src = match &st.kind {
+                Kind::Master(m) => m.role,
+                Kind::Slave(s) => Source::Device(s.poll),
+            };
+            r.damaged_chars.push((src, st.damaged_chars));
             if let Kind::Master(m) = &st.kind {
                 match m.role {
                     Source::Secondary => r.transactions_secondary = m.completed,
@@ -735,6 +914,18 @@ fn set_carrier(st: &mut Station, on: bool) {
     }
 }
 
+/// The reply delay of the device at `poll` for a request ending at `now` (`None`: HOLD).
+fn reply_delay(cfg: &SimConfig, poll: u8, now: Micros) -> Option<Micros> {
+    match cfg.faults.late_device {
+        Some(l) if l.poll == poll && (l.from..l.until).contains(&now) => Some(l.delay),
+        _ => cfg
+            .faults
+            .slow_device
+            .filter(|(a, _)| *a == poll)
+            .map(|(_, d)| d),
+    }
+}
+
 fn is_silent(cfg: &SimConfig, poll: u8, now: Micros) -> bool {
     cfg.faults
         .silent_device
@@ -754,19 +945,41 @@ fn next_request(ms: &mut MasterStation, now: Micros) {
                 };
             }
             Phase::Scan(addr) => {
+                ms.current = (addr, now);
                 let _ =
                     ms.m.request(&FrameSpec::request(Address::short(addr), 0, &[]), now);
                 return;
             }
             Phase::Poll(k) => {
-                let (_, id) = ms.found[k % ms.found.len()];
-                let data: &[u8] = if ms.command == 9 || ms.command == 33 {
-                    &[0]
-                } else {
-                    &[]
-                };
+                let (poll, id) = ms.found[k % ms.found.len()];
+                ms.current = (poll, now);
                 let _ = ms.m.request(
-                    &FrameSpec::request(Address::long(id), ms.command, data),
+                    &FrameSpec::request(Address::long(id), ms.command, request_data(ms.command)),
+                    now,
+                );
+                return;
+            }
+            Phase::Scheduled(k) => {
+                let Some(r) = ms.schedule.get(k).copied() else {
+                    ms.phase = Phase::Done;
+                    return;
+                };
+                if now < r.at {
+                    return;
+                }
+                let address = if r.long_frame {
+                    let id = ms
+                        .directory
+                        .iter()
+                        .find(|(p, _)| *p == r.device)
+                        .map_or_else(|| SimpleDevice::new(r.device).unique_id(), |(_, id)| *id);
+                    Address::long(id)
+                } else {
+                    Address::short(r.device)
+                };
+                ms.current = (r.device, now);
+                let _ = ms.m.request(
+                    &FrameSpec::request(address, r.command, request_data(r.command)),
                     now,
                 );
                 return;
@@ -785,7 +998,18 @@ fn request_done(ms: &mut MasterStation, reply: Option<&[u8]>, _now: Micros) {
             ms.phase = Phase::Scan(addr + 1);
         }
         Phase::Poll(k) => ms.phase = Phase::Poll(k + 1),
+        Phase::Scheduled(k) => ms.phase = Phase::Scheduled(k + 1),
         Phase::Done => {}
+    }
+}
+
+/// Request data the simulated devices need: one slot (device variable 0) for commands 9
+/// and 33.
+fn request_data(command: u16) -> &'static [u8] {
+    if command == 9 || command == 33 {
+        &[0]
+    } else {
+        &[]
     }
 }
 
