@@ -230,7 +230,7 @@ async fn memory_backend(
     bursts: broadcast::Sender<Vec<u8>>,
 ) {
     use hart_link::slave::Handler;
-    use hart_proto::frame::{Address, LongAddress};
+    use hart_proto::frame::Address;
     let start = Instant::now();
     let now = || start.elapsed().as_micros() as u64;
     {
@@ -269,17 +269,12 @@ async fn memory_backend(
                     }
                 })?;
                 let (code, status, data) = d.handle(&f, t)?;
-                let spec = FrameSpec {
-                    preambles: 0,
+                Some(pdu(&FrameSpec {
                     frame_type: FrameType::Ack,
                     extended: f.extended,
                     status: Some((code, status)),
                     ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
-                };
-                let mut out = vec![0u8; spec.encoded_len()];
-                let n = spec.encode(&mut out).ok()?;
-                out.truncate(n);
-                Some(out)
+                }))
             });
             let _ = r.reply.send(reply);
         }
@@ -289,26 +284,12 @@ async fn memory_backend(
                 let mut reply = hart_link::slave::Reply::default();
                 let command = d.burst(&mut reply, t);
                 let id = d.unique_id();
-                let spec = FrameSpec {
-                    preambles: 0,
+                let _ = bursts.send(pdu(&FrameSpec {
                     frame_type: FrameType::Back,
                     status: Some((reply.response_code, reply.device_status)),
                     extended: command > 255,
-                    ..FrameSpec::request(
-                        Address::Long(LongAddress {
-                            master: hart_proto::MasterKind::Primary,
-                            burst: true,
-                            id,
-                        }),
-                        command,
-                        reply.data(),
-                    )
-                };
-                let mut out = vec![0u8; spec.encoded_len()];
-                if let Ok(n) = spec.encode(&mut out) {
-                    out.truncate(n);
-                    let _ = bursts.send(out);
-                }
+                    ..FrameSpec::request(Address::long(id).with_burst(true), command, reply.data())
+                }));
             }
         }
     }
@@ -433,19 +414,10 @@ fn message(ty: MessageType, id: MessageId, st: u8, seq: u16, body: &[u8]) -> Vec
     out
 }
 
-/// A status-only reply to a request, built by the server itself (read-only mode).
-fn local_reply(f: &Frame<'_>, rc: u8) -> Vec<u8> {
-    let spec = FrameSpec {
-        preambles: 0,
-        frame_type: FrameType::Ack,
-        extended: f.extended,
-        status: Some((rc, 0)),
-        ..FrameSpec::request(f.address, f.command, &[])
-    };
-    let mut out = vec![0u8; spec.encoded_len()];
-    let n = spec.encode(&mut out).unwrap_or(0);
-    out.truncate(n);
-    out
+/// The PDU of `spec` (no preambles, as HART-IP carries it); empty if it cannot be
+/// encoded.
+fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
+    hart_proto::frame::FrameBuf::encode(spec).map_or_else(|_| vec![], |b| b.as_slice().to_vec())
 }
 
 /// The gateway's own reply to a request frame: response code `code` and `data` (left
@@ -457,17 +429,12 @@ fn local_frame(f: &Frame<'_>, code: u8, data: &[u8]) -> Vec<u8> {
         } else {
             data
         };
-    let spec = FrameSpec {
-        preambles: 0,
+    pdu(&FrameSpec {
         frame_type: FrameType::Ack,
         extended: f.extended,
         status: Some((code, 0)),
         ..FrameSpec::request(f.address, f.command, data)
-    };
-    let mut out = vec![0u8; spec.encoded_len()];
-    let n = spec.encode(&mut out).unwrap_or(0);
-    out.truncate(n);
-    out
+    })
 }
 
 /// What to do with one received message of a session.
@@ -529,11 +496,10 @@ fn subscribed(subs: &Subscriptions, pdu: &[u8]) -> bool {
         return false;
     };
     let id = match f.address {
-        hart_proto::frame::Address::Long(a) => a.id.to_bytes(),
-        hart_proto::frame::Address::Short(_) => [0xFF; 5],
+        hart_proto::frame::Address::Long(a) => Some(a.id.to_bytes()),
+        hart_proto::frame::Address::Short(_) => None,
     };
-    list.iter()
-        .any(|(t, _)| *t == [0; 5] || (t[0] & 0x3F, &t[1..]) == (id[0] & 0x3F, &id[1..]))
+    list.iter().any(|(t, _)| *t == [0; 5] || Some(*t) == id)
 }
 
 /// Commands 532 (read client subscription summary) and 533 (write client subscription
@@ -563,7 +529,7 @@ async fn subscription_command(
     let broadcast_in_place = list.iter().any(|(t, _)| *t == [0; 5]);
     if command == 532 {
         if broadcast_in_place && !all {
-            return (UNKNOWN_OR_NOT_ALLOWED.0, vec![]);
+            return (INDIVIDUAL_SUBSCRIPTION_NOT_ALLOWED, vec![]);
         }
         return match list.iter().find(|(t, _)| same(t) || *t == [0; 5]) {
             Some((t, flags)) => {
@@ -571,7 +537,7 @@ async fn subscription_command(
                 d.extend(flags.to_be_bytes());
                 (rc::SUCCESS, d)
             }
-            None => (UNKNOWN_OR_NOT_ALLOWED.1, vec![]),
+            None => (UNKNOWN_UNIQUE_ID, vec![]),
         };
     }
     let flags = u16::from_be_bytes([data[5], data[6]]);
@@ -582,14 +548,17 @@ async fn subscription_command(
         }
     } else {
         if broadcast_in_place {
-            return (UNKNOWN_OR_NOT_ALLOWED.0, vec![]);
+            return (INDIVIDUAL_SUBSCRIPTION_NOT_ALLOWED, vec![]);
         }
-        let known = shared.mux.subs.lock().await.iter().any(|s| {
-            s.info.unique_id().to_bytes()[0] & 0x3F == target[0]
-                && s.info.unique_id().to_bytes()[1..] == target[1..]
-        });
+        let known = shared
+            .mux
+            .subs
+            .lock()
+            .await
+            .iter()
+            .any(|s| same(&s.info.unique_id().to_bytes()));
         if !known && !list.iter().any(|(t, _)| same(t)) {
-            return (UNKNOWN_OR_NOT_ALLOWED.1, vec![]);
+            return (UNKNOWN_UNIQUE_ID, vec![]);
         }
         list.retain(|(t, _)| !same(t));
         if flags != 0 {
@@ -601,9 +570,10 @@ async fn subscription_command(
     (rc::SUCCESS, d)
 }
 
-/// Response codes of commands 532/533: individual subscription not allowed (9), unknown
-/// unique ID (65).
-const UNKNOWN_OR_NOT_ALLOWED: (u8, u8) = (9, 65);
+/// Response code of commands 532/533: a subscription to every device is in place.
+const INDIVIDUAL_SUBSCRIPTION_NOT_ALLOWED: u8 = 9;
+/// Response code of commands 532/533: no such sub-device, or no subscription to read.
+const UNKNOWN_UNIQUE_ID: u8 = 65;
 
 /// Session state shared by UDP and TCP.
 struct Session {
@@ -800,7 +770,7 @@ async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Act
             {
                 return Action::Reply(reply(
                     status::SUCCESS,
-                    &local_reply(&f, hart_proto::tables::rc::ACCESS_RESTRICTED),
+                    &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, &[]),
                 ));
             }
             if matches!(f.command, 532 | 533) {

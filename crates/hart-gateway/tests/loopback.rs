@@ -410,24 +410,11 @@ impl RawSession {
     /// Command `cmd` (extended through command 31 when above 255) to the broadcast long
     /// address: the response code and data of the reply.
     async fn command(&mut self, cmd: u16, data: &[u8]) -> (u8, Vec<u8>) {
-        use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress, UniqueId};
-        let spec = FrameSpec {
-            preambles: 0,
-            ..FrameSpec::request(
-                Address::Long(LongAddress {
-                    master: hart_proto::MasterKind::Primary,
-                    burst: false,
-                    id: UniqueId::from_bytes([0; 5]),
-                }),
-                cmd,
-                data,
-            )
-        };
-        let mut pdu = vec![0u8; spec.encoded_len()];
-        let n = spec.encode(&mut pdu).unwrap();
-        pdu.truncate(n);
+        use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, UniqueId};
+        let broadcast = Address::long(UniqueId::from_bytes([0; 5]));
+        let pdu = FrameBuf::encode(&FrameSpec::request(broadcast, cmd, data)).unwrap();
         let (_, body) = self
-            .request(hart_ip::MessageId::TokenPassingPdu, &pdu)
+            .request(hart_ip::MessageId::TokenPassingPdu, pdu.as_slice())
             .await;
         let f = Frame::parse_pdu(&body).unwrap();
         assert_eq!(f.command, cmd);
@@ -522,7 +509,7 @@ fn publish_subscriptions_with_commands_532_and_533() {
 #[test]
 fn requests_to_different_loops_run_side_by_side() {
     use hart_host::hartip::HartIpSession;
-    use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress};
+    use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec};
     use std::sync::Arc;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -562,22 +549,10 @@ fn requests_to_different_loops_run_side_by_side() {
                 .unwrap(),
         );
         let frame = |id: hart_proto::frame::UniqueId, cmd: u16, data: &[u8]| {
-            let spec = FrameSpec {
-                preambles: 0,
-                ..FrameSpec::request(
-                    Address::Long(LongAddress {
-                        master: hart_proto::MasterKind::Primary,
-                        burst: false,
-                        id,
-                    }),
-                    cmd,
-                    data,
-                )
-            };
-            let mut pdu = vec![0u8; spec.encoded_len()];
-            let n = spec.encode(&mut pdu).unwrap();
-            pdu.truncate(n);
-            pdu
+            FrameBuf::encode(&FrameSpec::request(Address::long(id), cmd, data))
+                .unwrap()
+                .as_slice()
+                .to_vec()
         };
         // Wait until the start-up scan has found both devices (command 84 to the
         // gateway itself names sub-device 1).

@@ -71,6 +71,28 @@ async fn open_socket(addr: &str, tcp: bool) -> io::Result<(Socket, SocketAddr)> 
     Ok((socket, peer))
 }
 
+/// What a session initiate response means: the inactivity timer the server granted (at
+/// least 1 s), if it said, or the refusal, named. `again`: the session may still be
+/// open at the server, which some servers answer with "access restricted" (16).
+fn initiate_outcome(server: &str, st: u8, body: &[u8], again: bool) -> io::Result<Option<u32>> {
+    match st {
+        status::SUCCESS
+        | status::SET_TO_NEAREST
+        | status::VERSION_NOT_SUPPORTED
+        | status::INSECURE_SESSION_EXISTS => Ok(
+            match Body::parse(MessageId::SessionInitiate, MessageType::Response, body) {
+                Ok(Body::SessionInitiate(s)) => Some(s.inactivity_timer_ms.max(1000)),
+                _ => None,
+            },
+        ),
+        status::ACCESS_RESTRICTED if again => Ok(None),
+        code => Err(proto_err(format!(
+            "{server} refused the session: {} ({code})",
+            status::name(code)
+        ))),
+    }
+}
+
 impl HartIpTransport {
     /// Connects and initiates a session (primary master, `timer_ms` inactivity timer).
     pub async fn connect(addr: &str, tcp: bool, timer_ms: u32) -> io::Result<Self> {
@@ -112,25 +134,11 @@ impl HartIpTransport {
                 ));
             };
             if header.message_id == MessageId::SessionInitiate && header.sequence == seq {
-                return match header.status {
-                    status::SUCCESS
-                    | status::SET_TO_NEAREST
-                    | status::VERSION_NOT_SUPPORTED
-                    | status::INSECURE_SESSION_EXISTS => {
-                        if let Ok(Body::SessionInitiate(s)) =
-                            Body::parse(header.message_id, header.message_type, &body)
-                        {
-                            self.timer_ms = s.inactivity_timer_ms.max(1000);
-                        }
-                        Ok(())
-                    }
-                    status::ACCESS_RESTRICTED if again => Ok(()),
-                    code => Err(proto_err(format!(
-                        "HART-IP server {} refused the session: {} ({code})",
-                        self.peer,
-                        status::name(code)
-                    ))),
-                };
+                let server = format!("HART-IP server {}", self.peer);
+                if let Some(timer) = initiate_outcome(&server, header.status, &body, again)? {
+                    self.timer_ms = timer;
+                }
+                return Ok(());
             }
         }
     }
@@ -226,26 +234,14 @@ impl HartIpTransport {
     /// that publish only to subscribers need it; others answer "not implemented", which
     /// is fine. Returns the response code, or `None` without an answer in 2 s.
     pub async fn subscribe_all(&mut self) -> io::Result<Option<u8>> {
-        use hart_proto::frame::{Address, Frame, FrameSpec, LongAddress, UniqueId};
+        use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, UniqueId};
         let data = [0, 0, 0, 0, 0, 0x00, 0x01];
-        let spec = FrameSpec {
-            preambles: 0,
-            ..FrameSpec::request(
-                Address::Long(LongAddress {
-                    master: hart_proto::MasterKind::Primary,
-                    burst: false,
-                    id: UniqueId::from_bytes([0; 5]),
-                }),
-                533,
-                &data,
-            )
-        };
-        let mut pdu = vec![0u8; spec.encoded_len()];
-        let n = spec
-            .encode(&mut pdu)
+        let broadcast = Address::long(UniqueId::from_bytes([0; 5]));
+        let pdu = FrameBuf::encode(&FrameSpec::request(broadcast, 533, &data))
             .map_err(|e| proto_err(e.to_string()))?;
-        pdu.truncate(n);
-        let seq = self.send_message(MessageId::TokenPassingPdu, &pdu).await?;
+        let seq = self
+            .send_message(MessageId::TokenPassingPdu, pdu.as_slice())
+            .await?;
         let deadline = Instant::now() + Duration::from_secs(2);
         while let Some((h, body)) = self.read_message(deadline).await? {
             match (h.message_type, h.message_id) {
@@ -548,23 +544,10 @@ impl HartIpSession {
                 ),
                 _ => e,
             })?;
-        match st {
-            status::SUCCESS
-            | status::SET_TO_NEAREST
-            | status::VERSION_NOT_SUPPORTED
-            | status::INSECURE_SESSION_EXISTS => {
-                if let Ok(Body::SessionInitiate(s)) =
-                    Body::parse(MessageId::SessionInitiate, MessageType::Response, &body)
-                {
-                    session.timer_ms = s.inactivity_timer_ms;
-                }
-                Ok(session)
-            }
-            code => Err(proto_err(format!(
-                "{what} refused the session: {} ({code})",
-                status::name(code)
-            ))),
+        if let Some(timer) = initiate_outcome(&what, st, &body, false)? {
+            session.timer_ms = timer;
         }
+        Ok(session)
     }
 
     fn describe(&self) -> String {

@@ -107,6 +107,20 @@ pub const BAUD_RATES: [u32; 10] = [
     300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
 ];
 
+/// The termios speed of each of [`BAUD_RATES`], in the same order.
+const SPEEDS: [libc::speed_t; 10] = [
+    libc::B300,
+    libc::B600,
+    libc::B1200,
+    libc::B2400,
+    libc::B4800,
+    libc::B9600,
+    libc::B19200,
+    libc::B38400,
+    libc::B57600,
+    libc::B115200,
+];
+
 /// Decodes the input of a port configured with `PARMRK` and `INPCK`, without `IGNPAR`
 /// (how [`SerialTransport`] opens a port): the line discipline marks a character
 /// received with a parity or framing error as `0xFF 0x00 X`, and doubles a real
@@ -376,23 +390,15 @@ fn configure(fd: i32, baud: u32) -> io::Result<bool> {
         return Err(os_err("tcgetattr"));
     }
     unsafe { libc::cfmakeraw(&mut t) };
-    let speed = match baud {
-        300 => libc::B300,
-        600 => libc::B600,
-        1200 => libc::B1200,
-        2400 => libc::B2400,
-        4800 => libc::B4800,
-        9600 => libc::B9600,
-        19200 => libc::B19200,
-        38400 => libc::B38400,
-        57600 => libc::B57600,
-        115200 => libc::B115200,
-        _ => {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!("baud rate {baud} not supported ({BAUD_RATES:?})"),
-            ))
-        }
+    let Some(speed) = BAUD_RATES
+        .iter()
+        .zip(SPEEDS)
+        .find_map(|(&b, s)| (b == baud).then_some(s))
+    else {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("baud rate {baud} not supported ({BAUD_RATES:?})"),
+        ));
     };
     unsafe {
         libc::cfsetispeed(&mut t, speed);
