@@ -1,7 +1,33 @@
-//! Streaming Bell 202 demodulator (API placeholder; being written).
+//! Streaming Bell 202 demodulator.
+//!
+//! Samples go in; carrier changes, timestamped characters with parity and framing
+//! flags, and frames (through `hart-proto`'s deframer) come out. The stages:
+//!
+//! 1. **Front end**, per sample: a linear-phase high-pass removes the 4-20 mA analog
+//!    signal and low-frequency interference without delaying one tone more than the
+//!    other (see `LinearHighPass`); the signal is mixed with free-running
+//!    1200 Hz and 2200 Hz oscillators and integrated into running sums, so the
+//!    correlation with either tone over any interval costs two look-ups.
+//! 2. **Carrier detect**, per 1/8 bit: the level of the stronger tone over the last bit,
+//!    in volts peak-to-peak, smoothed over one bit, with hysteresis (on at
+//!    [`DemodConfig::carrier_on_vpp`], off below [`DemodConfig::carrier_off_vpp`]),
+//!    plus a check that one tone dominates, as in FSK and not in noise.
+//! 3. **Clock recovery**: the balance of the two tones' energy over a sliding one-bit
+//!    window crosses zero in the middle of every transition; each crossing pulls a
+//!    second-order loop (phase and bit rate), which holds at ±2 % bit-rate error.
+//! 4. **Detection** with the memory of continuous-phase FSK: per bit, the complex
+//!    correlations with both tones, referred to the start of the bit, feed a Viterbi
+//!    search over the last three bits in which every survivor carries its own
+//!    estimate of the carrier phase, built from its own past decisions (per-survivor
+//!    processing). With a good estimate this is coherent maximum-likelihood sequence
+//!    detection; at the start of a burst, with no estimate yet, it falls back to the
+//!    non-coherent metric by itself.
+//! 5. **Characters** (8O1) are read from the best survivor a few bits behind the
+//!    newest bit; the last character of a frame, known from its byte count, is read
+//!    one bit after its stop bit so frames come out with little latency.
 
-use hart_proto::deframer::UartFlags;
-
+use hart_proto::deframer::{Deframer, DeframerEvent, UartFlags};
+use hart_proto::frame::checksum;
 /// Settings of a [`Demodulator`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemodConfig {
@@ -75,16 +101,352 @@ pub enum DemodEvent<'a> {
     Frame(RxFrame<'a>),
 }
 
-/// The streaming demodulator.
-#[derive(Debug, Clone)]
-pub struct Demodulator {
-    config: DemodConfig,
+/// Length of the sample ring (prefix sums), a power of two covering 6 bits at 192 kHz.
+const RING: usize = 1024;
+/// Survivors: the last `STATE_BITS` bits.
+const STATE_BITS: u32 = 3;
+const STATES: usize = 1 << STATE_BITS;
+/// Bits a character waits for before it is read from the best survivor.
+const DECISION_DELAY: usize = 16;
+/// Characters remembered for frame timestamps.
+const CHAR_RING: usize = 512;
+/// Bit start times remembered.
+const BIT_RING: usize = 128;
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct C64 {
+    re: f64,
+    im: f64,
 }
 
+impl C64 {
+    const ZERO: C64 = C64 { re: 0.0, im: 0.0 };
+    fn new(re: f64, im: f64) -> Self {
+        C64 { re, im }
+    }
+    fn expj(cycles: f64) -> Self {
+        let a = 2.0 * core::f64::consts::PI * cycles;
+        C64::new(libm::cos(a), libm::sin(a))
+    }
+    fn mul(self, o: C64) -> C64 {
+        C64::new(
+            self.re * o.re - self.im * o.im,
+            self.re * o.im + self.im * o.re,
+        )
+    }
+    fn scale(self, k: f64) -> C64 {
+        C64::new(self.re * k, self.im * k)
+    }
+    fn add(self, o: C64) -> C64 {
+        C64::new(self.re + o.re, self.im + o.im)
+    }
+    fn sub(self, o: C64) -> C64 {
+        C64::new(self.re - o.re, self.im - o.im)
+    }
+    fn norm2(self) -> f64 {
+        self.re * self.re + self.im * self.im
+    }
+    fn abs(self) -> f64 {
+        libm::sqrt(self.norm2())
+    }
+}
+
+/// Linear-phase high-pass: the input delayed by the group delay of a cascade of three
+/// moving averages, each about one mark cycle long, minus the cascade's output. The
+/// averages have nulls at 1200 Hz and 2400 Hz and pass only -60 dB at 2200 Hz, so both
+/// tones come through with unit gain and the same delay (no dispersion between mark
+/// and space, which would smear every transition), while DC is removed exactly and
+/// 29 Hz comes out 51 dB down, 63 Hz 37 dB, 125 Hz 25 dB.
+#[derive(Clone)]
+struct LinearHighPass {
+    len: [usize; 3],
+    /// Delay of the cascade, samples.
+    delay: usize,
+    sums: [f64; 3],
+    /// Inputs of each stage (stage 0 holds raw samples, used for the delayed path too).
+    hist: [[f64; HP_RING]; 3],
+    n: usize,
+}
+
+const HP_RING: usize = 1024;
+
+impl LinearHighPass {
+    fn new(fs: f64) -> Self {
+        let m = libm::round(fs / crate::MARK_HZ).max(2.0) as usize;
+        // Odd total delay would need half samples: make the three lengths sum to an
+        // odd number so (L1 + L2 + L3 - 3) is even.
+        let len = if (3 * m) % 2 == 1 {
+            [m, m, m]
+        } else {
+            [m, m + 1, m]
+        };
+        let delay = (len[0] + len[1] + len[2] - 3) / 2;
+        LinearHighPass {
+            len,
+            delay,
+            sums: [0.0; 3],
+            hist: [[0.0; HP_RING]; 3],
+            n: 0,
+        }
+    }
+
+    #[inline]
+    fn run(&mut self, x: f64) -> f64 {
+        let i = self.n & (HP_RING - 1);
+        let mut v = x;
+        for st in 0..3 {
+            let old = self.hist[st][(self.n.wrapping_sub(self.len[st])) & (HP_RING - 1)];
+            self.hist[st][i] = v;
+            self.sums[st] += v - old;
+            v = self.sums[st] / self.len[st] as f64;
+        }
+        let delayed = self.hist[0][(self.n.wrapping_sub(self.delay)) & (HP_RING - 1)];
+        self.n = self.n.wrapping_add(1);
+        if self.n % 65536 == 0 {
+            // Re-add the windows from scratch so rounding cannot accumulate.
+            for st in 0..3 {
+                self.sums[st] = (1..=self.len[st])
+                    .map(|k| self.hist[st][(self.n.wrapping_sub(k)) & (HP_RING - 1)])
+                    .sum();
+            }
+        }
+        delayed - v
+    }
+}
+
+/// A Viterbi survivor.
+#[derive(Debug, Clone, Copy)]
+struct Survivor {
+    metric: f64,
+    /// Carrier phase estimate (complex, decision-directed along this path).
+    r: C64,
+    /// Spaces on this path so far, modulo 6: each space bit turns the phase at the
+    /// next bit start by -60° (2200 Hz over 1/1200 s is 1 5/6 cycles).
+    p: u8,
+    /// Bits of this path, newest in bit 0.
+    hist: u64,
+}
+
+const DEAD: Survivor = Survivor {
+    metric: f64::NEG_INFINITY,
+    r: C64::ZERO,
+    p: 0,
+    hist: 0,
+};
+
+#[derive(Debug, Clone, Copy, Default)]
+struct CharRec {
+    byte: u8,
+    flags: UartFlags,
+    t: f64,
+    level: f64,
+}
+
+/// The streaming demodulator. See the [module documentation](self).
+#[derive(Clone)]
+pub struct Demodulator {
+    config: DemodConfig,
+    fs: f64,
+    /// Nominal samples per bit.
+    spb: f64,
+    /// Samples between carrier-detect and clock-recovery updates (1/8 bit or less).
+    block: u32,
+    hp: LinearHighPass,
+    /// Delay of the front end, samples (subtracted from every timestamp).
+    hp_delay: f64,
+    lo_m: C64,
+    lo_s: C64,
+    rot_m: C64,
+    rot_s: C64,
+    /// Running sums of x·LO for each tone; `pm[i & (RING-1)]` is the sum over samples
+    /// before sample i.
+    pm: [C64; RING],
+    ps: [C64; RING],
+    /// Samples seen.
+    n: u64,
+    block_left: u32,
+    // Carrier detect.
+    level: f64,
+    /// Level averaged over about eight bits: a jump above it is a new burst.
+    slow_level: f64,
+    contrast: f64,
+    carrier: bool,
+    // Clock recovery.
+    /// Start of the next bit window not yet detected, in samples (fractional).
+    next_bit: f64,
+    /// Current bit length estimate, samples.
+    period: f64,
+    side: i8,
+    last_zero: Option<f64>,
+    prev_v: f64,
+    prev_t: f64,
+    /// Line fit of transition times against bit numbers, origin at the newest.
+    fit: TimingFit,
+    // Detection.
+    surv: [Survivor; STATES],
+    /// Bits detected since the carrier came on.
+    k: usize,
+    bit_t: [f64; BIT_RING],
+    // Characters.
+    /// Next bit to examine for a start bit.
+    pos: usize,
+    char_start: Option<usize>,
+    chars: [CharRec; CHAR_RING],
+    char_n: usize,
+    deframer: Deframer,
+}
+
+impl core::fmt::Debug for Demodulator {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Demodulator")
+            .field("config", &self.config)
+            .field("samples", &self.n)
+            .field("carrier", &self.carrier)
+            .field("level_vpp", &self.level)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Clock recovery: each transition's weight decays by this factor per newer
+/// transition (memory of about ten transitions, a few characters).
+const FIT_FORGET: f64 = 0.9;
+/// Strength of the clock recovery's prior on the nominal bit rate, in bits² per
+/// transition of weight.
+const SLOPE_PRIOR: f64 = 50.0;
+/// A level this many times the eight-bit average starts a new burst.
+const RESTART_RATIO: f64 = 2.5;
+
+/// Weighted least-squares line through (bit number, transition time): the slope is
+/// the bit length, the intercept the newest boundary. All transitions weigh alike
+/// however far apart they are, which a loop filter fed with phase errors cannot do
+/// (a preamble has one transition pair per character, data one per bit or two).
+#[derive(Debug, Clone, Copy, Default)]
+struct TimingFit {
+    s0: f64,
+    s1: f64,
+    s2: f64,
+    sz: f64,
+    snz: f64,
+    /// Time of the newest transition (the origin), samples.
+    last: f64,
+    /// Transitions rejected in a row.
+    rejected: u32,
+}
+
+impl TimingFit {
+    /// Adds a transition at `z` samples; returns the fitted newest boundary and bit
+    /// length, or `None` when the transition is rejected as an outlier.
+    fn add(&mut self, z: f64, period: f64, nominal: f64) -> Option<(f64, f64)> {
+        if self.s0 == 0.0 {
+            *self = TimingFit {
+                s0: 1.0,
+                last: z,
+                ..TimingFit::default()
+            };
+            return Some((z, period));
+        }
+        let dz = z - self.last;
+        let dn = libm::round(dz / period);
+        if dn < 1.0 {
+            // Two transitions within one bit: the newer one is noise.
+            return None;
+        }
+        // Residual against the current fit.
+        let pred = self.intercept(period) + dn * period;
+        let resid = (z - self.last) - pred;
+        if self.s0 > 3.0 && libm::fabs(resid) > 0.35 * period {
+            self.rejected += 1;
+            if self.rejected < 3 {
+                return None;
+            }
+            // The fit itself is wrong (it locked onto noise before the signal): start
+            // again from this transition.
+            *self = TimingFit {
+                s0: 1.0,
+                last: z,
+                ..TimingFit::default()
+            };
+            return Some((z, nominal));
+        }
+        self.rejected = 0;
+        // Move the origin to this transition: n -> n - dn, z -> z - dz.
+        let (s0, s1, sz) = (self.s0, self.s1, self.sz);
+        self.snz = self.snz - dn * sz - dz * s1 + dn * dz * s0;
+        self.s2 = self.s2 - 2.0 * dn * s1 + dn * dn * s0;
+        self.s1 = s1 - dn * s0;
+        self.sz = sz - dz * s0;
+        self.last = z;
+        // Forget, then add the point (0, 0).
+        self.s0 = self.s0 * FIT_FORGET + 1.0;
+        self.s1 *= FIT_FORGET;
+        self.s2 *= FIT_FORGET;
+        self.sz *= FIT_FORGET;
+        self.snz *= FIT_FORGET;
+        // The slope is pulled towards the nominal bit length by a prior worth a few
+        // transitions spread over several bits, so two transitions one bit apart
+        // (each a few percent of a bit off) cannot swing it by percents.
+        let det = self.s0 * self.s2 - self.s1 * self.s1;
+        let slope = ((self.s0 * self.snz - self.s1 * self.sz + SLOPE_PRIOR * self.s0 * nominal)
+            / (det + SLOPE_PRIOR * self.s0))
+            .clamp(nominal * 0.96, nominal * 1.04);
+        Some((z + self.intercept(slope), slope))
+    }
+
+    /// Fitted time of bit 0 (the newest transition) relative to `last`.
+    fn intercept(&self, slope: f64) -> f64 {
+        (self.sz - slope * self.s1) / self.s0
+    }
+}
+/// Forgetting factor of the per-survivor phase estimate (memory about 1/(1-λ) bits).
+const LAMBDA: f64 = 0.5;
+/// Tone dominance (|E_m - E_s| / (E_m + E_s), smoothed) needed to switch the carrier on.
+const CONTRAST_ON: f64 = 0.6;
+/// Hysteresis of the transition detector on the tone balance.
+const HYST: f64 = 0.7;
+
 impl Demodulator {
-    /// A demodulator with the given settings.
+    /// A demodulator with the given settings. Sample rates outside 8000..=192000 are
+    /// clamped into that range (the caller should reject them first).
     pub fn new(config: DemodConfig) -> Self {
-        Demodulator { config }
+        let fs = f64::from(config.sample_rate.clamp(8000, 192_000));
+        let spb = fs / crate::BIT_RATE;
+        let hp = LinearHighPass::new(fs);
+        let block = ((fs / 9600.0) as u32).max(1);
+        Demodulator {
+            config,
+            fs,
+            spb,
+            block,
+            hp_delay: hp.delay as f64,
+            hp,
+            lo_m: C64::new(1.0, 0.0),
+            lo_s: C64::new(1.0, 0.0),
+            rot_m: C64::expj(-crate::MARK_HZ / fs),
+            rot_s: C64::expj(-crate::SPACE_HZ / fs),
+            pm: [C64::ZERO; RING],
+            ps: [C64::ZERO; RING],
+            n: 0,
+            block_left: block,
+            level: 0.0,
+            slow_level: 0.0,
+            contrast: 0.0,
+            carrier: false,
+            next_bit: 0.0,
+            period: spb,
+            side: 0,
+            last_zero: None,
+            prev_v: 0.0,
+            prev_t: 0.0,
+            fit: TimingFit::default(),
+            surv: [DEAD; STATES],
+            k: 0,
+            bit_t: [0.0; BIT_RING],
+            pos: 0,
+            char_start: None,
+            chars: [CharRec::default(); CHAR_RING],
+            char_n: 0,
+            deframer: Deframer::default(),
+        }
     }
 
     /// The settings.
@@ -92,14 +454,483 @@ impl Demodulator {
         &self.config
     }
 
+    /// True while the carrier is detected.
+    pub fn carrier(&self) -> bool {
+        self.carrier
+    }
+
+    /// The current level estimate, volts peak-to-peak.
+    pub fn level_vpp(&self) -> f64 {
+        self.level
+    }
+
+    /// Estimated bit rate error of the signal being received (+0.01 = 1 % fast).
+    pub fn rate_error(&self) -> f64 {
+        self.spb / self.period - 1.0
+    }
+
     /// Feeds samples; events are reported as they are found.
     pub fn push(&mut self, samples: &[f32], mut on_event: impl FnMut(DemodEvent<'_>)) {
-        let _ = (samples, &mut on_event);
+        let vpu = self.config.volts_per_unit;
+        for &x in samples {
+            let x = f64::from(x) * vpu;
+            // Untrusted input: NaN and infinities become silence.
+            let x = if x.is_finite() { x } else { 0.0 };
+            let y = self.hp.run(x);
+            let i = (self.n as usize) & (RING - 1);
+            let j = (self.n as usize + 1) & (RING - 1);
+            self.pm[j] = self.pm[i].add(self.lo_m.scale(y));
+            self.ps[j] = self.ps[i].add(self.lo_s.scale(y));
+            self.n += 1;
+            self.lo_m = self.lo_m.mul(self.rot_m);
+            self.lo_s = self.lo_s.mul(self.rot_s);
+            if self.n % 4096 == 0 {
+                // Re-derive the oscillators from the sample count so rounding cannot
+                // accumulate.
+                self.lo_m = lo_at(crate::MARK_HZ as u64, self.n, self.config.sample_rate);
+                self.lo_s = lo_at(crate::SPACE_HZ as u64, self.n, self.config.sample_rate);
+                self.rebase();
+            }
+            self.block_left -= 1;
+            if self.block_left == 0 {
+                self.block_left = self.block;
+                self.on_block(&mut on_event);
+            }
+            if self.carrier {
+                while self.n as f64 >= self.next_bit + self.period + 1.0 {
+                    self.detect_bit(&mut on_event);
+                }
+            }
+        }
     }
 
     /// Ends the input: anything still being received is decided and reported.
     pub fn finish(&mut self, mut on_event: impl FnMut(DemodEvent<'_>)) {
-        let _ = &mut on_event;
+        if self.carrier {
+            self.carrier_off(&mut on_event);
+        }
+    }
+
+    /// Keeps the running sums small: subtract the newest value from the whole ring
+    /// (differences are unchanged).
+    fn rebase(&mut self) {
+        let i = (self.n as usize) & (RING - 1);
+        let (bm, bs) = (self.pm[i], self.ps[i]);
+        for v in self.pm.iter_mut() {
+            *v = v.sub(bm);
+        }
+        for v in self.ps.iter_mut() {
+            *v = v.sub(bs);
+        }
+    }
+
+    /// Running sum at a fractional sample position (linear between samples). The
+    /// position must lie within the ring.
+    fn prefix(ring: &[C64; RING], t: f64) -> C64 {
+        let i = libm::floor(t);
+        let f = t - i;
+        let i = i as usize;
+        let a = ring[i & (RING - 1)];
+        let b = ring[(i + 1) & (RING - 1)];
+        a.add(b.sub(a).scale(f))
+    }
+
+    /// Correlations with both tones over [a, b) (samples), global oscillator phase.
+    fn corr(&self, a: f64, b: f64) -> (C64, C64) {
+        (
+            Self::prefix(&self.pm, b).sub(Self::prefix(&self.pm, a)),
+            Self::prefix(&self.ps, b).sub(Self::prefix(&self.ps, a)),
+        )
+    }
+
+    fn t_of(&self, samples: f64) -> f64 {
+        (samples - self.hp_delay).max(0.0) / self.fs
+    }
+
+    fn on_block(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        let now = self.n as f64;
+        if now < self.spb + 2.0 {
+            return;
+        }
+        let (cm, cs) = self.corr(now - self.spb, now);
+        let (em, es) = (cm.norm2(), cs.norm2());
+        // Volts peak-to-peak of the stronger tone: a tone of peak A correlates to
+        // A/2 per sample.
+        let vpp = 4.0 * libm::sqrt(em.max(es)) / self.spb;
+        let v = if em + es > 0.0 {
+            (em - es) / (em + es)
+        } else {
+            0.0
+        };
+        let alpha = f64::from(self.block) / self.spb;
+        self.level += alpha * (vpp - self.level);
+        self.contrast += alpha * (libm::fabs(v) - self.contrast);
+        if !self.carrier {
+            if self.level >= self.config.carrier_on_vpp && self.contrast >= CONTRAST_ON {
+                self.carrier_on(now, on_event);
+            }
+        } else if self.level < self.config.carrier_off_vpp {
+            self.carrier_off(on_event);
+            return;
+        } else if self.level > RESTART_RATIO * self.slow_level {
+            // A burst starting while the carrier detect was already on (noise, or
+            // another transmitter right after): the clock and the phase references
+            // belong to what came before, so start afresh.
+            self.carrier_off(on_event);
+            self.carrier_on(now, on_event);
+        }
+        self.slow_level += alpha / 8.0 * (self.level - self.slow_level);
+        if self.carrier {
+            self.track_transition(v, now - self.spb / 2.0);
+        }
+        self.prev_v = v;
+        self.prev_t = now - self.spb / 2.0;
+    }
+
+    /// Clock recovery: `v` is the tone balance of the one-bit window centred at `t`.
+    fn track_transition(&mut self, v: f64, t: f64) {
+        if (v >= 0.0) != (self.prev_v >= 0.0) {
+            let d = self.prev_v - v;
+            let f = if d != 0.0 { self.prev_v / d } else { 0.5 };
+            self.last_zero = Some(self.prev_t + f * (t - self.prev_t));
+        }
+        let new_side = if v > HYST {
+            1
+        } else if v < -HYST {
+            -1
+        } else {
+            self.side
+        };
+        if new_side != self.side {
+            let was = self.side;
+            self.side = new_side;
+            if was != 0 {
+                if let Some(z) = self.last_zero.take() {
+                    self.on_transition(z);
+                }
+            }
+        }
+    }
+
+    fn on_transition(&mut self, z: f64) {
+        let r = self.fit.add(z, self.period, self.spb);
+        let Some((origin, period)) = r else {
+            return;
+        };
+        self.period = period;
+        // Move the next window onto the fitted grid of bit boundaries.
+        let target = origin + libm::round((self.next_bit - origin) / period) * period;
+        let shift = target - self.next_bit;
+        self.next_bit = target;
+        // The next bit window starts `shift` samples later, where the carrier phase
+        // has moved on by the survivor's own current tone.
+        let dm = C64::expj(crate::MARK_HZ * shift / self.fs);
+        let ds = C64::expj(crate::SPACE_HZ * shift / self.fs);
+        for s in self.surv.iter_mut() {
+            s.r = s.r.mul(if s.hist & 1 == 1 { dm } else { ds });
+        }
+    }
+
+    fn carrier_on(&mut self, now: f64, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        self.carrier = true;
+        self.slow_level = self.level;
+        self.fit = TimingFit::default();
+        self.side = 0;
+        self.last_zero = None;
+        self.period = self.spb;
+        // Start detecting from two bits back (within the ring) so little is lost.
+        self.next_bit = (now - 2.0 * self.spb).max(0.0);
+        self.surv = [DEAD; STATES];
+        self.surv[STATES - 1] = Survivor {
+            metric: 0.0,
+            r: C64::ZERO,
+            p: 0,
+            hist: u64::MAX,
+        };
+        self.k = 0;
+        self.pos = 0;
+        self.char_start = None;
+        on_event(DemodEvent::Carrier {
+            on: true,
+            t: self.t_of(now),
+            level_vpp: self.level,
+        });
+    }
+
+    fn carrier_off(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        // Decide everything still pending from the best path.
+        self.run_uart(0, on_event);
+        let mut forward = |ev: DeframerEvent<'_>, this: &FrameCtx<'_>| this.forward(ev, on_event);
+        let ctx = FrameCtx {
+            chars: &self.chars,
+            char_n: self.char_n,
+        };
+        self.deframer.abort(&mut |ev| forward(ev, &ctx));
+        self.carrier = false;
+        on_event(DemodEvent::Carrier {
+            on: false,
+            t: self.t_of(self.n as f64),
+            level_vpp: self.level,
+        });
+    }
+
+    fn detect_bit(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        let a = self.next_bit;
+        let b = a + self.period;
+        let (cm, cs) = self.corr(a, b);
+        // Refer both correlations to the start of the bit: C' = C·e^{+j2πf·a/fs}.
+        let norm = 2.0 / self.period;
+        let ym = cm
+            .mul(lo_frac(crate::MARK_HZ as u64, a, self.config.sample_rate))
+            .scale(norm);
+        let ys = cs
+            .mul(lo_frac(crate::SPACE_HZ as u64, a, self.config.sample_rate))
+            .scale(norm);
+        self.viterbi(ym, ys);
+        self.bit_t[self.k % BIT_RING] = a;
+        self.k += 1;
+        self.next_bit = b;
+        let delay = if self.deframer.remaining() == Some(1) {
+            1
+        } else {
+            DECISION_DELAY
+        };
+        self.run_uart(delay, on_event);
+    }
+
+    fn viterbi(&mut self, ym: C64, ys: C64) {
+        let mut next = [DEAD; STATES];
+        for (ns, slot) in next.iter_mut().enumerate() {
+            let bit = ns & 1 == 1;
+            let y0 = if bit { ym } else { ys };
+            for old in [0usize, 1] {
+                let ps = (ns >> 1) | (old << (STATE_BITS - 1));
+                let s = &self.surv[ps];
+                if s.metric == f64::NEG_INFINITY {
+                    continue;
+                }
+                let y = y0.mul(ROT60[usize::from(s.p)]);
+                let rr = s.r.scale(LAMBDA).add(y);
+                let m = s.metric + rr.abs() - LAMBDA * s.r.abs();
+                if m > slot.metric {
+                    *slot = Survivor {
+                        metric: m,
+                        r: rr,
+                        p: if bit { s.p } else { (s.p + 1) % 6 },
+                        hist: s.hist << 1 | u64::from(bit),
+                    };
+                }
+            }
+        }
+        // Keep metrics small.
+        let best = next
+            .iter()
+            .map(|s| s.metric)
+            .fold(f64::NEG_INFINITY, f64::max);
+        for s in next.iter_mut() {
+            s.metric -= best;
+        }
+        self.surv = next;
+    }
+
+    fn best(&self) -> &Survivor {
+        let mut b = &self.surv[0];
+        for s in &self.surv[1..] {
+            if s.metric > b.metric {
+                b = s;
+            }
+        }
+        b
+    }
+
+    /// Bit `idx` (counted since the carrier came on) on the best path.
+    fn bit_at(&self, idx: usize) -> bool {
+        let age = self.k - 1 - idx;
+        age >= 64 || self.best().hist >> age & 1 == 1
+    }
+
+    /// True when the best path holds a 0xFF character (0 then ten 1s) from bit `p`.
+    fn is_preamble_at(&self, p: usize) -> bool {
+        p + crate::BITS_PER_CHAR <= self.k
+            && !self.bit_at(p)
+            && (p + 1..p + crate::BITS_PER_CHAR).all(|i| self.bit_at(i))
+    }
+
+    /// Reads characters from the best path, deciding bits `delay` bits behind the newest.
+    fn run_uart(&mut self, delay: usize, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        loop {
+            if let Some(s) = self.char_start {
+                let delay = if self.deframer.remaining() == Some(1) {
+                    delay.min(1)
+                } else {
+                    delay
+                };
+                if self.k < s + crate::BITS_PER_CHAR + delay || self.k < s + crate::BITS_PER_CHAR {
+                    if delay == 0 && self.k > s {
+                        // Carrier lost inside a character: it is cut off.
+                        self.char_start = None;
+                        self.pos = self.k;
+                    }
+                    return;
+                }
+                if !self.deframer.in_frame() {
+                    // Between frames, noise (or the tail of a cut-off frame) can leave the
+                    // character framing off by a few bits, and back-to-back characters
+                    // would keep it off. A preamble character, 0xFF, is the only place
+                    // where a 0 is followed by ten 1s: re-align on it.
+                    let decided = self.k.saturating_sub(delay);
+                    let from = s
+                        .saturating_sub(crate::BITS_PER_CHAR - 1)
+                        .max(self.k.saturating_sub(60));
+                    let to = decided.saturating_sub(crate::BITS_PER_CHAR - 1);
+                    if !self.is_preamble_at(s) {
+                        if let Some(p) = (from..to).find(|&p| p != s && self.is_preamble_at(p)) {
+                            self.char_start = Some(p);
+                            continue;
+                        }
+                    }
+                }
+                let mut byte = 0u8;
+                for i in 0..8 {
+                    byte |= u8::from(self.bit_at(s + 1 + i)) << i;
+                }
+                let parity = self.bit_at(s + 9);
+                let stop = self.bit_at(s + 10);
+                let flags = UartFlags {
+                    parity: (byte.count_ones() + u32::from(parity)) % 2 == 0,
+                    framing: !stop,
+                    overrun: false,
+                };
+                let t = self.t_of(self.bit_t[s % BIT_RING]);
+                self.char_start = None;
+                self.pos = s + crate::BITS_PER_CHAR;
+                self.push_char(
+                    CharRec {
+                        byte,
+                        flags,
+                        t,
+                        level: self.level,
+                    },
+                    on_event,
+                );
+            } else {
+                if self.k < self.pos + 1 + delay || self.pos >= self.k {
+                    return;
+                }
+                if self.bit_at(self.pos) {
+                    self.pos += 1;
+                } else {
+                    self.char_start = Some(self.pos);
+                }
+            }
+        }
+    }
+
+    fn push_char(&mut self, c: CharRec, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        on_event(DemodEvent::Char(RxChar {
+            byte: c.byte,
+            flags: c.flags,
+            t: c.t,
+        }));
+        self.chars[self.char_n % CHAR_RING] = c;
+        self.char_n += 1;
+        let ctx = FrameCtx {
+            chars: &self.chars,
+            char_n: self.char_n,
+        };
+        self.deframer
+            .push(c.byte, c.flags, &mut |ev| ctx.forward(ev, on_event));
+    }
+}
+
+/// e^{+j60°·p}: undoes the phase turn of `p` space bits.
+const ROT60: [C64; 6] = [
+    C64 { re: 1.0, im: 0.0 },
+    C64 {
+        re: 0.5,
+        im: 0.866_025_403_784_438_6,
+    },
+    C64 {
+        re: -0.5,
+        im: 0.866_025_403_784_438_6,
+    },
+    C64 { re: -1.0, im: 0.0 },
+    C64 {
+        re: -0.5,
+        im: -0.866_025_403_784_438_6,
+    },
+    C64 {
+        re: 0.5,
+        im: -0.866_025_403_784_438_6,
+    },
+];
+
+/// The oscillator e^{-j2πf·n/fs} at integer sample `n`, exactly.
+fn lo_at(f: u64, n: u64, fs: u32) -> C64 {
+    let fs = u64::from(fs.clamp(8000, 192_000));
+    let r = (f % fs) * (n % fs) % fs;
+    C64::expj(-(r as f64) / fs as f64)
+}
+
+/// e^{+j2πf·t/fs} at a fractional sample position `t` (the conjugate oscillator).
+fn lo_frac(f: u64, t: f64, fs: u32) -> C64 {
+    let fs_c = u64::from(fs.clamp(8000, 192_000));
+    let ti = libm::floor(t);
+    let frac = t - ti;
+    let r = (f % fs_c) * ((ti as u64) % fs_c) % fs_c;
+    C64::expj((r as f64 + f as f64 * frac) / fs_c as f64)
+}
+
+/// What the deframer's events need to become frame events.
+struct FrameCtx<'c> {
+    chars: &'c [CharRec; CHAR_RING],
+    char_n: usize,
+}
+
+impl FrameCtx<'_> {
+    fn forward(&self, ev: DeframerEvent<'_>, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        let (pdu, preambles) = match ev {
+            DeframerEvent::Frame(f) => (f.pdu, f.preambles),
+            DeframerEvent::Damaged(d) => (d.pdu, d.preambles),
+            DeframerEvent::Invalid { pdu, .. } => (pdu, 0),
+            _ => return,
+        };
+        // Find the characters of this frame: normally the newest ones; after a
+        // rescan, further back.
+        let len = pdu.len();
+        let avail = self.char_n.min(CHAR_RING);
+        let mut first = None;
+        let mut end = self.char_n;
+        while end >= len && self.char_n - end + len <= avail {
+            let start = end - len;
+            if (0..len).all(|i| self.chars[(start + i) % CHAR_RING].byte == pdu[i]) {
+                first = Some(start);
+                break;
+            }
+            end -= 1;
+        }
+        let (t, parity_errors, framing_errors, level_vpp) = match first {
+            Some(start) => {
+                let recs = (start..start + len).map(|i| &self.chars[i % CHAR_RING]);
+                let (mut p, mut f, mut l) = (0, 0, 0.0);
+                for r in recs {
+                    p += usize::from(r.flags.parity);
+                    f += usize::from(r.flags.framing);
+                    l += r.level;
+                }
+                (self.chars[start % CHAR_RING].t, p, f, l / len.max(1) as f64)
+            }
+            None => (0.0, 0, 0, 0.0),
+        };
+        on_event(DemodEvent::Frame(RxFrame {
+            t,
+            pdu,
+            preambles,
+            checksum_ok: checksum(pdu) == 0,
+            parity_errors,
+            framing_errors,
+            level_vpp,
+        }));
     }
 }
 

@@ -213,6 +213,16 @@ impl Deframer {
         self.state == State::Frame
     }
 
+    /// Bytes still to come before the frame being received is complete, once its byte
+    /// count has arrived (`None` while hunting or before the byte count). A receiver
+    /// uses it to decide the last character of a frame without waiting.
+    pub fn remaining(&self) -> Option<usize> {
+        match self.state {
+            State::Frame => self.expected.map(|e| e.saturating_sub(self.len)),
+            State::Hunt { .. } => None,
+        }
+    }
+
     /// Feeds bytes received without UART errors.
     pub fn feed(&mut self, bytes: &[u8], mut on_event: impl FnMut(DeframerEvent<'_>)) {
         for &b in bytes {
