@@ -220,9 +220,11 @@ struct Survivor {
     metric: f64,
     /// Carrier phase estimate (complex, decision-directed along this path).
     r: C64,
-    /// Spaces on this path so far, modulo 6: each space bit turns the phase at the
-    /// next bit start by -60° (2200 Hz over 1/1200 s is 1 5/6 cycles).
-    p: u8,
+    /// Undoes the phase turn of this path's bits so far: each space turns the phase
+    /// at the next bit start by -60° (2200 Hz over 1/1200 s is 1 5/6 cycles), each
+    /// mark by 0°, plus the measured extra turn per bit when the tones and the bit
+    /// rate are off by different amounts.
+    rot: C64,
     /// Bits of this path, newest in bit 0.
     hist: u64,
 }
@@ -230,9 +232,18 @@ struct Survivor {
 const DEAD: Survivor = Survivor {
     metric: f64::NEG_INFINITY,
     r: C64::ZERO,
-    p: 0,
+    rot: C64 { re: 1.0, im: 0.0 },
     hist: 0,
 };
+
+/// One detected bit window and its correlations (referred to its start).
+#[derive(Debug, Clone, Copy, Default)]
+struct BitRec {
+    start: f64,
+    end: f64,
+    ym: C64,
+    ys: C64,
+}
 
 #[derive(Debug, Clone, Copy, Default)]
 struct CharRec {
@@ -282,11 +293,21 @@ pub struct Demodulator {
     prev_t: f64,
     /// Line fit of transition times against bit numbers, origin at the newest.
     fit: TimingFit,
+    /// Transitions accepted by the fit since the carrier came on.
+    locked: u32,
+    /// Measured tone error plus bit-rate error (relative): the extra phase turn per
+    /// bit is 2π·η for a mark and 2π·(11/6)·η for a space beyond the nominal 0° and
+    /// -60°. Zero when tones and bit rate are exact or off by the same factor.
+    eta: f64,
+    /// Same-tone bit pairs measured since the carrier came on.
+    pairs: u32,
+    /// Per-bit de-rotation steps derived from `omega`.
+    step: [C64; 2],
     // Detection.
     surv: [Survivor; STATES],
     /// Bits detected since the carrier came on.
     k: usize,
-    bit_t: [f64; BIT_RING],
+    bits: [BitRec; BIT_RING],
     // Characters.
     /// Next bit to examine for a start bit.
     pos: usize,
@@ -310,39 +331,106 @@ impl core::fmt::Debug for Demodulator {
 /// Clock recovery: each transition's weight decays by this factor per newer
 /// transition (memory of about ten transitions, a few characters).
 const FIT_FORGET: f64 = 0.9;
+/// The same for the bit length (memory of about fifty transitions).
+const FIT_FORGET_LONG: f64 = 0.98;
 /// Strength of the clock recovery's prior on the nominal bit rate, in bits² per
 /// transition of weight.
 const SLOPE_PRIOR: f64 = 50.0;
+/// Forgetting factor while the clock is still being acquired: the phase references
+/// built from badly placed windows must not last.
+const LAMBDA_ACQUIRE: f64 = 0.5;
+/// Transitions after which the clock counts as settled.
+const SETTLED_TRANSITIONS: u32 = 10;
+/// Transitions found from the tone balance alone before the clock recovery switches
+/// to the detector's decisions.
+const ACQUIRE_TRANSITIONS: u32 = 4;
+/// Bits the decision-directed clock recovery waits for the detector's decisions.
+const TIMING_DELAY: usize = 3;
+/// Gain of the phase-turn estimate once settled (memory of about a hundred bit pairs).
+const ETA_GAIN: f64 = 0.01;
+/// Pairs of weight the zero starting value of η counts for.
+const ETA_PRIOR_PAIRS: u32 = 3;
+/// Phase steps larger than this (radians) are not used to measure η.
+const ETA_OUTLIER: f64 = 0.8;
 /// A level this many times the eight-bit average starts a new burst.
-const RESTART_RATIO: f64 = 2.5;
+const RESTART_RATIO: f64 = 2.0;
 
-/// Weighted least-squares line through (bit number, transition time): the slope is
-/// the bit length, the intercept the newest boundary. All transitions weigh alike
-/// however far apart they are, which a loop filter fed with phase errors cannot do
-/// (a preamble has one transition pair per character, data one per bit or two).
+/// Weighted sums of a least-squares line fit through (bit number, transition time),
+/// with the origin at the newest transition.
 #[derive(Debug, Clone, Copy, Default)]
-struct TimingFit {
+struct LineSums {
     s0: f64,
     s1: f64,
     s2: f64,
     sz: f64,
     snz: f64,
+}
+
+impl LineSums {
+    /// Moves the origin to (dn, dz), forgets by `forget` and adds the new origin point.
+    fn shift_add(&mut self, dn: f64, dz: f64, forget: f64) {
+        let (s0, s1, sz) = (self.s0, self.s1, self.sz);
+        self.snz = self.snz - dn * sz - dz * s1 + dn * dz * s0;
+        self.s2 = self.s2 - 2.0 * dn * s1 + dn * dn * s0;
+        self.s1 = s1 - dn * s0;
+        self.sz = sz - dz * s0;
+        self.s0 = self.s0 * forget + 1.0;
+        self.s1 *= forget;
+        self.s2 *= forget;
+        self.sz *= forget;
+        self.snz *= forget;
+    }
+
+    /// Slope, pulled towards `nominal` by a prior of `prior` bits² per unit weight.
+    fn slope(&self, nominal: f64, prior: f64) -> f64 {
+        let det = self.s0 * self.s2 - self.s1 * self.s1;
+        (self.s0 * self.snz - self.s1 * self.sz + prior * self.s0 * nominal)
+            / (det + prior * self.s0)
+    }
+
+    /// Fitted time of bit 0 (the origin) for a given slope, relative to the origin.
+    fn intercept(&self, slope: f64) -> f64 {
+        (self.sz - slope * self.s1) / self.s0
+    }
+}
+
+/// Clock recovery by line fits of transition times against bit numbers. The bit length
+/// comes from a long memory (several frames' worth of characters), the position of
+/// the bit grid from a short one, so a steady bit-rate error is learnt exactly while
+/// the grid still follows the newest transitions. Every transition weighs alike
+/// however far apart they are, which a loop filter fed with phase errors cannot do
+/// (a preamble has one transition pair per character, data one per bit or two).
+#[derive(Debug, Clone, Copy, Default)]
+struct TimingFit {
+    long: LineSums,
+    short: LineSums,
     /// Time of the newest transition (the origin), samples.
     last: f64,
     /// Transitions rejected in a row.
     rejected: u32,
+    started: bool,
 }
 
 impl TimingFit {
+    fn start(z: f64) -> Self {
+        let one = LineSums {
+            s0: 1.0,
+            ..LineSums::default()
+        };
+        TimingFit {
+            long: one,
+            short: one,
+            last: z,
+            rejected: 0,
+            started: true,
+        }
+    }
+
     /// Adds a transition at `z` samples; returns the fitted newest boundary and bit
     /// length, or `None` when the transition is rejected as an outlier.
     fn add(&mut self, z: f64, period: f64, nominal: f64) -> Option<(f64, f64)> {
-        if self.s0 == 0.0 {
-            *self = TimingFit {
-                s0: 1.0,
-                last: z,
-                ..TimingFit::default()
-            };
+        if !self.started {
+            *self = TimingFit::start(z);
             return Some((z, period));
         }
         let dz = z - self.last;
@@ -352,53 +440,32 @@ impl TimingFit {
             return None;
         }
         // Residual against the current fit.
-        let pred = self.intercept(period) + dn * period;
-        let resid = (z - self.last) - pred;
-        if self.s0 > 3.0 && libm::fabs(resid) > 0.35 * period {
+        let pred = self.short.intercept(period) + dn * period;
+        let resid = dz - pred;
+        if self.short.s0 > 3.0 && libm::fabs(resid) > 0.35 * period {
             self.rejected += 1;
             if self.rejected < 3 {
                 return None;
             }
             // The fit itself is wrong (it locked onto noise before the signal): start
             // again from this transition.
-            *self = TimingFit {
-                s0: 1.0,
-                last: z,
-                ..TimingFit::default()
-            };
+            *self = TimingFit::start(z);
             return Some((z, nominal));
         }
         self.rejected = 0;
-        // Move the origin to this transition: n -> n - dn, z -> z - dz.
-        let (s0, s1, sz) = (self.s0, self.s1, self.sz);
-        self.snz = self.snz - dn * sz - dz * s1 + dn * dz * s0;
-        self.s2 = self.s2 - 2.0 * dn * s1 + dn * dn * s0;
-        self.s1 = s1 - dn * s0;
-        self.sz = sz - dz * s0;
+        self.long.shift_add(dn, dz, FIT_FORGET_LONG);
+        self.short.shift_add(dn, dz, FIT_FORGET);
         self.last = z;
-        // Forget, then add the point (0, 0).
-        self.s0 = self.s0 * FIT_FORGET + 1.0;
-        self.s1 *= FIT_FORGET;
-        self.s2 *= FIT_FORGET;
-        self.sz *= FIT_FORGET;
-        self.snz *= FIT_FORGET;
-        // The slope is pulled towards the nominal bit length by a prior worth a few
-        // transitions spread over several bits, so two transitions one bit apart
-        // (each a few percent of a bit off) cannot swing it by percents.
-        let det = self.s0 * self.s2 - self.s1 * self.s1;
-        let slope = ((self.s0 * self.snz - self.s1 * self.sz + SLOPE_PRIOR * self.s0 * nominal)
-            / (det + SLOPE_PRIOR * self.s0))
+        let slope = self
+            .long
+            .slope(nominal, SLOPE_PRIOR)
             .clamp(nominal * 0.96, nominal * 1.04);
-        Some((z + self.intercept(slope), slope))
-    }
-
-    /// Fitted time of bit 0 (the newest transition) relative to `last`.
-    fn intercept(&self, slope: f64) -> f64 {
-        (self.sz - slope * self.s1) / self.s0
+        Some((z + self.short.intercept(slope), slope))
     }
 }
+
 /// Forgetting factor of the per-survivor phase estimate (memory about 1/(1-λ) bits).
-const LAMBDA: f64 = 0.5;
+const LAMBDA: f64 = 0.85;
 /// Tone dominance (|E_m - E_s| / (E_m + E_s), smoothed) needed to switch the carrier on.
 const CONTRAST_ON: f64 = 0.6;
 /// Hysteresis of the transition detector on the tone balance.
@@ -438,9 +505,13 @@ impl Demodulator {
             prev_v: 0.0,
             prev_t: 0.0,
             fit: TimingFit::default(),
+            locked: 0,
+            eta: 0.0,
+            pairs: 0,
+            step: [ROT60[1], C64::new(1.0, 0.0)],
             surv: [DEAD; STATES],
             k: 0,
-            bit_t: [0.0; BIT_RING],
+            bits: [BitRec::default(); BIT_RING],
             pos: 0,
             char_start: None,
             chars: [CharRec::default(); CHAR_RING],
@@ -462,6 +533,13 @@ impl Demodulator {
     /// The current level estimate, volts peak-to-peak.
     pub fn level_vpp(&self) -> f64 {
         self.level
+    }
+
+    /// Clock-recovery state for diagnostics: (tone + bit-rate error estimate, bit
+    /// length in samples, transitions locked).
+    #[doc(hidden)]
+    pub fn debug_state(&self) -> (f64, f64, u32) {
+        (self.eta, self.period, self.locked)
     }
 
     /// Estimated bit rate error of the signal being received (+0.01 = 1 % fast).
@@ -579,8 +657,15 @@ impl Demodulator {
             self.carrier_off(on_event);
             self.carrier_on(now, on_event);
         }
-        self.slow_level += alpha / 8.0 * (self.level - self.slow_level);
-        if self.carrier {
+        // The floor falls with the level within a bit and rises over eight bits, so a
+        // burst after noise stands out against the noise, not against its own start.
+        let rate = if self.level < self.slow_level {
+            alpha
+        } else {
+            alpha / 8.0
+        };
+        self.slow_level += rate * (self.level - self.slow_level);
+        if self.carrier && self.locked < ACQUIRE_TRANSITIONS {
             self.track_transition(v, now - self.spb / 2.0);
         }
         self.prev_v = v;
@@ -617,6 +702,7 @@ impl Demodulator {
         let Some((origin, period)) = r else {
             return;
         };
+        self.locked += 1;
         self.period = period;
         // Move the next window onto the fitted grid of bit boundaries.
         let target = origin + libm::round((self.next_bit - origin) / period) * period;
@@ -635,6 +721,10 @@ impl Demodulator {
         self.carrier = true;
         self.slow_level = self.level;
         self.fit = TimingFit::default();
+        self.locked = 0;
+        self.eta = 0.0;
+        self.pairs = 0;
+        self.step = [ROT60[1], C64::new(1.0, 0.0)];
         self.side = 0;
         self.last_zero = None;
         self.period = self.spb;
@@ -644,7 +734,7 @@ impl Demodulator {
         self.surv[STATES - 1] = Survivor {
             metric: 0.0,
             r: C64::ZERO,
-            p: 0,
+            rot: C64::new(1.0, 0.0),
             hist: u64::MAX,
         };
         self.k = 0;
@@ -686,10 +776,23 @@ impl Demodulator {
         let ys = cs
             .mul(lo_frac(crate::SPACE_HZ as u64, a, self.config.sample_rate))
             .scale(norm);
-        self.viterbi(ym, ys);
-        self.bit_t[self.k % BIT_RING] = a;
+        let lambda = if self.locked >= SETTLED_TRANSITIONS {
+            LAMBDA
+        } else {
+            LAMBDA_ACQUIRE
+        };
+        self.viterbi(ym, ys, lambda);
+        self.bits[self.k % BIT_RING] = BitRec {
+            start: a,
+            end: b,
+            ym,
+            ys,
+        };
         self.k += 1;
         self.next_bit = b;
+        if self.locked >= ACQUIRE_TRANSITIONS && self.k > TIMING_DELAY {
+            self.decided_transition(self.k - TIMING_DELAY);
+        }
         let delay = if self.deframer.remaining() == Some(1) {
             1
         } else {
@@ -698,7 +801,72 @@ impl Demodulator {
         self.run_uart(delay, on_event);
     }
 
-    fn viterbi(&mut self, ym: C64, ys: C64) {
+    /// Decision-directed clock recovery. Where the best path changes tone at the start
+    /// of bit `j`, a window that starts `δ` late sees the new tone's phase advanced by
+    /// 2π·f·δ for each tone, so the carrier phase jumps by ±2π·1000 Hz·δ across the
+    /// transition (after undoing the path's own -60° per space). That jump measures
+    /// the timing error from two whole-bit correlations: unbiased by the neighbouring
+    /// bits, and only at real transitions.
+    fn decided_transition(&mut self, j: usize) {
+        if j == 0 || self.k - j + 1 >= BIT_RING {
+            return;
+        }
+        let (prev, cur) = (self.bit_at(j - 1), self.bit_at(j));
+        let bp = &self.bits[(j - 1) % BIT_RING];
+        let bc = &self.bits[j % BIT_RING];
+        let yp = if prev { bp.ym } else { bp.ys };
+        let yc = if cur { bc.ym } else { bc.ys };
+        // Undo the previous bit's own phase advance (-60° for a space, plus the
+        // measured extra turn), and any gap or overlap between the two windows.
+        let gap = bc.start - bp.end;
+        let f_prev = if prev {
+            crate::MARK_HZ
+        } else {
+            crate::SPACE_HZ
+        };
+        let rel = yc
+            .mul(C64::new(yp.re, -yp.im))
+            .mul(C64::expj(-f_prev * gap / self.fs))
+            .mul(self.step[usize::from(prev)]);
+        if rel.norm2() == 0.0 {
+            return;
+        }
+        let dphi = libm::atan2(rel.im, rel.re);
+        if prev == cur {
+            // Two bits of one tone: what is left of the phase step is the error of
+            // the model's turn per bit. Both tones come from one clock in every
+            // modem, so a mark turns by 2π·η and a space by 2π·(11/6)·η per bit,
+            // η = tone error + bit-rate error; average η over the pairs seen.
+            let cycles = if cur { 1.0 } else { 11.0 / 6.0 };
+            // What is left after the current estimate's own correction.
+            let residual = dphi / (2.0 * core::f64::consts::PI * cycles);
+            if libm::fabs(dphi) > ETA_OUTLIER {
+                // A wrong decision or a noise spike, not a drift.
+                return;
+            }
+            // Start as if some pairs had measured zero, so the first noisy pairs
+            // cannot swing it.
+            self.pairs += 1;
+            let gain = (1.0 / f64::from(self.pairs + ETA_PRIOR_PAIRS)).max(ETA_GAIN);
+            self.eta = (self.eta + gain * residual).clamp(-0.045, 0.045);
+            self.step = [
+                ROT60[1].mul(C64::expj(-self.eta * 11.0 / 6.0)),
+                C64::expj(-self.eta),
+            ];
+            return;
+        }
+        // Mark to space: the new tone is 1000 Hz higher.
+        let df = if prev {
+            crate::SPACE_HZ - crate::MARK_HZ
+        } else {
+            crate::MARK_HZ - crate::SPACE_HZ
+        };
+        let late = dphi / (2.0 * core::f64::consts::PI * df) * self.fs;
+        let late = late.clamp(-self.period / 2.0, self.period / 2.0);
+        self.on_transition(bc.start - late);
+    }
+
+    fn viterbi(&mut self, ym: C64, ys: C64, lambda: f64) {
         let mut next = [DEAD; STATES];
         for (ns, slot) in next.iter_mut().enumerate() {
             let bit = ns & 1 == 1;
@@ -709,20 +877,28 @@ impl Demodulator {
                 if s.metric == f64::NEG_INFINITY {
                     continue;
                 }
-                let y = y0.mul(ROT60[usize::from(s.p)]);
-                let rr = s.r.scale(LAMBDA).add(y);
-                let m = s.metric + rr.abs() - LAMBDA * s.r.abs();
+                let y = y0.mul(s.rot);
+                let rr = s.r.scale(lambda).add(y);
+                let m = s.metric + rr.abs() - lambda * s.r.abs();
                 if m > slot.metric {
                     *slot = Survivor {
                         metric: m,
                         r: rr,
-                        p: if bit { s.p } else { (s.p + 1) % 6 },
+                        rot: s.rot.mul(self.step[usize::from(bit)]),
                         hist: s.hist << 1 | u64::from(bit),
                     };
                 }
             }
         }
-        // Keep metrics small.
+        // Keep the rotations on the unit circle and the metrics small.
+        if self.k % 64 == 0 {
+            for s in next.iter_mut() {
+                let a = s.rot.abs();
+                if a > 0.0 {
+                    s.rot = s.rot.scale(1.0 / a);
+                }
+            }
+        }
         let best = next
             .iter()
             .map(|s| s.metric)
@@ -801,7 +977,7 @@ impl Demodulator {
                     framing: !stop,
                     overrun: false,
                 };
-                let t = self.t_of(self.bit_t[s % BIT_RING]);
+                let t = self.t_of(self.bits[s % BIT_RING].start);
                 self.char_start = None;
                 self.pos = s + crate::BITS_PER_CHAR;
                 self.push_char(
