@@ -107,7 +107,7 @@ const RING: usize = 1024;
 const STATE_BITS: u32 = 3;
 const STATES: usize = 1 << STATE_BITS;
 /// Bits a character waits for before it is read from the best survivor.
-const DECISION_DELAY: usize = 16;
+const DECISION_DELAY: usize = 4;
 /// Characters remembered for frame timestamps.
 const CHAR_RING: usize = 512;
 /// Bit start times remembered.
@@ -749,7 +749,7 @@ impl Demodulator {
 
     fn carrier_off(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
         // Decide everything still pending from the best path.
-        self.run_uart(0, on_event);
+        self.run_uart(0, true, on_event);
         let mut forward = |ev: DeframerEvent<'_>, this: &FrameCtx<'_>| this.forward(ev, on_event);
         let ctx = FrameCtx {
             chars: &self.chars,
@@ -794,11 +794,11 @@ impl Demodulator {
             self.decided_transition(self.k - TIMING_DELAY);
         }
         let delay = if self.deframer.remaining() == Some(1) {
-            1
+            0
         } else {
             DECISION_DELAY
         };
-        self.run_uart(delay, on_event);
+        self.run_uart(delay, false, on_event);
     }
 
     /// Decision-directed clock recovery. Where the best path changes tone at the start
@@ -933,16 +933,20 @@ impl Demodulator {
     }
 
     /// Reads characters from the best path, deciding bits `delay` bits behind the newest.
-    fn run_uart(&mut self, delay: usize, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+    /// `flush`: the carrier is gone; decide everything, and drop a character cut off.
+    fn run_uart(&mut self, delay: usize, flush: bool, on_event: &mut impl FnMut(DemodEvent<'_>)) {
         loop {
             if let Some(s) = self.char_start {
+                // The last character of a frame is read as soon as its stop bit is in,
+                // so the frame is out within the front end's delay (1.5 bits) after
+                // the end of the stop bit.
                 let delay = if self.deframer.remaining() == Some(1) {
-                    delay.min(1)
+                    0
                 } else {
                     delay
                 };
-                if self.k < s + crate::BITS_PER_CHAR + delay || self.k < s + crate::BITS_PER_CHAR {
-                    if delay == 0 && self.k > s {
+                if self.k < s + crate::BITS_PER_CHAR + delay {
+                    if flush && self.k > s {
                         // Carrier lost inside a character: it is cut off.
                         self.char_start = None;
                         self.pos = self.k;

@@ -9,6 +9,7 @@
 //!   peak-to-peak, clean carrier start and stop.
 //! * [`demod`]: a streaming demodulator: samples in, timestamped characters with
 //!   parity and framing flags and whole frames out.
+//! * [`wav`]: reading and writing WAV files (`alloc`).
 //!
 //! The cores are `no_std` and allocate nothing; the `alloc` feature adds whole-buffer
 //! helpers.
@@ -21,6 +22,8 @@ extern crate alloc;
 
 pub mod demod;
 pub mod modulator;
+#[cfg(feature = "alloc")]
+pub mod wav;
 
 /// Mark frequency (binary 1), Hz.
 pub const MARK_HZ: f64 = 1200.0;

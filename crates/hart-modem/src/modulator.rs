@@ -128,13 +128,17 @@ impl Modulator {
         let mut phase = c.start_phase; // cycles, at time `t_prev`
         let mut t_prev = 0.0f64;
         let mut n = 0u64;
+        // End of the burst in samples; a sample within rounding of it belongs to
+        // what comes next.
+        let end_samples = end * fs - 1e-9;
         loop {
-            let t = (n as f64 + self.carry) / fs;
-            if t >= end {
+            let pos = n as f64 + self.carry;
+            if pos >= end_samples {
                 // The next burst or silence starts this far into the next sample.
-                self.carry = (n as f64 + self.carry) - end * fs;
+                self.carry = (pos - end * fs).max(0.0);
                 break;
             }
+            let t = pos / fs;
             // Integrate the frequency from t_prev to t across any bit boundaries.
             let mut a = t_prev;
             while t > cur_end && idx + 1 < total {
