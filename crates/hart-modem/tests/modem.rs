@@ -108,7 +108,8 @@ fn the_analog_signal_and_the_noise_test_tones_do_not_disturb_decoding() {
     let fs = 48000;
     let (clean, _) = modulate_frames(ModulatorConfig::new(fs), &frame_refs(&fr), 0.03);
     let tau = 2.0 * std::f64::consts::PI / f64::from(fs);
-    let cases: Vec<(&str, Box<dyn Fn(f64) -> f64>)> = vec![
+    type Interferer = Box<dyn Fn(f64) -> f64>;
+    let cases: Vec<(&str, Interferer)> = vec![
         (
             "4-20 mA at 18 Hz across 250 ohm",
             Box::new(move |i| 3.0 + 2.0 * (tau * 18.0 * i).sin()),
