@@ -240,7 +240,6 @@ const DEAD: Survivor = Survivor {
 #[derive(Debug, Clone, Copy, Default)]
 struct BitRec {
     start: f64,
-    end: f64,
     ym: C64,
     ys: C64,
 }
@@ -295,14 +294,13 @@ pub struct Demodulator {
     fit: TimingFit,
     /// Transitions accepted by the fit since the carrier came on.
     locked: u32,
-    /// Measured tone error plus bit-rate error (relative): the extra phase turn per
-    /// bit is 2π·η for a mark and 2π·(11/6)·η for a space beyond the nominal 0° and
-    /// -60°. Zero when tones and bit rate are exact or off by the same factor.
-    eta: f64,
+    /// Measured relative tone error (both tones come from one clock in every modem):
+    /// the phase advance between two bit windows `Δ` samples apart is
+    /// 2π·f·(1 + ε)·Δ/fs for a tone f. The windows' own spacing is known exactly, so
+    /// a bit-rate error needs no estimate here.
+    eps: f64,
     /// Same-tone bit pairs measured since the carrier came on.
     pairs: u32,
-    /// Per-bit de-rotation steps derived from `omega`.
-    step: [C64; 2],
     // Detection.
     surv: [Survivor; STATES],
     /// Bits detected since the carrier came on.
@@ -335,7 +333,9 @@ const FIT_FORGET: f64 = 0.9;
 const FIT_FORGET_LONG: f64 = 0.98;
 /// Strength of the clock recovery's prior on the nominal bit rate, in bits² per
 /// transition of weight.
-const SLOPE_PRIOR: f64 = 50.0;
+const SLOPE_PRIOR: f64 = 2.0;
+/// The same while the clock is being acquired.
+const SLOPE_PRIOR_ACQUIRE: f64 = 50.0;
 /// Forgetting factor while the clock is still being acquired: the phase references
 /// built from badly placed windows must not last.
 const LAMBDA_ACQUIRE: f64 = 0.5;
@@ -346,12 +346,12 @@ const SETTLED_TRANSITIONS: u32 = 10;
 const ACQUIRE_TRANSITIONS: u32 = 4;
 /// Bits the decision-directed clock recovery waits for the detector's decisions.
 const TIMING_DELAY: usize = 3;
-/// Gain of the phase-turn estimate once settled (memory of about a hundred bit pairs).
-const ETA_GAIN: f64 = 0.01;
-/// Pairs of weight the zero starting value of η counts for.
-const ETA_PRIOR_PAIRS: u32 = 3;
-/// Phase steps larger than this (radians) are not used to measure η.
-const ETA_OUTLIER: f64 = 0.8;
+/// Gain of the tone-error estimate once settled (memory of a few hundred bit pairs).
+const EPS_GAIN: f64 = 0.004;
+/// Pairs of weight the zero starting value of the tone error counts for.
+const EPS_PRIOR_PAIRS: u32 = 5;
+/// Phase steps larger than this (radians) are not used to measure the tone error.
+const EPS_OUTLIER: f64 = 0.8;
 /// A level this many times the eight-bit average starts a new burst.
 const RESTART_RATIO: f64 = 2.0;
 
@@ -428,7 +428,7 @@ impl TimingFit {
 
     /// Adds a transition at `z` samples; returns the fitted newest boundary and bit
     /// length, or `None` when the transition is rejected as an outlier.
-    fn add(&mut self, z: f64, period: f64, nominal: f64) -> Option<(f64, f64)> {
+    fn add(&mut self, z: f64, period: f64, nominal: f64, prior: f64) -> Option<(f64, f64)> {
         if !self.started {
             *self = TimingFit::start(z);
             return Some((z, period));
@@ -458,7 +458,7 @@ impl TimingFit {
         self.last = z;
         let slope = self
             .long
-            .slope(nominal, SLOPE_PRIOR)
+            .slope(nominal, prior)
             .clamp(nominal * 0.96, nominal * 1.04);
         Some((z + self.short.intercept(slope), slope))
     }
@@ -506,9 +506,8 @@ impl Demodulator {
             prev_t: 0.0,
             fit: TimingFit::default(),
             locked: 0,
-            eta: 0.0,
+            eps: 0.0,
             pairs: 0,
-            step: [ROT60[1], C64::new(1.0, 0.0)],
             surv: [DEAD; STATES],
             k: 0,
             bits: [BitRec::default(); BIT_RING],
@@ -539,7 +538,7 @@ impl Demodulator {
     /// length in samples, transitions locked).
     #[doc(hidden)]
     pub fn debug_state(&self) -> (f64, f64, u32) {
-        (self.eta, self.period, self.locked)
+        (self.eps, self.period, self.locked)
     }
 
     /// Estimated bit rate error of the signal being received (+0.01 = 1 % fast).
@@ -698,7 +697,15 @@ impl Demodulator {
     }
 
     fn on_transition(&mut self, z: f64) {
-        let r = self.fit.add(z, self.period, self.spb);
+        // The bit length is held near nominal until the clock has settled: the first
+        // transitions (noise before the burst, the sparse preamble) are too few and
+        // too rough to measure it.
+        let prior = if self.locked >= SETTLED_TRANSITIONS {
+            SLOPE_PRIOR
+        } else {
+            SLOPE_PRIOR_ACQUIRE
+        };
+        let r = self.fit.add(z, self.period, self.spb, prior);
         let Some((origin, period)) = r else {
             return;
         };
@@ -706,15 +713,7 @@ impl Demodulator {
         self.period = period;
         // Move the next window onto the fitted grid of bit boundaries.
         let target = origin + libm::round((self.next_bit - origin) / period) * period;
-        let shift = target - self.next_bit;
         self.next_bit = target;
-        // The next bit window starts `shift` samples later, where the carrier phase
-        // has moved on by the survivor's own current tone.
-        let dm = C64::expj(crate::MARK_HZ * shift / self.fs);
-        let ds = C64::expj(crate::SPACE_HZ * shift / self.fs);
-        for s in self.surv.iter_mut() {
-            s.r = s.r.mul(if s.hist & 1 == 1 { dm } else { ds });
-        }
     }
 
     fn carrier_on(&mut self, now: f64, on_event: &mut impl FnMut(DemodEvent<'_>)) {
@@ -722,9 +721,8 @@ impl Demodulator {
         self.slow_level = self.level;
         self.fit = TimingFit::default();
         self.locked = 0;
-        self.eta = 0.0;
+        self.eps = 0.0;
         self.pairs = 0;
-        self.step = [ROT60[1], C64::new(1.0, 0.0)];
         self.side = 0;
         self.last_zero = None;
         self.period = self.spb;
@@ -776,18 +774,18 @@ impl Demodulator {
         let ys = cs
             .mul(lo_frac(crate::SPACE_HZ as u64, a, self.config.sample_rate))
             .scale(norm);
+        let spacing = if self.k == 0 {
+            self.period
+        } else {
+            a - self.bits[(self.k - 1) % BIT_RING].start
+        };
         let lambda = if self.locked >= SETTLED_TRANSITIONS {
             LAMBDA
         } else {
             LAMBDA_ACQUIRE
         };
-        self.viterbi(ym, ys, lambda);
-        self.bits[self.k % BIT_RING] = BitRec {
-            start: a,
-            end: b,
-            ym,
-            ys,
-        };
+        self.viterbi(ym, ys, spacing, lambda);
+        self.bits[self.k % BIT_RING] = BitRec { start: a, ym, ys };
         self.k += 1;
         self.next_bit = b;
         if self.locked >= ACQUIRE_TRANSITIONS && self.k > TIMING_DELAY {
@@ -816,43 +814,32 @@ impl Demodulator {
         let bc = &self.bits[j % BIT_RING];
         let yp = if prev { bp.ym } else { bp.ys };
         let yc = if cur { bc.ym } else { bc.ys };
-        // Undo the previous bit's own phase advance (-60° for a space, plus the
-        // measured extra turn), and any gap or overlap between the two windows.
-        let gap = bc.start - bp.end;
+        // Undo the previous tone's phase advance over the windows' actual spacing.
         let f_prev = if prev {
             crate::MARK_HZ
         } else {
             crate::SPACE_HZ
         };
+        let cycles = f_prev * (bc.start - bp.start) / self.fs;
         let rel = yc
             .mul(C64::new(yp.re, -yp.im))
-            .mul(C64::expj(-f_prev * gap / self.fs))
-            .mul(self.step[usize::from(prev)]);
+            .mul(C64::expj(-cycles * (1.0 + self.eps)));
         if rel.norm2() == 0.0 {
             return;
         }
         let dphi = libm::atan2(rel.im, rel.re);
         if prev == cur {
-            // Two bits of one tone: what is left of the phase step is the error of
-            // the model's turn per bit. Both tones come from one clock in every
-            // modem, so a mark turns by 2π·η and a space by 2π·(11/6)·η per bit,
-            // η = tone error + bit-rate error; average η over the pairs seen.
-            let cycles = if cur { 1.0 } else { 11.0 / 6.0 };
-            // What is left after the current estimate's own correction.
-            let residual = dphi / (2.0 * core::f64::consts::PI * cycles);
-            if libm::fabs(dphi) > ETA_OUTLIER {
+            // Two bits of one tone: what is left of the phase advance is the tone
+            // error times the cycles in between. Averaged over the pairs seen, starting
+            // as if some pairs had measured zero so the first noisy ones cannot swing it.
+            if libm::fabs(dphi) > EPS_OUTLIER {
                 // A wrong decision or a noise spike, not a drift.
                 return;
             }
-            // Start as if some pairs had measured zero, so the first noisy pairs
-            // cannot swing it.
+            let residual = dphi / (2.0 * core::f64::consts::PI * cycles);
             self.pairs += 1;
-            let gain = (1.0 / f64::from(self.pairs + ETA_PRIOR_PAIRS)).max(ETA_GAIN);
-            self.eta = (self.eta + gain * residual).clamp(-0.045, 0.045);
-            self.step = [
-                ROT60[1].mul(C64::expj(-self.eta * 11.0 / 6.0)),
-                C64::expj(-self.eta),
-            ];
+            let gain = (1.0 / f64::from(self.pairs + EPS_PRIOR_PAIRS)).max(EPS_GAIN);
+            self.eps = (self.eps + gain * residual).clamp(-0.045, 0.045);
             return;
         }
         // Mark to space: the new tone is 1000 Hz higher.
@@ -866,7 +853,15 @@ impl Demodulator {
         self.on_transition(bc.start - late);
     }
 
-    fn viterbi(&mut self, ym: C64, ys: C64, lambda: f64) {
+    /// One trellis step; `spacing` is the distance from the previous bit window's start
+    /// to this one's, in samples.
+    fn viterbi(&mut self, ym: C64, ys: C64, spacing: f64, lambda: f64) {
+        // Phase advance of each tone across that spacing, undone.
+        let f = 1.0 + self.eps;
+        let step = [
+            C64::expj(-crate::SPACE_HZ * f * spacing / self.fs),
+            C64::expj(-crate::MARK_HZ * f * spacing / self.fs),
+        ];
         let mut next = [DEAD; STATES];
         for (ns, slot) in next.iter_mut().enumerate() {
             let bit = ns & 1 == 1;
@@ -877,14 +872,17 @@ impl Demodulator {
                 if s.metric == f64::NEG_INFINITY {
                     continue;
                 }
-                let y = y0.mul(s.rot);
+                // Bring the path's rotation up to this bit's start (the previous bit's
+                // tone ran across the spacing).
+                let rot = s.rot.mul(step[(s.hist & 1) as usize]);
+                let y = y0.mul(rot);
                 let rr = s.r.scale(lambda).add(y);
                 let m = s.metric + rr.abs() - lambda * s.r.abs();
                 if m > slot.metric {
                     *slot = Survivor {
                         metric: m,
                         r: rr,
-                        rot: s.rot.mul(self.step[usize::from(bit)]),
+                        rot,
                         hist: s.hist << 1 | u64::from(bit),
                     };
                 }
@@ -1022,28 +1020,6 @@ impl Demodulator {
             .push(c.byte, c.flags, &mut |ev| ctx.forward(ev, on_event));
     }
 }
-
-/// e^{+j60°·p}: undoes the phase turn of `p` space bits.
-const ROT60: [C64; 6] = [
-    C64 { re: 1.0, im: 0.0 },
-    C64 {
-        re: 0.5,
-        im: 0.866_025_403_784_438_6,
-    },
-    C64 {
-        re: -0.5,
-        im: 0.866_025_403_784_438_6,
-    },
-    C64 { re: -1.0, im: 0.0 },
-    C64 {
-        re: -0.5,
-        im: -0.866_025_403_784_438_6,
-    },
-    C64 {
-        re: 0.5,
-        im: -0.866_025_403_784_438_6,
-    },
-];
 
 /// The oscillator e^{-j2πf·n/fs} at integer sample `n`, exactly.
 fn lo_at(f: u64, n: u64, fs: u32) -> C64 {
