@@ -340,7 +340,7 @@ const SLOPE_PRIOR_ACQUIRE: f64 = 50.0;
 /// built from badly placed windows must not last.
 const LAMBDA_ACQUIRE: f64 = 0.5;
 /// Transitions after which the clock counts as settled.
-const SETTLED_TRANSITIONS: u32 = 10;
+const SETTLED_TRANSITIONS: u32 = 16;
 /// Transitions found from the tone balance alone before the clock recovery switches
 /// to the detector's decisions.
 const ACQUIRE_TRANSITIONS: u32 = 4;
@@ -349,7 +349,7 @@ const TIMING_DELAY: usize = 3;
 /// Gain of the tone-error estimate once settled (memory of a few hundred bit pairs).
 const EPS_GAIN: f64 = 0.004;
 /// Pairs of weight the zero starting value of the tone error counts for.
-const EPS_PRIOR_PAIRS: u32 = 5;
+const EPS_PRIOR_PAIRS: u32 = 2;
 /// Phase steps larger than this (radians) are not used to measure the tone error.
 const EPS_OUTLIER: f64 = 0.8;
 /// A level this many times the eight-bit average starts a new burst.
