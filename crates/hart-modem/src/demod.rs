@@ -124,9 +124,21 @@ impl C64 {
     fn new(re: f64, im: f64) -> Self {
         C64 { re, im }
     }
+    /// e^{j2π·cycles}, to about 3e-7 (polynomials on an eighth of a turn; a few
+    /// times faster than `sin` and `cos`, which matters at one call per bit per tone).
     fn expj(cycles: f64) -> Self {
-        let a = 2.0 * core::f64::consts::PI * cycles;
-        C64::new(libm::cos(a), libm::sin(a))
+        let x = cycles - libm::round(cycles);
+        let q = libm::round(x * 4.0);
+        let t = 2.0 * core::f64::consts::PI * (x - q * 0.25);
+        let t2 = t * t;
+        let sin = t * (1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)));
+        let cos = 1.0 - t2 / 2.0 * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)));
+        match q as i64 & 3 {
+            0 => C64::new(cos, sin),
+            1 => C64::new(-sin, cos),
+            2 => C64::new(-cos, -sin),
+            _ => C64::new(sin, -cos),
+        }
     }
     fn mul(self, o: C64) -> C64 {
         C64::new(
@@ -160,6 +172,7 @@ impl C64 {
 #[derive(Clone)]
 struct LinearHighPass {
     len: [usize; 3],
+    inv_len: [f64; 3],
     /// Delay of the cascade, samples.
     delay: usize,
     sums: [f64; 3],
@@ -183,6 +196,7 @@ impl LinearHighPass {
         let delay = (len[0] + len[1] + len[2] - 3) / 2;
         LinearHighPass {
             len,
+            inv_len: len.map(|l| 1.0 / l as f64),
             delay,
             sums: [0.0; 3],
             hist: [[0.0; HP_RING]; 3],
@@ -198,7 +212,7 @@ impl LinearHighPass {
             let old = self.hist[st][(self.n.wrapping_sub(self.len[st])) & (HP_RING - 1)];
             self.hist[st][i] = v;
             self.sums[st] += v - old;
-            v = self.sums[st] / self.len[st] as f64;
+            v = self.sums[st] * self.inv_len[st];
         }
         let delayed = self.hist[0][(self.n.wrapping_sub(self.delay)) & (HP_RING - 1)];
         self.n = self.n.wrapping_add(1);
@@ -1131,4 +1145,23 @@ pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFr
     d.push(samples, &mut take);
     d.finish(&mut take);
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::C64;
+
+    #[test]
+    fn expj_matches_sin_and_cos() {
+        let mut worst = 0.0f64;
+        for i in -20_000..=20_000 {
+            let c = f64::from(i) * 0.000_173_1;
+            let e = C64::expj(c);
+            let a = 2.0 * core::f64::consts::PI * c;
+            worst = worst
+                .max(libm::fabs(e.re - libm::cos(a)))
+                .max(libm::fabs(e.im - libm::sin(a)));
+        }
+        assert!(worst < 5e-7, "worst error {worst}");
+    }
 }
