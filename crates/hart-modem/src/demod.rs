@@ -315,6 +315,7 @@ pub struct Demodulator {
     eps: f64,
     /// Same-tone bit pairs measured since the carrier came on.
     pairs: u32,
+
     // Detection.
     surv: [Survivor; STATES],
     /// Bits detected since the carrier came on.
@@ -480,8 +481,9 @@ impl TimingFit {
 
 /// Forgetting factor of the per-survivor phase estimate (memory about 1/(1-λ) bits).
 const LAMBDA: f64 = 0.85;
-/// Tone dominance (|E_m - E_s| / (E_m + E_s), smoothed) needed to switch the carrier on.
-const CONTRAST_ON: f64 = 0.6;
+/// Tone dominance (|E_m - E_s| / (E_m + E_s), smoothed over two bits) needed to switch
+/// the carrier on: about 0.93 for a clean FSK signal, 0.5 on average for noise.
+const CONTRAST_ON: f64 = 0.7;
 /// Hysteresis of the transition detector on the tone balance.
 const HYST: f64 = 0.7;
 
@@ -655,7 +657,7 @@ impl Demodulator {
         };
         let alpha = f64::from(self.block) / self.spb;
         self.level += alpha * (vpp - self.level);
-        self.contrast += alpha * (libm::fabs(v) - self.contrast);
+        self.contrast += alpha / 2.0 * (libm::fabs(v) - self.contrast);
         if !self.carrier {
             if self.level >= self.config.carrier_on_vpp && self.contrast >= CONTRAST_ON {
                 self.carrier_on(now, on_event);

@@ -10,6 +10,9 @@
 //! * [`demod`]: a streaming demodulator: samples in, timestamped characters with
 //!   parity and framing flags and whole frames out.
 //! * [`wav`]: reading and writing WAV files (`alloc`).
+//! * [`channel`]: the channel model: noise at a given Eb/N0, interfering tones, the
+//!   network's RC, the 4-20 mA analog signal and its 10 Hz reading.
+//! * [`cable`]: the longest cable a network allows (RC ≤ 65 µs).
 //!
 //! The cores are `no_std` and allocate nothing; the `alloc` feature adds whole-buffer
 //! helpers.
@@ -20,6 +23,8 @@
 #[cfg(feature = "alloc")]
 extern crate alloc;
 
+pub mod cable;
+pub mod channel;
 pub mod demod;
 pub mod modulator;
 #[cfg(feature = "alloc")]

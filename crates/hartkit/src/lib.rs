@@ -7,6 +7,8 @@ pub mod demo;
 pub mod hex;
 pub mod host;
 pub mod json;
+pub mod modem;
+pub mod modem_bench;
 pub mod serve;
 pub mod sim;
 

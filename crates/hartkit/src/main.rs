@@ -125,6 +125,12 @@ enum Top {
         #[arg(long)]
         run_for: Option<f64>,
     },
+    /// The software Bell 202 modem: frames to and from WAV files or raw samples.
+    #[command(subcommand)]
+    Modem(ModemCmd),
+    /// The 4-20 mA loop: cable length from the network's RC time constant.
+    #[command(subcommand)]
+    Loop(LoopCmd),
     /// The simulated plant: devices found by scan, shown live until Ctrl-C.
     Demo {
         /// Stop after this many seconds.
@@ -136,6 +142,104 @@ enum Top {
         /// Where the plant is (default: the built-in simulated plant).
         #[arg(long, short = 'p', default_value = "sim")]
         port: String,
+    },
+}
+
+#[derive(Subcommand)]
+enum ModemCmd {
+    /// Modulate frames (hex, delimiter through check byte) into a mono WAV file.
+    Tx {
+        /// Output file.
+        #[arg(long, value_name = "FILE.wav")]
+        out: std::path::PathBuf,
+        /// Sample rate, Hz (8000-192000).
+        #[arg(long, default_value_t = 48000)]
+        rate: u32,
+        /// Signal level, mV peak-to-peak (a device's 1 mApp across 250 Ω is 500).
+        #[arg(long, default_value_t = 500.0)]
+        amplitude_mvpp: f64,
+        /// Preamble characters (0xFF) before each frame.
+        #[arg(long, default_value_t = 5)]
+        preambles: usize,
+        /// Silence before, between and after frames, ms.
+        #[arg(long, default_value_t = 30.0)]
+        gap_ms: f64,
+        /// Volts represented by a full-scale sample.
+        #[arg(long, default_value_t = 1.0)]
+        volts_per_fs: f64,
+        /// Write 32-bit float samples instead of 16-bit PCM.
+        #[arg(long)]
+        float: bool,
+        /// Read frames from FILE, one hex frame per line.
+        #[arg(long = "in", value_name = "FILE")]
+        input: Option<std::path::PathBuf>,
+        /// Frames as hex (delimiter through check byte).
+        frames: Vec<String>,
+    },
+    /// Decode every frame in a mono WAV file (16/24/32-bit PCM or float, 8-192 kHz), or
+    /// in raw samples (`--raw s16le --rate R`, from FILE or standard input).
+    Rx {
+        /// The WAV file (or, with --raw, a raw file; `-` or nothing: standard input).
+        file: Option<std::path::PathBuf>,
+        /// One JSON object per line and frame: t, hex, preambles, checksum_ok,
+        /// parity_errors, level_mvpp.
+        #[arg(long)]
+        json: bool,
+        /// Volts represented by a full-scale sample (1.0).
+        #[arg(long, default_value_t = 1.0)]
+        volts_per_fs: f64,
+        /// Raw sample format instead of WAV (only s16le: signed 16-bit little-endian mono).
+        #[arg(long, value_name = "FORMAT")]
+        raw: Option<String>,
+        /// Sample rate of raw input, Hz.
+        #[arg(long)]
+        rate: Option<u32>,
+    },
+    /// Measure the demodulator: frame error rate against Eb/N0 and impairments, speed;
+    /// writes the report.
+    Bench(ModemBenchArgs),
+}
+
+#[derive(Args)]
+struct ModemBenchArgs {
+    /// Frames per condition.
+    #[arg(long, default_value_t = 1000)]
+    frames: usize,
+    /// Directory for the report (modem-bench.md, modem-bench.csv).
+    #[arg(long, default_value = "docs")]
+    out: std::path::PathBuf,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 48000)]
+    rate: u32,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Only these conditions (names as in the report; default all).
+    #[arg(long, value_name = "NAME")]
+    only: Vec<String>,
+    /// Run minimodem side by side when it is installed (needs a scratch directory).
+    #[arg(long)]
+    minimodem: bool,
+}
+
+#[derive(Subcommand)]
+enum LoopCmd {
+    /// Longest cable for a network: the RC time constant of loop resistance and cable
+    /// plus device capacitance must stay within 65 µs.
+    Cable {
+        /// Cable capacitance, pF per metre.
+        #[arg(long)]
+        capacitance_pf_per_m: f64,
+        /// Devices on the loop.
+        #[arg(long, default_value_t = 1)]
+        devices: u32,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+        /// Also send 200 frames through the RC of that length (Eb/N0 16 dB) and report
+        /// how many decode.
+        #[arg(long)]
+        simulate: bool,
     },
 }
 
@@ -765,6 +869,83 @@ fn serve_hart_ip(
     })
 }
 
+fn modem(cmd: &ModemCmd) -> Result<String, String> {
+    use hartkit::modem;
+    match cmd {
+        ModemCmd::Tx {
+            out,
+            rate,
+            amplitude_mvpp,
+            preambles,
+            gap_ms,
+            volts_per_fs,
+            float,
+            input,
+            frames,
+        } => {
+            let frames = modem::parse_frames(frames, input.as_deref())?;
+            modem::tx(
+                &frames,
+                &modem::TxOptions {
+                    out: out.clone(),
+                    rate: *rate,
+                    amplitude_mvpp: *amplitude_mvpp,
+                    preambles: *preambles,
+                    gap_ms: *gap_ms,
+                    volts_per_fs: *volts_per_fs,
+                    float: *float,
+                },
+            )
+        }
+        ModemCmd::Rx {
+            file,
+            json,
+            volts_per_fs,
+            raw,
+            rate,
+        } => {
+            let input = match raw.as_deref() {
+                None => modem::RxInput::Wav(
+                    file.clone()
+                        .ok_or("give a WAV file, or --raw s16le --rate R for raw samples")?,
+                ),
+                Some("s16le") => modem::RxInput::RawS16le {
+                    path: file.clone().unwrap_or_else(|| "-".into()),
+                    rate: rate.ok_or("--raw needs --rate (the sample rate in Hz)")?,
+                },
+                Some(other) => {
+                    return Err(format!("raw format {other:?} is not supported; use s16le"))
+                }
+            };
+            let mut stdout = std::io::stdout().lock();
+            let n = modem::rx(&input, *volts_per_fs, *json, &mut stdout)?;
+            if !*json {
+                eprintln!("{n} frame(s)");
+            }
+            Ok(String::new())
+        }
+        ModemCmd::Bench(a) => hartkit::modem_bench::run(&hartkit::modem_bench::Options {
+            frames: a.frames,
+            out: a.out.clone(),
+            rate: a.rate,
+            seed: a.seed,
+            only: a.only.clone(),
+            minimodem: a.minimodem,
+        }),
+    }
+}
+
+fn loop_cmd(cmd: &LoopCmd) -> Result<String, String> {
+    match cmd {
+        LoopCmd::Cable {
+            capacitance_pf_per_m,
+            devices,
+            json,
+            simulate,
+        } => hartkit::modem_bench::cable(*capacitance_pf_per_m, *devices, *json, *simulate),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(result) = run_host(&cli.command) {
@@ -787,6 +968,8 @@ fn main() -> ExitCode {
         Top::Frame(FrameCmd::Encode(a)) => encode(a),
         Top::Sim(SimCmd::Bench(a)) => sim_bench(a),
         Top::Sim(SimCmd::Serve(a)) => sim_serve(a).map(|_| String::new()),
+        Top::Modem(cmd) => modem(cmd),
+        Top::Loop(cmd) => loop_cmd(cmd),
         _ => unreachable!("host commands are handled above"),
     };
     match result {

@@ -1,0 +1,257 @@
+//! The channel between a HART transmitter and receiver: white noise at a given Eb/N0,
+//! interfering tones, the network's RC low-pass, and the 4-20 mA analog signal with its
+//! 10 Hz reading.
+//!
+//! Everything works in place on buffers of volts at a sample rate `fs`. Noise comes
+//! from [`Rng`], a small seeded generator, so every run is repeatable.
+
+use core::f64::consts::PI;
+
+/// A seeded pseudo-random generator (xoshiro256**, seeded through splitmix64) with
+/// uniform and Gaussian outputs. Deterministic: the same seed gives the same noise.
+#[derive(Debug, Clone)]
+pub struct Rng {
+    s: [u64; 4],
+    /// Second Gaussian value of the last Box-Muller pair.
+    spare: Option<f64>,
+}
+
+impl Rng {
+    /// A generator from a seed (any value, 0 included).
+    pub fn new(seed: u64) -> Self {
+        let mut x = seed;
+        let mut next = || {
+            x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = x;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        Rng {
+            s: [next(), next(), next(), next()],
+            spare: None,
+        }
+    }
+
+    /// 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        let s = &mut self.s;
+        let out = s[1].wrapping_mul(5).rotate_left(7).wrapping_mul(9);
+        let t = s[1] << 17;
+        s[2] ^= s[0];
+        s[3] ^= s[1];
+        s[1] ^= s[2];
+        s[0] ^= s[3];
+        s[2] ^= t;
+        s[3] = s[3].rotate_left(45);
+        out
+    }
+
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Standard normal (mean 0, variance 1), by the polar Box-Muller method.
+    pub fn gaussian(&mut self) -> f64 {
+        if let Some(g) = self.spare.take() {
+            return g;
+        }
+        loop {
+            let u = 2.0 * self.uniform() - 1.0;
+            let v = 2.0 * self.uniform() - 1.0;
+            let s = u * u + v * v;
+            if s > 0.0 && s < 1.0 {
+                let k = libm::sqrt(-2.0 * libm::log(s) / s);
+                self.spare = Some(v * k);
+                return u * k;
+            }
+        }
+    }
+}
+
+/// Noise standard deviation (volts) that gives `ebn0_db` for a tone of `peak_volts` at
+/// sample rate `fs`: Eb = A²/2·Tb and N0 = 2σ²/fs, so σ = A·sqrt(fs / (4·1200·Eb/N0)).
+pub fn sigma_for_ebn0(peak_volts: f64, fs: f64, ebn0_db: f64) -> f64 {
+    let ebn0 = libm::pow(10.0, ebn0_db / 10.0);
+    peak_volts * libm::sqrt(fs / (4.0 * crate::BIT_RATE * ebn0))
+}
+
+/// Adds white Gaussian noise of standard deviation `sigma` volts.
+pub fn add_white_noise(samples: &mut [f32], sigma: f64, rng: &mut Rng) {
+    for x in samples.iter_mut() {
+        *x += (sigma * rng.gaussian()) as f32;
+    }
+}
+
+/// Adds a sine of `freq_hz` and `vpp` volts peak-to-peak, starting at `phase` cycles.
+pub fn add_tone(samples: &mut [f32], fs: u32, freq_hz: f64, vpp: f64, phase: f64) {
+    let w = 2.0 * PI * freq_hz / f64::from(fs);
+    let (mut re, mut im) = (libm::cos(2.0 * PI * phase), libm::sin(2.0 * PI * phase));
+    let (cr, ci) = (libm::cos(w), libm::sin(w));
+    for (i, x) in samples.iter_mut().enumerate() {
+        *x += (vpp / 2.0 * im) as f32;
+        let r = re * cr - im * ci;
+        im = re * ci + im * cr;
+        re = r;
+        if i % 4096 == 4095 {
+            // Keep the oscillator on the unit circle.
+            let n = libm::sqrt(re * re + im * im);
+            re /= n;
+            im /= n;
+        }
+    }
+}
+
+/// A single-pole RC low-pass of time constant `tau_s`: the network's loop resistance
+/// against cable and device capacitance. Discretised by impulse invariance
+/// (y += (1 - e^(-1/(fs·τ)))·(x - y)), stable at every rate.
+pub fn rc_lowpass(samples: &mut [f32], fs: u32, tau_s: f64) {
+    if tau_s <= 0.0 {
+        return;
+    }
+    let a = 1.0 - libm::exp(-1.0 / (f64::from(fs) * tau_s));
+    let mut y = 0.0f64;
+    for x in samples.iter_mut() {
+        y += a * (f64::from(*x) - y);
+        *x = y as f32;
+    }
+}
+
+/// The analog loop current as a function of time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AnalogProfile {
+    /// A constant current, mA.
+    Constant(f64),
+    /// A sinusoidal sweep between two currents (mA) at a frequency (Hz): full swing
+    /// 4 ↔ 20 mA at 10 or 18 Hz is the receiver test's worst case.
+    Sweep {
+        /// Lowest current, mA.
+        low_ma: f64,
+        /// Highest current, mA.
+        high_ma: f64,
+        /// Sweep frequency, Hz.
+        hz: f64,
+    },
+}
+
+impl AnalogProfile {
+    /// The current at time `t` seconds, mA.
+    pub fn current_ma(&self, t: f64) -> f64 {
+        match *self {
+            AnalogProfile::Constant(ma) => ma,
+            AnalogProfile::Sweep {
+                low_ma,
+                high_ma,
+                hz,
+            } => (low_ma + high_ma) / 2.0 + (high_ma - low_ma) / 2.0 * libm::sin(2.0 * PI * hz * t),
+        }
+    }
+
+    /// Adds the voltage this current develops across `r_ohm` to `samples`.
+    pub fn add_volts(&self, samples: &mut [f32], fs: u32, r_ohm: f64) {
+        for (i, x) in samples.iter_mut().enumerate() {
+            *x += (self.current_ma(i as f64 / f64::from(fs)) * 1e-3 * r_ohm) as f32;
+        }
+    }
+}
+
+/// Reads the analog current the way a 4-20 mA input does: volts across `r_ohm`
+/// through a 10 Hz second-order Butterworth low-pass (bilinear, pre-warped). Returns mA
+/// per sample.
+#[cfg(feature = "alloc")]
+pub fn analog_reading_ma(volts: &[f32], fs: u32, r_ohm: f64) -> alloc::vec::Vec<f64> {
+    let fs = f64::from(fs);
+    let k = libm::tan(PI * 10.0 / fs);
+    let q = core::f64::consts::FRAC_1_SQRT_2;
+    let norm = 1.0 / (1.0 + k / q + k * k);
+    let b0 = k * k * norm;
+    let (b1, b2) = (2.0 * b0, b0);
+    let a1 = 2.0 * (k * k - 1.0) * norm;
+    let a2 = (1.0 - k / q + k * k) * norm;
+    let (mut z1, mut z2) = (0.0f64, 0.0f64);
+    volts
+        .iter()
+        .map(|&v| {
+            let x = f64::from(v) / r_ohm * 1e3;
+            let y = b0 * x + z1;
+            z1 = b1 * x - a1 * y + z2;
+            z2 = b2 * x - a2 * y;
+            y
+        })
+        .collect()
+}
+
+/// How much an FSK signal (volts across `r_ohm`, e.g. a modem's output) shifts the
+/// 10 Hz analog reading: (mean, largest) absolute difference in µA against no FSK,
+/// after the filter has settled (the first 0.5 s are skipped). HART asks that the FSK
+/// averages to zero, so a correct modulator shifts the reading by a few µA at most.
+#[cfg(feature = "alloc")]
+pub fn analog_shift_ua(fsk_volts: &[f32], fs: u32, r_ohm: f64) -> (f64, f64) {
+    let reading = analog_reading_ma(fsk_volts, fs, r_ohm);
+    let skip = (fs / 2) as usize;
+    let tail = reading.get(skip..).unwrap_or(&[]);
+    if tail.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mean = tail.iter().map(|m| libm::fabs(*m)).sum::<f64>() / tail.len() as f64;
+    let peak = tail.iter().fold(0.0f64, |a, m| a.max(libm::fabs(*m)));
+    (mean * 1e3, peak * 1e3)
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::modulator::{Modulator, ModulatorConfig};
+    use alloc::vec::Vec;
+
+    #[test]
+    fn noise_has_the_asked_for_power() {
+        let mut rng = Rng::new(7);
+        let mut s = alloc::vec![0.0f32; 200_000];
+        let sigma = sigma_for_ebn0(0.25, 48000.0, 10.0);
+        add_white_noise(&mut s, sigma, &mut rng);
+        let var = s.iter().map(|&x| f64::from(x) * f64::from(x)).sum::<f64>() / s.len() as f64;
+        assert!((libm::sqrt(var) / sigma - 1.0).abs() < 0.01);
+        // σ = 0.25 · sqrt(48000 / (4 · 1200 · 10)) = 0.25
+        assert!((sigma - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rc_corner_is_where_it_should_be() {
+        // At f = 1/(2πτ) a single pole passes 1/√2.
+        let fs = 48000;
+        let tau = 65e-6;
+        let f = 1.0 / (2.0 * PI * tau);
+        let mut s = alloc::vec![0.0f32; 48000];
+        add_tone(&mut s, fs, f, 2.0, 0.0);
+        rc_lowpass(&mut s, fs, tau);
+        let peak = s[24000..].iter().fold(0f32, |a, x| a.max(x.abs()));
+        assert!(
+            (f64::from(peak) - core::f64::consts::FRAC_1_SQRT_2).abs() < 0.01,
+            "{peak}"
+        );
+    }
+
+    #[test]
+    fn a_phase_continuous_fsk_signal_barely_moves_the_analog_reading() {
+        // A device's 1 mApp signal across 250 Ω, two seconds of back-to-back frames.
+        let fs = 48000;
+        let mut cfg = ModulatorConfig::new(fs);
+        cfg.amplitude_vpp = 0.25; // 1 mA peak-to-peak across 250 Ω
+        let mut m = Modulator::new(cfg);
+        let mut s = Vec::new();
+        let mut rng = Rng::new(3);
+        while s.len() < 2 * fs as usize {
+            let bytes: Vec<u8> = (0..30).map(|_| rng.next_u64() as u8).collect();
+            m.frame(5, &bytes, |x| s.push(x));
+            m.silence(0.005, |x| s.push(x));
+        }
+        let (mean, peak) = analog_shift_ua(&s, fs, 250.0);
+        std::println!(
+            "FSK shifts the 10 Hz reading by {mean:.2} µA on average, {peak:.2} µA at most"
+        );
+        assert!(mean < 5.0 && peak < 20.0, "{mean} {peak}");
+    }
+}

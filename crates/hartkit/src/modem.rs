@@ -1,0 +1,313 @@
+//! `hartkit modem`: HART frames to and from sound (WAV files, raw samples on standard
+//! input), through the software Bell 202 modem in `hart-modem`.
+
+use std::io::Read;
+
+use hart_modem::demod::{DemodConfig, DemodEvent, Demodulator, RxFrame};
+use hart_modem::modulator::{Modulator, ModulatorConfig};
+use hart_modem::wav::{self, Wav, WriteFormat};
+use hart_proto::frame::Frame;
+use serde_json::json;
+
+use crate::{annotate, hex};
+
+/// Lowest and highest sample rates the modem accepts.
+pub const RATES: std::ops::RangeInclusive<u32> = 8000..=192_000;
+
+/// Settings of `hartkit modem tx`.
+#[derive(Debug, Clone)]
+pub struct TxOptions {
+    /// Output WAV file.
+    pub out: std::path::PathBuf,
+    /// Sample rate, Hz.
+    pub rate: u32,
+    /// Signal level, millivolts peak-to-peak.
+    pub amplitude_mvpp: f64,
+    /// Preamble characters before each frame.
+    pub preambles: usize,
+    /// Silence before, between and after frames, milliseconds.
+    pub gap_ms: f64,
+    /// Volts represented by a full-scale sample (1.0).
+    pub volts_per_fs: f64,
+    /// Write 32-bit float samples instead of 16-bit PCM.
+    pub float: bool,
+}
+
+/// Checks a sample rate against [`RATES`].
+pub fn check_rate(rate: u32) -> Result<(), String> {
+    if RATES.contains(&rate) {
+        Ok(())
+    } else {
+        Err(format!(
+            "sample rate {rate} Hz is outside 8000-192000 Hz; resample the file (e.g. `sox in.wav -r 48000 out.wav`)"
+        ))
+    }
+}
+
+/// Parses frames given as hex, one per argument or one per line of a file; each runs
+/// from the delimiter to the check byte (leading 0xFF preambles are dropped, since the
+/// modulator adds its own).
+pub fn parse_frames(
+    args: &[String],
+    file: Option<&std::path::Path>,
+) -> Result<Vec<Vec<u8>>, String> {
+    let mut lines: Vec<String> = args.to_vec();
+    if let Some(path) = file {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        lines.extend(
+            text.lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                .map(String::from),
+        );
+    }
+    if lines.is_empty() {
+        return Err(
+            "no frames given: pass hex frames as arguments or --in FILE with one per line".into(),
+        );
+    }
+    lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let mut bytes = hex::parse(&[l]).map_err(|e| format!("frame {}: {e}", i + 1))?;
+            let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
+            bytes.drain(..pre);
+            if bytes.is_empty() {
+                return Err(format!("frame {}: only preambles, no delimiter", i + 1));
+            }
+            let frame = Frame::parse(&bytes).map_err(|e| {
+                format!("frame {}: {e} (give each frame from the delimiter through the check byte)", i + 1)
+            })?;
+            if !frame.checksum_ok() || !frame.trailing.is_empty() {
+                return Err(format!(
+                    "frame {}: the check byte should be {:02X} and end the frame (the frame is {} bytes by its byte count)",
+                    i + 1,
+                    frame.expected_check_byte,
+                    frame.pdu.len()
+                ));
+            }
+            Ok(bytes)
+        })
+        .collect()
+}
+
+/// `hartkit modem tx`: writes the frames as a WAV file and describes what it wrote.
+pub fn tx(frames: &[Vec<u8>], o: &TxOptions) -> Result<String, String> {
+    check_rate(o.rate)?;
+    if !o.volts_per_fs.is_finite() || o.volts_per_fs <= 0.0 {
+        return Err("--volts-per-fs must be positive".into());
+    }
+    let mut cfg = ModulatorConfig::new(o.rate);
+    cfg.amplitude_vpp = o.amplitude_mvpp / 1000.0;
+    let mut m = Modulator::new(cfg);
+    let mut samples = Vec::new();
+    let gap = o.gap_ms / 1000.0;
+    let scale = (1.0 / o.volts_per_fs) as f32;
+    let mut push = |s: f32| samples.push(s * scale);
+    for f in frames {
+        m.silence(gap, &mut push);
+        m.frame(o.preambles, f, &mut push);
+    }
+    m.silence(gap, &mut push);
+    let peak = samples.iter().fold(0f32, |a, s| a.max(s.abs()));
+    if peak > 1.0 && !o.float {
+        return Err(format!(
+            "the signal peaks at {peak:.2} of full scale and would clip in 16-bit PCM; lower --amplitude-mvpp, raise --volts-per-fs or use --float"
+        ));
+    }
+    let format = if o.float {
+        WriteFormat::Float32
+    } else {
+        WriteFormat::Pcm16
+    };
+    let bytes = wav::write_mono(&samples, o.rate, format).map_err(|e| e.to_string())?;
+    std::fs::write(&o.out, bytes).map_err(|e| format!("cannot write {}: {e}", o.out.display()))?;
+    Ok(format!(
+        "wrote {} frame(s), {:.3} s at {} Hz, {} mVpp, to {}",
+        frames.len(),
+        samples.len() as f64 / f64::from(o.rate),
+        o.rate,
+        o.amplitude_mvpp,
+        o.out.display()
+    ))
+}
+
+/// Where `hartkit modem rx` reads samples from.
+#[derive(Debug, Clone)]
+pub enum RxInput {
+    /// A WAV file.
+    Wav(std::path::PathBuf),
+    /// Raw signed 16-bit little-endian mono samples at this rate, from a file or
+    /// (path `-`) standard input.
+    RawS16le {
+        /// File, or `-` for standard input.
+        path: std::path::PathBuf,
+        /// Sample rate, Hz.
+        rate: u32,
+    },
+}
+
+/// One decoded frame as the JSON line `hartkit modem rx --json` prints.
+pub fn frame_json(f: &RxFrame<'_>) -> serde_json::Value {
+    json!({
+        "t": (f.t * 1e6).round() / 1e6,
+        "hex": hex::compact(f.pdu),
+        "preambles": f.preambles,
+        "checksum_ok": f.checksum_ok,
+        "parity_errors": f.parity_errors,
+        "level_mvpp": (f.level_vpp * 1e4).round() / 10.0,
+    })
+}
+
+/// One decoded frame as a readable listing: a summary line, then the frame decoded
+/// field by field when it is intact.
+pub fn frame_text(f: &RxFrame<'_>) -> String {
+    let mut flags = Vec::new();
+    if !f.checksum_ok {
+        flags.push("CHECK BYTE WRONG".to_string());
+    }
+    if f.parity_errors > 0 {
+        flags.push(format!("{} PARITY ERROR(S)", f.parity_errors));
+    }
+    if f.framing_errors > 0 {
+        flags.push(format!("{} FRAMING ERROR(S)", f.framing_errors));
+    }
+    let mut out = format!(
+        "t={:.6} s  {} preambles  {:.0} mVpp  {}{}\n",
+        f.t,
+        f.preambles,
+        f.level_vpp * 1000.0,
+        hex::spaced(f.pdu),
+        if flags.is_empty() {
+            String::new()
+        } else {
+            format!("  [{}]", flags.join(", "))
+        }
+    );
+    if flags.is_empty() {
+        if let Ok(frame) = Frame::parse(f.pdu) {
+            for line in annotate::frame(&frame).lines() {
+                out.push_str("    ");
+                out.push_str(line);
+                out.push('\n');
+            }
+        }
+    }
+    out
+}
+
+/// `hartkit modem rx`: decodes every frame and prints each as soon as it is found
+/// (one JSON object per line with `json`). Returns the number of frames.
+pub fn rx(
+    input: &RxInput,
+    volts_per_fs: f64,
+    as_json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<usize, String> {
+    let mut count = 0usize;
+    let error: std::cell::RefCell<Option<std::io::Error>> = std::cell::RefCell::new(None);
+    let mut emit = |ev: DemodEvent<'_>| {
+        if let DemodEvent::Frame(f) = ev {
+            count += 1;
+            let text = if as_json {
+                frame_json(&f).to_string() + "\n"
+            } else {
+                frame_text(&f)
+            };
+            if let Err(e) = out.write_all(text.as_bytes()) {
+                error.borrow_mut().get_or_insert(e);
+            }
+        }
+    };
+    match input {
+        RxInput::Wav(path) => {
+            let bytes =
+                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            let w = Wav::parse(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+            check_rate(w.sample_rate())?;
+            if w.channels() != 1 {
+                eprintln!(
+                    "hartkit: note: {} has {} channels; decoding the first",
+                    path.display(),
+                    w.channels()
+                );
+            }
+            if w.truncated() {
+                eprintln!(
+                    "hartkit: note: {} is cut short; decoding what is there",
+                    path.display()
+                );
+            }
+            let samples = w
+                .channel(0)
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+            let mut d = Demodulator::new(config(w.sample_rate(), volts_per_fs));
+            for chunk in samples.chunks(4800) {
+                d.push(chunk, &mut emit);
+            }
+            d.finish(&mut emit);
+        }
+        RxInput::RawS16le { path, rate } => {
+            check_rate(*rate)?;
+            let mut reader: Box<dyn Read> = if path.as_os_str() == "-" {
+                Box::new(std::io::stdin().lock())
+            } else {
+                Box::new(
+                    std::fs::File::open(path)
+                        .map_err(|e| format!("cannot open {}: {e}", path.display()))?,
+                )
+            };
+            let mut d = Demodulator::new(config(*rate, volts_per_fs));
+            let mut buf = vec![0u8; 8192];
+            let mut carry: Option<u8> = None;
+            let mut samples = Vec::with_capacity(4096);
+            loop {
+                let n = match reader.read(&mut buf) {
+                    Ok(0) => break,
+                    Ok(n) => n,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(e) => return Err(format!("reading samples: {e}")),
+                };
+                samples.clear();
+                let mut bytes = buf[..n].iter().copied();
+                if let Some(lo) = carry.take() {
+                    if let Some(hi) = bytes.next() {
+                        samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0);
+                    }
+                }
+                loop {
+                    match (bytes.next(), bytes.next()) {
+                        (Some(lo), Some(hi)) => {
+                            samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0)
+                        }
+                        (Some(lo), None) => {
+                            carry = Some(lo);
+                            break;
+                        }
+                        _ => break,
+                    }
+                }
+                d.push(&samples, &mut emit);
+                if error.borrow().is_some() {
+                    break;
+                }
+            }
+            d.finish(&mut emit);
+        }
+    }
+    match error.into_inner() {
+        // A closed pipe (`| head`) ends the run quietly.
+        Some(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            Err(format!("writing output: {e}"))
+        }
+        _ => Ok(count),
+    }
+}
+
+fn config(rate: u32, volts_per_fs: f64) -> DemodConfig {
+    let mut c = DemodConfig::new(rate);
+    c.volts_per_unit = volts_per_fs;
+    c
+}
