@@ -462,10 +462,17 @@ impl TimingFit {
             if self.rejected < 3 {
                 return None;
             }
-            // The fit itself is wrong (it locked onto noise before the signal): start
-            // again from this transition.
-            *self = TimingFit::start(z);
-            return Some((z, nominal));
+            // The grid itself is off: restart the short fit from this transition,
+            // keeping what the long one knows of the bit length.
+            self.rejected = 0;
+            self.long.shift_add(dn, dz, FIT_FORGET_LONG);
+            self.short = LineSums {
+                s0: 1.0,
+                ..LineSums::default()
+            };
+            self.last = z;
+            let slope = self.long.slope(nominal, prior).clamp(nominal * 0.96, nominal * 1.04);
+            return Some((z, slope));
         }
         self.rejected = 0;
         self.long.shift_add(dn, dz, FIT_FORGET_LONG);
