@@ -471,7 +471,10 @@ impl TimingFit {
                 ..LineSums::default()
             };
             self.last = z;
-            let slope = self.long.slope(nominal, prior).clamp(nominal * 0.96, nominal * 1.04);
+            let slope = self
+                .long
+                .slope(nominal, prior)
+                .clamp(nominal * 0.96, nominal * 1.04);
             return Some((z, slope));
         }
         self.rejected = 0;
@@ -555,13 +558,6 @@ impl Demodulator {
     /// The current level estimate, volts peak-to-peak.
     pub fn level_vpp(&self) -> f64 {
         self.level
-    }
-
-    /// Clock-recovery state for diagnostics: (tone + bit-rate error estimate, bit
-    /// length in samples, transitions locked).
-    #[doc(hidden)]
-    pub fn debug_state(&self) -> (f64, f64, u32) {
-        (self.eps, self.period, self.locked)
     }
 
     /// Estimated bit rate error of the signal being received (+0.01 = 1 % fast).
@@ -749,8 +745,10 @@ impl Demodulator {
         self.side = 0;
         self.last_zero = None;
         self.period = self.spb;
-        // Start detecting from two bits back (within the ring) so little is lost.
-        self.next_bit = (now - 2.0 * self.spb).max(0.0);
+        // Start detecting from four bits back (within the ring even at 192 kHz): the
+        // carrier detect needs about two bits to rise, and the first preamble
+        // character must not be lost.
+        self.next_bit = (now - 4.0 * self.spb).max(0.0);
         self.surv = [DEAD; STATES];
         self.surv[STATES - 1] = Survivor {
             metric: 0.0,

@@ -40,7 +40,13 @@ fn every_sample_rate_round_trips_with_exact_timestamps() {
         for ((g, f), t) in got.iter().zip(&fr).zip(&times) {
             assert_eq!(&g.pdu, f, "{fs} Hz");
             assert!(g.checksum_ok && g.parity_errors == 0 && g.framing_errors == 0);
-            assert_eq!(g.preambles, 5, "{fs} Hz");
+            // The carrier detect and the clock may spend the first one or two
+            // preamble characters; HART receivers need only two.
+            assert!(
+                (3..=5).contains(&g.preambles),
+                "{fs} Hz: {} preambles",
+                g.preambles
+            );
             // Within a tenth of a bit of the delimiter's start bit.
             assert!(
                 (g.t - t).abs() < 0.1 / BIT_RATE,

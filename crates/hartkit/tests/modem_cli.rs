@@ -1,0 +1,335 @@
+//! `hartkit modem` and `hartkit loop` as a user runs them: WAV files written and read
+//! back, files from sox in other formats and rates, raw samples on standard input, the
+//! JSON fields other tools read, and the error messages.
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+fn hartkit(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(args)
+        .output()
+        .expect("run hartkit");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("hartkit-modem-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// Command 0 request (short address 0) and a command 1 request to a long address.
+const FRAMES: [&str; 2] = ["0280000082", "82A606BC614E0100B0"];
+
+fn json_lines(text: &str) -> Vec<serde_json::Value> {
+    text.lines()
+        .map(|l| serde_json::from_str(l).expect("one JSON object per line"))
+        .collect()
+}
+
+#[test]
+fn tx_then_rx_gives_back_every_frame_with_the_documented_fields() {
+    let wav = tmp("two.wav");
+    let (ok, out, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--out",
+        wav.to_str().unwrap(),
+        FRAMES[0],
+        FRAMES[1],
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("wrote 2 frame(s)"), "{out}");
+    let (ok, out, err) = hartkit(&["modem", "rx", "--json", wav.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let frames = json_lines(&out);
+    assert_eq!(frames.len(), 2);
+    for (f, hex) in frames.iter().zip(FRAMES) {
+        let keys: Vec<&str> = f.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(
+            keys,
+            [
+                "t",
+                "hex",
+                "preambles",
+                "checksum_ok",
+                "parity_errors",
+                "level_mvpp"
+            ]
+        );
+        assert_eq!(f["hex"], hex);
+        // The first preamble may go to the carrier detect.
+        assert!((4..=5).contains(&f["preambles"].as_u64().unwrap()), "{f}");
+        assert_eq!(f["checksum_ok"], true);
+        assert_eq!(f["parity_errors"], 0);
+        let level = f["level_mvpp"].as_f64().unwrap();
+        assert!((level - 500.0).abs() < 50.0, "{level}");
+    }
+    // 30 ms of silence, 2 lead bits and 5 preambles before the first delimiter.
+    let t = frames[0]["t"].as_f64().unwrap();
+    let expect = 0.030 + (2.0 + 55.0) / 1200.0;
+    assert!((t - expect).abs() < 1e-4, "t = {t}, expected {expect}");
+    // The readable listing decodes each frame.
+    let (ok, out, _) = hartkit(&["modem", "rx", wav.to_str().unwrap()]);
+    assert!(ok);
+    assert!(
+        out.contains("Read Unique Identifier") && out.contains("Read Primary Variable"),
+        "{out}"
+    );
+}
+
+#[test]
+fn frames_from_a_file_levels_rates_and_volts_per_full_scale() {
+    let list = tmp("frames.txt");
+    std::fs::write(
+        &list,
+        format!("# two frames\n{}\n\nFFFFFF{}\n", FRAMES[0], FRAMES[1]),
+    )
+    .unwrap();
+    let wav = tmp("low.wav");
+    let (ok, _, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--in",
+        list.to_str().unwrap(),
+        "--out",
+        wav.to_str().unwrap(),
+        "--rate",
+        "8000",
+        "--amplitude-mvpp",
+        "150",
+        "--preambles",
+        "3",
+        "--gap-ms",
+        "10",
+        "--volts-per-fs",
+        "0.5",
+    ]);
+    assert!(ok, "{err}");
+    // Told the right scale, the level comes out in volts.
+    let (ok, out, _) = hartkit(&[
+        "modem",
+        "rx",
+        "--json",
+        "--volts-per-fs",
+        "0.5",
+        wav.to_str().unwrap(),
+    ]);
+    assert!(ok);
+    let frames = json_lines(&out);
+    assert_eq!(frames.len(), 2);
+    assert!((2..=3).contains(&frames[1]["preambles"].as_u64().unwrap()));
+    assert!((frames[0]["level_mvpp"].as_f64().unwrap() - 150.0).abs() < 20.0);
+    // Told 0.25 V per full scale, the same file is a 75 mVpp signal: below the carrier
+    // detect threshold, so nothing.
+    let (ok, out, _) = hartkit(&[
+        "modem",
+        "rx",
+        "--json",
+        "--volts-per-fs",
+        "0.25",
+        wav.to_str().unwrap(),
+    ]);
+    assert!(ok);
+    assert!(out.is_empty(), "{out}");
+}
+
+#[test]
+fn raw_samples_on_standard_input() {
+    let wav = tmp("raw-src.wav");
+    assert!(
+        hartkit(&[
+            "modem",
+            "tx",
+            "--out",
+            wav.to_str().unwrap(),
+            "--rate",
+            "22050",
+            FRAMES[1]
+        ])
+        .0
+    );
+    // Strip the 44-byte header of the 16-bit PCM file: what is left is raw s16le.
+    let bytes = std::fs::read(&wav).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["modem", "rx", "--json", "--raw", "s16le", "--rate", "22050"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // An odd split, so a sample straddles two reads.
+    let mut stdin = child.stdin.take().unwrap();
+    stdin.write_all(&bytes[44..1001]).unwrap();
+    stdin.write_all(&bytes[1001..]).unwrap();
+    drop(stdin);
+    let out = child.wait_with_output().unwrap();
+    let frames = json_lines(&String::from_utf8_lossy(&out.stdout));
+    assert_eq!(frames.len(), 1);
+    assert_eq!(frames[0]["hex"], FRAMES[1]);
+}
+
+#[test]
+fn files_written_by_sox_in_other_formats() {
+    if Command::new("sox").arg("--version").output().is_err() {
+        eprintln!("skipped: sox is not installed");
+        return;
+    }
+    let wav = tmp("sox-src.wav");
+    assert!(
+        hartkit(&[
+            "modem",
+            "tx",
+            "--out",
+            wav.to_str().unwrap(),
+            "--float",
+            FRAMES[0],
+            FRAMES[1]
+        ])
+        .0
+    );
+    for (name, args) in [
+        ("s24-44k.wav", vec!["-b", "24", "-r", "44100"]),
+        ("s32-96k.wav", vec!["-b", "32", "-r", "96000"]),
+        (
+            "f32-11k.wav",
+            vec!["-e", "floating-point", "-b", "32", "-r", "11025"],
+        ),
+        ("u8-16k.wav", vec!["-b", "8", "-r", "16000"]),
+    ] {
+        let out = tmp(name);
+        let status = Command::new("sox")
+            .arg(&wav)
+            .args(&args)
+            .arg(&out)
+            .status()
+            .unwrap();
+        assert!(status.success(), "sox {name}");
+        let (ok, text, err) = hartkit(&["modem", "rx", "--json", out.to_str().unwrap()]);
+        assert!(ok, "{name}: {err}");
+        let hex: Vec<_> = json_lines(&text)
+            .iter()
+            .map(|f| f["hex"].as_str().unwrap().to_string())
+            .collect();
+        assert_eq!(hex, FRAMES, "{name}");
+    }
+}
+
+#[test]
+fn errors_say_what_to_do() {
+    let wav = tmp("err.wav");
+    let (ok, _, err) = hartkit(&["modem", "tx", "--out", wav.to_str().unwrap(), "02800000"]);
+    assert!(!ok);
+    assert!(
+        err.contains("frame 1") && err.contains("check byte"),
+        "{err}"
+    );
+    let (ok, _, err) = hartkit(&["modem", "tx", "--out", wav.to_str().unwrap(), "0280000083"]);
+    assert!(!ok);
+    assert!(err.contains("should be 82"), "{err}");
+    let (ok, _, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--out",
+        wav.to_str().unwrap(),
+        "--rate",
+        "4000",
+        FRAMES[0],
+    ]);
+    assert!(!ok);
+    assert!(err.contains("8000-192000"), "{err}");
+    let (ok, _, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--out",
+        wav.to_str().unwrap(),
+        "--amplitude-mvpp",
+        "3000",
+        FRAMES[0],
+    ]);
+    assert!(!ok);
+    assert!(err.contains("clip"), "{err}");
+    let not_wav = tmp("not.wav");
+    std::fs::write(
+        &not_wav,
+        b"OggS and then some bytes that are not a WAV file",
+    )
+    .unwrap();
+    let (ok, _, err) = hartkit(&["modem", "rx", not_wav.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(err.contains("RIFF"), "{err}");
+    let (ok, _, err) = hartkit(&["modem", "rx", "--raw", "s16le"]);
+    assert!(!ok);
+    assert!(err.contains("--rate"), "{err}");
+}
+
+#[test]
+fn cable_lengths_follow_the_rc_rule() {
+    let (ok, out, _) = hartkit(&[
+        "loop",
+        "cable",
+        "--capacitance-pf-per-m",
+        "95",
+        "--devices",
+        "1",
+        "--json",
+    ]);
+    assert!(ok);
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let len = j["max_length_m"].as_f64().unwrap();
+    // The classic table says 2000 m for one device on 95 pF/m cable.
+    assert!((len - 2000.0).abs() < 100.0, "{len}");
+    assert!((j["time_constant_us"].as_f64().unwrap() - 65.0).abs() < 0.1);
+    let (ok, out, _) = hartkit(&[
+        "loop",
+        "cable",
+        "--capacitance-pf-per-m",
+        "225",
+        "--devices",
+        "15",
+        "--simulate",
+    ]);
+    assert!(ok);
+    assert!(
+        out.contains("at most") && out.contains("200 of 200 frames decoded"),
+        "{out}"
+    );
+    let (ok, _, err) = hartkit(&["loop", "cable", "--capacitance-pf-per-m=-3"]);
+    assert!(!ok && err.contains("positive"), "{err}");
+}
+
+#[test]
+fn the_bench_writes_its_report() {
+    let dir = tmp("bench");
+    let (ok, out, err) = hartkit(&[
+        "modem",
+        "bench",
+        "--frames",
+        "20",
+        "--out",
+        dir.to_str().unwrap(),
+        "--only",
+        "awgn-16",
+        "--only",
+        "level-80mvpp",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("modem-bench.md"));
+    let md = std::fs::read_to_string(dir.join("modem-bench.md")).unwrap();
+    assert!(
+        md.contains("| awgn-16 | 16 | 500 | 0.0000 | 20/20 |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| level-80mvpp | 20 | 80 | 1.0000 | 0/20 |"),
+        "{md}"
+    );
+    let csv = std::fs::read_to_string(dir.join("modem-bench.csv")).unwrap();
+    assert!(csv.starts_with("condition,group,ebn0_db"));
+    let (ok, _, err) = hartkit(&["modem", "bench", "--only", "no-such-thing"]);
+    assert!(!ok && err.contains("awgn-11"), "{err}");
+}
