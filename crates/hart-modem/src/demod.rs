@@ -106,6 +106,9 @@ const RING: usize = 1024;
 /// Survivors: the last `STATE_BITS` bits.
 const STATE_BITS: u32 = 3;
 const STATES: usize = 1 << STATE_BITS;
+/// Bits the last character of a frame may wait beyond its stop bit when, read at
+/// once, it does not complete a good frame.
+const LAST_CHAR_WAIT: usize = 2;
 /// Bits a character waits for before it is read from the best survivor.
 const DECISION_DELAY: usize = 4;
 /// Characters remembered for frame timestamps.
@@ -327,6 +330,8 @@ pub struct Demodulator {
     char_start: Option<usize>,
     chars: [CharRec; CHAR_RING],
     char_n: usize,
+    /// XOR of the characters of the frame being received.
+    frame_xor: u8,
     deframer: Deframer,
 }
 
@@ -541,6 +546,7 @@ impl Demodulator {
             char_start: None,
             chars: [CharRec::default(); CHAR_RING],
             char_n: 0,
+            frame_xor: 0,
             deframer: Deframer::default(),
         }
     }
@@ -1000,6 +1006,16 @@ impl Demodulator {
                     framing: !stop,
                     overrun: false,
                 };
+                let last = self.deframer.remaining() == Some(1);
+                if last
+                    && !flush
+                    && self.k < s + crate::BITS_PER_CHAR + LAST_CHAR_WAIT
+                    && (flags.any() || self.frame_xor ^ byte != 0)
+                {
+                    // Read this early, the last character does not complete a good
+                    // frame: give the detector another bit or two before deciding.
+                    return;
+                }
                 let t = self.t_of(self.bits[s % BIT_RING].start);
                 self.char_start = None;
                 self.pos = s + crate::BITS_PER_CHAR;
@@ -1039,6 +1055,12 @@ impl Demodulator {
         };
         self.deframer
             .push(c.byte, c.flags, &mut |ev| ctx.forward(ev, on_event));
+        // Check byte so far of the frame being received (XOR of delimiter onwards).
+        self.frame_xor = if self.deframer.in_frame() {
+            self.frame_xor ^ c.byte
+        } else {
+            0
+        };
     }
 }
 
