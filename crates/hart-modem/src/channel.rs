@@ -156,6 +156,72 @@ impl AnalogProfile {
     }
 }
 
+/// A 4-20 mA loop: the sense resistor, the cable and the devices on it, and the analog
+/// current. Turns a device's FSK current (or a master's voltage) into the voltage a
+/// receiver across the resistor sees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopModel {
+    /// Loop (sense) resistance, Ω (230-1100).
+    pub loop_resistance_ohm: f64,
+    /// Cable length, m.
+    pub cable_length_m: f64,
+    /// Cable capacitance, pF per metre.
+    pub cable_pf_per_m: f64,
+    /// Cable resistance (both conductors), Ω per metre.
+    pub cable_ohm_per_m: f64,
+    /// Devices on the loop.
+    pub devices: u32,
+    /// Capacitance of each device, pF.
+    pub device_capacitance_pf: f64,
+    /// Capacitance of the master and receiver, pF.
+    pub fixed_capacitance_pf: f64,
+    /// The analog current.
+    pub analog: AnalogProfile,
+}
+
+impl Default for LoopModel {
+    /// 250 Ω, no cable, one device, 12 mA, capacitances as in [`crate::cable::CableParams`].
+    fn default() -> Self {
+        let c = crate::cable::CableParams::default();
+        LoopModel {
+            loop_resistance_ohm: c.loop_resistance_ohm,
+            cable_length_m: 0.0,
+            cable_pf_per_m: 100.0,
+            cable_ohm_per_m: c.cable_ohm_per_m,
+            devices: 1,
+            device_capacitance_pf: c.device_capacitance_pf,
+            fixed_capacitance_pf: c.fixed_capacitance_pf,
+            analog: AnalogProfile::Constant(12.0),
+        }
+    }
+}
+
+impl LoopModel {
+    /// The network's RC time constant, seconds.
+    pub fn time_constant_s(&self) -> f64 {
+        let p = crate::cable::CableParams {
+            loop_resistance_ohm: self.loop_resistance_ohm,
+            cable_ohm_per_m: self.cable_ohm_per_m,
+            device_capacitance_pf: self.device_capacitance_pf,
+            fixed_capacitance_pf: self.fixed_capacitance_pf,
+            rc_limit_s: 65e-6,
+        };
+        crate::cable::time_constant_s(self.cable_length_m, self.cable_pf_per_m, self.devices, &p)
+    }
+
+    /// A device transmitting: `current_ma` (its FSK current, mA, in place) becomes the
+    /// voltage across the loop resistor, low-passed by the network's RC, with the analog
+    /// current's voltage added.
+    pub fn device_to_receiver(&self, current_ma: &mut [f32], fs: u32) {
+        let r = self.loop_resistance_ohm;
+        for x in current_ma.iter_mut() {
+            *x = (f64::from(*x) * 1e-3 * r) as f32;
+        }
+        rc_lowpass(current_ma, fs, self.time_constant_s());
+        self.analog.add_volts(current_ma, fs, r);
+    }
+}
+
 /// Reads the analog current the way a 4-20 mA input does: volts across `r_ohm`
 /// through a 10 Hz second-order Butterworth low-pass (bilinear, pre-warped). Returns mA
 /// per sample.
@@ -232,6 +298,25 @@ mod tests {
             (f64::from(peak) - core::f64::consts::FRAC_1_SQRT_2).abs() < 0.01,
             "{peak}"
         );
+    }
+
+    #[test]
+    fn a_loop_turns_device_current_into_volts() {
+        // 1 mA peak-to-peak at 1200 Hz, 250 Ω, no cable: 250 mVpp on 3 V (12 mA).
+        let fs = 48000;
+        let mut s = alloc::vec![0.0f32; 48000];
+        add_tone(&mut s, fs, 1200.0, 1.0, 0.0);
+        let lp = LoopModel::default();
+        assert!((lp.time_constant_s() - 250.0 * 12_500e-12).abs() < 1e-12);
+        lp.device_to_receiver(&mut s, fs);
+        let (lo, hi) = s[24000..]
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        assert!((f64::from(hi - lo) - 0.25).abs() < 0.005, "{}", hi - lo);
+        assert!((f64::from(hi + lo) / 2.0 - 3.0).abs() < 0.005);
+        // The 10 Hz reading gives the 12 mA back.
+        let ma = analog_reading_ma(&s, fs, 250.0);
+        assert!((ma[47_999] - 12.0).abs() < 0.01, "{}", ma[47_999]);
     }
 
     #[test]
