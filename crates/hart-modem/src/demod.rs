@@ -454,7 +454,12 @@ impl TimingFit {
             return Some((z, period));
         }
         let dz = z - self.last;
-        let dn = libm::round(dz / period);
+        // Which bit this transition is on. While the bit length is still being
+        // learnt, count with the nominal one: up to ±4 % it numbers gaps of up to
+        // twelve bits right, where a wrong early estimate would number them wrong in a
+        // way that confirms itself (a false lock a whole bit per twenty off).
+        let unit = if prior > SLOPE_PRIOR { nominal } else { period };
+        let dn = libm::round(dz / unit);
         if dn < 1.0 {
             // Two transitions within one bit: the newer one is noise.
             return None;
