@@ -222,49 +222,40 @@ fn files_written_by_sox_in_other_formats() {
 #[test]
 fn errors_say_what_to_do() {
     let wav = tmp("err.wav");
-    let (ok, _, err) = hartkit(&["modem", "tx", "--out", wav.to_str().unwrap(), "02800000"]);
-    assert!(!ok);
-    assert!(
-        err.contains("frame 1") && err.contains("check byte"),
-        "{err}"
-    );
-    let (ok, _, err) = hartkit(&["modem", "tx", "--out", wav.to_str().unwrap(), "0280000083"]);
-    assert!(!ok);
-    assert!(err.contains("should be 82"), "{err}");
-    let (ok, _, err) = hartkit(&[
-        "modem",
-        "tx",
-        "--out",
-        wav.to_str().unwrap(),
-        "--rate",
-        "4000",
-        FRAMES[0],
-    ]);
-    assert!(!ok);
-    assert!(err.contains("8000-192000"), "{err}");
-    let (ok, _, err) = hartkit(&[
-        "modem",
-        "tx",
-        "--out",
-        wav.to_str().unwrap(),
-        "--amplitude-mvpp",
-        "3000",
-        FRAMES[0],
-    ]);
-    assert!(!ok);
-    assert!(err.contains("clip"), "{err}");
+    let wav = wav.to_str().unwrap();
     let not_wav = tmp("not.wav");
     std::fs::write(
         &not_wav,
         b"OggS and then some bytes that are not a WAV file",
     )
     .unwrap();
-    let (ok, _, err) = hartkit(&["modem", "rx", not_wav.to_str().unwrap()]);
-    assert!(!ok);
-    assert!(err.contains("RIFF"), "{err}");
-    let (ok, _, err) = hartkit(&["modem", "rx", "--raw", "s16le"]);
-    assert!(!ok);
-    assert!(err.contains("--rate"), "{err}");
+    let cases: [(&[&str], &str); 6] = [
+        (&["modem", "tx", "--out", wav, "02800000"], "check byte"),
+        (&["modem", "tx", "--out", wav, "0280000083"], "should be 82"),
+        (
+            &["modem", "tx", "--out", wav, "--rate", "4000", FRAMES[0]],
+            "8000-192000",
+        ),
+        (
+            &[
+                "modem",
+                "tx",
+                "--out",
+                wav,
+                "--amplitude-mvpp",
+                "3000",
+                FRAMES[0],
+            ],
+            "clip",
+        ),
+        (&["modem", "rx", not_wav.to_str().unwrap()], "RIFF"),
+        (&["modem", "rx", "--raw", "s16le"], "--rate"),
+    ];
+    for (args, says) in cases {
+        let (ok, _, err) = hartkit(args);
+        assert!(!ok, "{args:?} should fail");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
 }
 
 #[test]
