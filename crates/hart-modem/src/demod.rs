@@ -362,8 +362,10 @@ const LAMBDA_ACQUIRE: f64 = 0.5;
 /// Transitions after which the clock counts as settled.
 const SETTLED_TRANSITIONS: u32 = 16;
 /// Transitions found from the tone balance alone before the clock recovery switches
-/// to the detector's decisions.
-const ACQUIRE_TRANSITIONS: u32 = 4;
+/// to the detector's decisions: one. The tone balance is rough at low signal-to-noise
+/// (a tenth of a bit, and worse on the carrier's ramp); the phase step at a decided
+/// transition is not, even when the grid is still a third of a bit off.
+const ACQUIRE_TRANSITIONS: u32 = 1;
 /// Bits the decision-directed clock recovery waits for the detector's decisions.
 const TIMING_DELAY: usize = 3;
 /// Gain of the tone-error estimate once settled (memory of a few hundred bit pairs).
@@ -467,7 +469,10 @@ impl TimingFit {
         // Residual against the current fit.
         let pred = self.short.intercept(period) + dn * period;
         let resid = dz - pred;
-        if self.short.s0 > 3.0 && libm::fabs(resid) > 0.35 * period {
+        // Outliers are only recognised once the clock has settled: before that the
+        // grid itself may be a third of a bit off, and the transitions that would pull
+        // it back must not be thrown away.
+        if prior <= SLOPE_PRIOR && libm::fabs(resid) > 0.35 * period {
             self.rejected += 1;
             if self.rejected < 3 {
                 return None;
