@@ -11,20 +11,25 @@
 //! 2. **Carrier detect**, per 1/8 bit: the level of the stronger tone over the last bit,
 //!    in volts peak-to-peak, smoothed over one bit, with hysteresis (on at
 //!    [`DemodConfig::carrier_on_vpp`], off below [`DemodConfig::carrier_off_vpp`]),
-//!    plus a check that one tone dominates, as in FSK and not in noise.
-//! 3. **Clock recovery**: the balance of the two tones' energy over a sliding one-bit
-//!    window crosses zero in the middle of every transition; each crossing pulls a
-//!    second-order loop (phase and bit rate), which holds at ±2 % bit-rate error.
+//!    plus a check that one tone dominates, as in FSK and not in noise. A jump of the
+//!    level while the carrier is on (a burst after noise) starts afresh.
+//! 3. **Clock recovery**: the first transition is where the tones' energy balance over a
+//!    sliding one-bit window crosses zero; after that, each transition the detector
+//!    decides is timed by the carrier phase step across it (a window that starts δ late
+//!    sees ±2π·1000 Hz·δ). Two weighted line fits of transition time against bit number
+//!    give the bit grid and the bit length; they hold at ±4 % of bit rate.
 //! 4. **Detection** with the memory of continuous-phase FSK: per bit, the complex
 //!    correlations with both tones, referred to the start of the bit, feed a Viterbi
 //!    search over the last three bits in which every survivor carries its own
 //!    estimate of the carrier phase, built from its own past decisions (per-survivor
-//!    processing). With a good estimate this is coherent maximum-likelihood sequence
-//!    detection; at the start of a burst, with no estimate yet, it falls back to the
-//!    non-coherent metric by itself.
-//! 5. **Characters** (8O1) are read from the best survivor a few bits behind the
-//!    newest bit; the last character of a frame, known from its byte count, is read
-//!    one bit after its stop bit so frames come out with little latency.
+//!    processing). The phase advance between windows is modelled over their actual
+//!    spacing with a measured tone error. With a good estimate this is coherent
+//!    maximum-likelihood sequence detection; at the start of a burst, with no estimate
+//!    yet, it falls back to the non-coherent metric by itself.
+//! 5. **Characters** (8O1) are read from the best survivor four bits behind the newest
+//!    bit, re-aligned on preamble characters between frames; the last character of a
+//!    frame, known from its byte count, is read as soon as its stop bit is in, so a
+//!    frame comes out about 1.5 bit times after its last stop bit.
 
 use hart_proto::deframer::{Deframer, DeframerEvent, UartFlags};
 use hart_proto::frame::checksum;
@@ -81,6 +86,10 @@ pub struct RxFrame<'a> {
     pub framing_errors: usize,
     /// Estimated signal level, volts peak-to-peak.
     pub level_vpp: f64,
+    /// Estimated bit rate error when the frame ended (+0.01 = 1 % fast).
+    pub rate_error: f64,
+    /// Estimated tone frequency error when the frame ended (+0.01 = 1 % high).
+    pub tone_error: f64,
 }
 
 /// Something the demodulator found.
@@ -581,6 +590,12 @@ impl Demodulator {
         self.spb / self.period - 1.0
     }
 
+    /// Estimated tone frequency error of the signal being received (+0.01 = both
+    /// tones 1 % high).
+    pub fn tone_error(&self) -> f64 {
+        self.eps
+    }
+
     /// Feeds samples; events are reported as they are found.
     pub fn push(&mut self, samples: &[f32], mut on_event: impl FnMut(DemodEvent<'_>)) {
         let vpu = self.config.volts_per_unit;
@@ -789,6 +804,8 @@ impl Demodulator {
         let ctx = FrameCtx {
             chars: &self.chars,
             char_n: self.char_n,
+            rate_error: self.spb / self.period - 1.0,
+            tone_error: self.eps,
         };
         self.deframer.abort(&mut |ev| forward(ev, &ctx));
         self.carrier = false;
@@ -1062,6 +1079,8 @@ impl Demodulator {
         let ctx = FrameCtx {
             chars: &self.chars,
             char_n: self.char_n,
+            rate_error: self.spb / self.period - 1.0,
+            tone_error: self.eps,
         };
         self.deframer
             .push(c.byte, c.flags, &mut |ev| ctx.forward(ev, on_event));
@@ -1094,6 +1113,8 @@ fn lo_frac(f: u64, t: f64, fs: u32) -> C64 {
 struct FrameCtx<'c> {
     chars: &'c [CharRec; CHAR_RING],
     char_n: usize,
+    rate_error: f64,
+    tone_error: f64,
 }
 
 impl FrameCtx<'_> {
@@ -1139,6 +1160,8 @@ impl FrameCtx<'_> {
             parity_errors,
             framing_errors,
             level_vpp,
+            rate_error: self.rate_error,
+            tone_error: self.tone_error,
         }));
     }
 }
@@ -1161,6 +1184,10 @@ pub struct DecodedFrame {
     pub framing_errors: usize,
     /// Estimated level, volts peak-to-peak.
     pub level_vpp: f64,
+    /// Estimated bit rate error (+0.01 = 1 % fast).
+    pub rate_error: f64,
+    /// Estimated tone frequency error (+0.01 = 1 % high).
+    pub tone_error: f64,
 }
 
 /// Decodes every frame in a buffer of samples.
@@ -1178,6 +1205,8 @@ pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFr
                 parity_errors: f.parity_errors,
                 framing_errors: f.framing_errors,
                 level_vpp: f.level_vpp,
+                rate_error: f.rate_error,
+                tone_error: f.tone_error,
             });
         }
     };

@@ -172,11 +172,22 @@ fn tone_and_bit_rate_errors_of_two_percent_decode() {
         cfg.tone_scale = tone;
         cfg.rate_scale = rate;
         let (s, _) = modulate_frames(cfg, &frame_refs(&fr), 0.03);
-        let got: Vec<_> = decode(DemodConfig::new(48000), &s)
-            .into_iter()
-            .map(|g| g.pdu)
-            .collect();
+        let decoded = decode(DemodConfig::new(48000), &s);
+        let got: Vec<_> = decoded.iter().map(|g| g.pdu.clone()).collect();
         assert_eq!(got, fr, "tones ×{tone}, bit rate ×{rate}");
+        // The errors are measured and reported with each frame (the last, longest
+        // frame has had the most transitions to learn from).
+        let last = decoded.last().unwrap();
+        assert!(
+            (last.rate_error - (rate - 1.0)).abs() < 0.004,
+            "rate {}",
+            last.rate_error
+        );
+        assert!(
+            (last.tone_error - (tone - 1.0)).abs() < 0.004,
+            "tone {}",
+            last.tone_error
+        );
     }
 }
 

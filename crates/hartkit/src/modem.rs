@@ -175,10 +175,12 @@ pub fn frame_text(f: &RxFrame<'_>) -> String {
         flags.push(format!("{} FRAMING ERROR(S)", f.framing_errors));
     }
     let mut out = format!(
-        "t={:.6} s  {} preambles  {:.0} mVpp  {}{}\n",
+        "t={:.6} s  {} preambles  {:.0} mVpp  bit rate {:+.1} %  tones {:+.1} %  {}{}\n",
         f.t,
         f.preambles,
         f.level_vpp * 1000.0,
+        f.rate_error * 100.0,
+        f.tone_error * 100.0,
         hex::spaced(f.pdu),
         if flags.is_empty() {
             String::new()
@@ -187,7 +189,8 @@ pub fn frame_text(f: &RxFrame<'_>) -> String {
         }
     );
     if flags.is_empty() {
-        if let Ok(frame) = Frame::parse(f.pdu) {
+        if let Ok(mut frame) = Frame::parse(f.pdu) {
+            frame.preambles = f.preambles;
             for line in annotate::frame(&frame).lines() {
                 out.push_str("    ");
                 out.push_str(line);
