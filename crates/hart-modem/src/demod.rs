@@ -139,8 +139,8 @@ impl C64 {
     /// e^{j2π·cycles}, to about 3e-7 (polynomials on an eighth of a turn; a few
     /// times faster than `sin` and `cos`, which matters at one call per bit per tone).
     fn expj(cycles: f64) -> Self {
-        let x = cycles - libm::round(cycles);
-        let q = libm::round(x * 4.0);
+        let x = cycles - round_fast(cycles);
+        let q = round_fast(x * 4.0);
         let t = 2.0 * core::f64::consts::PI * (x - q * 0.25);
         let t2 = t * t;
         let sin = t * (1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)));
@@ -318,6 +318,9 @@ pub struct Demodulator {
     prev_t: f64,
     /// Line fit of transition times against bit numbers, origin at the newest.
     fit: TimingFit,
+    /// The fitted bit boundary at the newest transition, samples, and its bit window.
+    grid_origin: f64,
+    grid_j: i64,
     /// Transitions accepted by the fit since the carrier came on.
     locked: u32,
     /// Measured relative tone error (both tones come from one clock in every modem):
@@ -370,6 +373,11 @@ const SLOPE_PRIOR_ACQUIRE: f64 = 50.0;
 const LAMBDA_ACQUIRE: f64 = 0.5;
 /// Transitions after which the clock counts as settled.
 const SETTLED_TRANSITIONS: u32 = 16;
+/// Transitions after which the phase references get the longer memory of [`LAMBDA`]:
+/// a reference is only as good as the bit grid it was built on (a window δ off a
+/// transition turns its phase by 2π·1000 Hz·δ), and the grid is still rough for a few
+/// characters after the clock has settled.
+const LAMBDA_SETTLED: u32 = 24;
 /// Transitions found from the tone balance alone before the clock recovery switches
 /// to the detector's decisions: one. The tone balance is rough at low signal-to-noise
 /// (a tenth of a bit, and worse on the carrier's ramp); the phase step at a decided
@@ -377,6 +385,9 @@ const SETTLED_TRANSITIONS: u32 = 16;
 const ACQUIRE_TRANSITIONS: u32 = 1;
 /// Bits the decision-directed clock recovery waits for the detector's decisions.
 const TIMING_DELAY: usize = 3;
+/// A transition is measured again on the current grid when its windows lie more than
+/// this (in bits) off it.
+const REMEASURE: f64 = 0.1;
 /// Gain of the tone-error estimate once settled (memory of a few hundred bit pairs).
 const EPS_GAIN: f64 = 0.004;
 /// Pairs of weight the zero starting value of the tone error counts for.
@@ -400,12 +411,17 @@ struct LineSums {
 impl LineSums {
     /// Moves the origin to (dn, dz), forgets by `forget` and adds the new origin point.
     fn shift_add(&mut self, dn: f64, dz: f64, forget: f64) {
+        self.shift_add_weighted(dn, dz, forget, 1.0);
+    }
+
+    /// [`Self::shift_add`] with the new point weighing `w`.
+    fn shift_add_weighted(&mut self, dn: f64, dz: f64, forget: f64, w: f64) {
         let (s0, s1, sz) = (self.s0, self.s1, self.sz);
         self.snz = self.snz - dn * sz - dz * s1 + dn * dz * s0;
         self.s2 = self.s2 - 2.0 * dn * s1 + dn * dn * s0;
         self.s1 = s1 - dn * s0;
         self.sz = sz - dz * s0;
-        self.s0 = self.s0 * forget + 1.0;
+        self.s0 = self.s0 * forget + w;
         self.s1 *= forget;
         self.s2 *= forget;
         self.sz *= forget;
@@ -435,6 +451,16 @@ impl LineSums {
 struct TimingFit {
     long: LineSums,
     short: LineSums,
+    /// Transitions seen while the clock is acquired: the bit length is fitted from
+    /// them robustly, so the rough transitions of the carrier's ramp and the noise
+    /// before it cannot bend it.
+    acq: [AcqPoint; ACQ_POINTS],
+    /// Entries of `acq` in use.
+    acq_len: usize,
+    /// Bit number of the newest transition since the fit started.
+    n_abs: f64,
+    /// Bit window at which the newest transition was decided.
+    last_j: i64,
     /// Time of the newest transition (the origin), samples.
     last: f64,
     /// Transitions rejected in a row.
@@ -443,14 +469,20 @@ struct TimingFit {
 }
 
 impl TimingFit {
-    fn start(z: f64) -> Self {
+    fn start(z: f64, j: i64) -> Self {
         let one = LineSums {
             s0: 1.0,
             ..LineSums::default()
         };
+        let mut acq = [AcqPoint::default(); ACQ_POINTS];
+        acq[0] = AcqPoint { n: 0.0, z, seg: 0 };
         TimingFit {
             long: one,
             short: one,
+            acq,
+            acq_len: 1,
+            n_abs: 0.0,
+            last_j: j,
             last: z,
             rejected: 0,
             started: true,
@@ -459,18 +491,18 @@ impl TimingFit {
 
     /// Adds a transition at `z` samples; returns the fitted newest boundary and bit
     /// length, or `None` when the transition is rejected as an outlier.
-    fn add(&mut self, z: f64, period: f64, nominal: f64, prior: f64) -> Option<(f64, f64)> {
+    fn add(&mut self, z: f64, j: i64, period: f64, nominal: f64, prior: f64) -> Option<(f64, f64)> {
         if !self.started {
-            *self = TimingFit::start(z);
+            *self = TimingFit::start(z, j);
             return Some((z, period));
         }
         let dz = z - self.last;
-        // Which bit this transition is on. While the bit length is still being
-        // learnt, count with the nominal one: up to ±4 % it numbers gaps of up to
-        // twelve bits right, where a wrong early estimate would number them wrong in a
-        // way that confirms itself (a false lock a whole bit per twenty off).
-        let unit = if prior > SLOPE_PRIOR { nominal } else { period };
-        let dn = libm::round(dz / unit);
+        // Which bit this transition is on: the detector's own count of bit windows
+        // since the previous one. Rounding the time between them by a bit length
+        // numbers a ten-bit gap wrong as soon as the signal is 2 % slow and the newer
+        // transition is measured a third of a bit late, and a gap numbered wrong
+        // bends the fitted bit length in a way that confirms itself.
+        let dn = (j - self.last_j) as f64;
         if dn < 1.0 {
             // Two transitions within one bit: the newer one is noise.
             return None;
@@ -489,6 +521,8 @@ impl TimingFit {
             // The grid itself is off: restart the short fit from this transition,
             // keeping what the long one knows of the bit length.
             self.rejected = 0;
+            self.n_abs += dn;
+            self.last_j = j;
             self.long.shift_add(dn, dz, FIT_FORGET_LONG);
             self.short = LineSums {
                 s0: 1.0,
@@ -505,16 +539,159 @@ impl TimingFit {
         self.long.shift_add(dn, dz, FIT_FORGET_LONG);
         self.short.shift_add(dn, dz, FIT_FORGET);
         self.last = z;
-        let slope = self
-            .long
-            .slope(nominal, prior)
-            .clamp(nominal * 0.96, nominal * 1.04);
+        self.last_j = j;
+        self.n_abs += dn;
+        let acquiring = prior > SLOPE_PRIOR;
+        let slope = if acquiring && self.acq_len > 0 && self.acq_len < ACQ_POINTS {
+            let mut seg = self.acq[self.acq_len - 1].seg;
+            if dn > ACQ_MAX_GAP {
+                // Bits lost in a long gap (a start bit missed in the preamble) cannot
+                // be counted while the bit length is unknown: at 2 % a twenty-bit gap
+                // is 20.4 bits. The fit gives the points after it their own
+                // intercept, and the grid restarts from this transition.
+                seg += 1;
+                self.short = LineSums {
+                    s0: 1.0,
+                    ..LineSums::default()
+                };
+            }
+            self.acq[self.acq_len] = AcqPoint {
+                n: self.n_abs,
+                z,
+                seg,
+            };
+            self.acq_len += 1;
+            robust_slope(&self.acq[..self.acq_len], nominal, prior).0
+        } else {
+            if self.acq_len > 0 {
+                // The clock has settled: carry on from the inliers alone.
+                self.rebuild_long(nominal, prior);
+            }
+            self.long.slope(nominal, prior)
+        };
+        let slope = slope.clamp(nominal * 0.96, nominal * 1.04);
         Some((z + self.short.intercept(slope), slope))
+    }
+
+    /// Rebuilds the long fit from the acquisition's inliers and ends the acquisition.
+    /// Gaps between segments are numbered with the fitted bit length.
+    fn rebuild_long(&mut self, nominal: f64, prior: f64) {
+        let pts = &self.acq[..self.acq_len];
+        let (slope, inliers) = robust_slope(pts, nominal, prior);
+        let mut long = LineSums::default();
+        let mut prev = pts[0];
+        for (i, p) in pts.iter().enumerate() {
+            let w = if inliers >> i & 1 == 1 { 1.0 } else { 0.0 };
+            let dz = p.z - prev.z;
+            let dn = if p.seg == prev.seg {
+                p.n - prev.n
+            } else {
+                libm::round(dz / slope)
+            };
+            long.shift_add_weighted(dn, dz, FIT_FORGET_LONG, w);
+            prev = *p;
+        }
+        // Points since the last one kept in `acq` (none when it was full only now).
+        if prev.n != self.n_abs {
+            long.shift_add_weighted(
+                self.n_abs - prev.n,
+                self.last - prev.z,
+                FIT_FORGET_LONG,
+                1.0,
+            );
+        }
+        self.long = long;
+        self.acq_len = 0;
     }
 }
 
+/// Transitions kept for the robust fit while the clock is acquired.
+const ACQ_POINTS: usize = 32;
+/// Residuals (in bits) beyond which the robust fit drops a transition, pass by pass.
+const ROBUST_LIMITS: [f64; 3] = [0.5, 0.3, 0.2];
+
+/// Longest gap, in bits, counted across while the bit length is still unknown.
+const ACQ_MAX_GAP: f64 = 12.0;
+
+/// A transition seen while the clock is acquired.
+#[derive(Debug, Clone, Copy, Default)]
+struct AcqPoint {
+    /// Bit number (counted from the first transition; across segments only roughly).
+    n: f64,
+    /// Time, samples.
+    z: f64,
+    /// Segment: the bit numbers of two segments are not comparable.
+    seg: u32,
+}
+
+/// Bit length from the acquisition's transitions: least-squares lines with one slope
+/// and an intercept per segment, the slope pulled towards `nominal` by `prior`,
+/// refitted three times without the points that lie too far from the previous fit.
+/// Returns the slope and the inliers as a bit mask.
+fn robust_slope(pts: &[AcqPoint], nominal: f64, prior: f64) -> (f64, u32) {
+    let mut mask: u32 = if pts.len() >= 32 {
+        u32::MAX
+    } else {
+        (1u32 << pts.len()) - 1
+    };
+    let last = pts[pts.len() - 1];
+    let (n0, z0) = (last.n, last.z);
+    // Per segment (points are in order, so segments are runs): (count, mean n, mean z).
+    let mut means = [(0.0f64, 0.0f64, 0.0f64); ACQ_POINTS];
+    let fit = |mask: u32, means: &mut [(f64, f64, f64); ACQ_POINTS]| {
+        let (mut sxx, mut sxy) = (0.0, 0.0);
+        let mut i = 0;
+        while i < pts.len() {
+            let seg = pts[i].seg;
+            let mut l = LineSums::default();
+            let start = i;
+            while i < pts.len() && pts[i].seg == seg {
+                if mask >> i & 1 == 1 {
+                    let (dn, dz) = (pts[i].n - n0, pts[i].z - z0);
+                    l.s0 += 1.0;
+                    l.s1 += dn;
+                    l.s2 += dn * dn;
+                    l.sz += dz;
+                    l.snz += dn * dz;
+                }
+                i += 1;
+            }
+            let m = if l.s0 > 0.0 {
+                sxx += l.s2 - l.s1 * l.s1 / l.s0;
+                sxy += l.snz - l.s1 * l.sz / l.s0;
+                (l.s0, l.s1 / l.s0, l.sz / l.s0)
+            } else {
+                (0.0, 0.0, 0.0)
+            };
+            means[start..i].iter_mut().for_each(|x| *x = m);
+        }
+        (sxy + prior * nominal) / (sxx + prior)
+    };
+    let mut slope = fit(mask, &mut means);
+    for limit in ROBUST_LIMITS {
+        let mut keep = 0u32;
+        for (i, p) in pts.iter().enumerate() {
+            let (_, mn, mz) = means[i];
+            let r = (p.z - z0) - (mz + slope * (p.n - n0 - mn));
+            if libm::fabs(r) <= limit * nominal {
+                keep |= 1 << i;
+            }
+        }
+        // Too few left to say anything about the bit length: keep the last fit.
+        if keep.count_ones() < 3 {
+            break;
+        }
+        mask = keep;
+        slope = fit(mask, &mut means);
+    }
+    (slope, mask)
+}
+
 /// Forgetting factor of the per-survivor phase estimate (memory about 1/(1-λ) bits).
-const LAMBDA: f64 = 0.85;
+/// Longer memories average more noise out of the reference but also keep the phase
+/// errors that the bit grid's jitter puts into it at every transition: 0.6 measured
+/// best (0.85 gave five times the frame errors at 11 dB).
+const LAMBDA: f64 = 0.6;
 /// Tone dominance (|E_m - E_s| / (E_m + E_s), smoothed over two bits) needed to switch
 /// the carrier on: about 0.93 for a clean FSK signal, 0.5 on average for noise.
 const CONTRAST_ON: f64 = 0.7;
@@ -555,6 +732,8 @@ impl Demodulator {
             prev_v: 0.0,
             prev_t: 0.0,
             fit: TimingFit::default(),
+            grid_origin: 0.0,
+            grid_j: 0,
             locked: 0,
             eps: 0.0,
             pairs: 0,
@@ -654,7 +833,7 @@ impl Demodulator {
     /// Running sum at a fractional sample position (linear between samples). The
     /// position must lie within the ring.
     fn prefix(ring: &[C64; RING], t: f64) -> C64 {
-        let i = libm::floor(t);
+        let i = floor_fast(t);
         let f = t - i;
         let i = i as usize;
         let a = ring[i & (RING - 1)];
@@ -663,6 +842,7 @@ impl Demodulator {
     }
 
     /// Correlations with both tones over [a, b) (samples), global oscillator phase.
+    #[inline]
     fn corr(&self, a: f64, b: f64) -> (C64, C64) {
         (
             Self::prefix(&self.pm, b).sub(Self::prefix(&self.pm, a)),
@@ -740,13 +920,16 @@ impl Demodulator {
             self.side = new_side;
             if was != 0 {
                 if let Some(z) = self.last_zero.take() {
-                    self.on_transition(z);
+                    // The bit window this transition falls at.
+                    let j = self.k as i64 + libm::round((z - self.next_bit) / self.period) as i64;
+                    self.on_transition(z, j);
                 }
             }
         }
     }
 
-    fn on_transition(&mut self, z: f64) {
+    /// A transition at `z` samples, at the start of bit window `j`.
+    fn on_transition(&mut self, z: f64, j: i64) {
         // The bit length is held near nominal until the clock has settled: the first
         // transitions (noise before the burst, the sparse preamble) are too few and
         // too rough to measure it.
@@ -755,12 +938,14 @@ impl Demodulator {
         } else {
             SLOPE_PRIOR_ACQUIRE
         };
-        let r = self.fit.add(z, self.period, self.spb, prior);
+        let r = self.fit.add(z, j, self.period, self.spb, prior);
         let Some((origin, period)) = r else {
             return;
         };
         self.locked += 1;
         self.period = period;
+        self.grid_origin = origin;
+        self.grid_j = j;
         // Move the next window onto the fitted grid of bit boundaries.
         let target = origin + libm::round((self.next_bit - origin) / period) * period;
         self.next_bit = target;
@@ -816,24 +1001,31 @@ impl Demodulator {
         });
     }
 
-    fn detect_bit(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
-        let a = self.next_bit;
-        let b = a + self.period;
-        let (cm, cs) = self.corr(a, b);
-        // Refer both correlations to the start of the bit: C' = C·e^{+j2πf·a/fs}.
-        let norm = 2.0 / self.period;
+    /// Correlations with both tones over `[a, a + len)`, referred to the window's start
+    /// (C' = C·e^{+j2πf·a/fs}) and scaled to the tone's amplitude.
+    #[inline]
+    fn bit_corr(&self, a: f64, len: f64) -> (C64, C64) {
+        let (cm, cs) = self.corr(a, a + len);
+        let norm = 2.0 / len;
         let ym = cm
             .mul(lo_frac(crate::MARK_HZ as u64, a, self.config.sample_rate))
             .scale(norm);
         let ys = cs
             .mul(lo_frac(crate::SPACE_HZ as u64, a, self.config.sample_rate))
             .scale(norm);
+        (ym, ys)
+    }
+
+    fn detect_bit(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        let a = self.next_bit;
+        let b = a + self.period;
+        let (ym, ys) = self.bit_corr(a, self.period);
         let spacing = if self.k == 0 {
             self.period
         } else {
             a - self.bits[(self.k - 1) % BIT_RING].start
         };
-        let lambda = if self.locked >= SETTLED_TRANSITIONS {
+        let lambda = if self.locked >= LAMBDA_SETTLED {
             LAMBDA
         } else {
             LAMBDA_ACQUIRE
@@ -864,8 +1056,34 @@ impl Demodulator {
             return;
         }
         let (prev, cur) = (self.bit_at(j - 1), self.bit_at(j));
-        let bp = &self.bits[(j - 1) % BIT_RING];
-        let bc = &self.bits[j % BIT_RING];
+        let mut bp = self.bits[(j - 1) % BIT_RING];
+        let mut bc = self.bits[j % BIT_RING];
+        if prev != cur && self.locked > 0 {
+            // Measure at the boundary the clock now predicts, not where the windows
+            // were placed bits ago (before the latest transitions moved the grid): a
+            // window a third of a bit off holds a third of the other tone, and the
+            // phase step across it is then a poor measure.
+            let g = self.grid_origin + (j as i64 - self.grid_j) as f64 * self.period;
+            let moved = libm::fabs(g - bc.start) > REMEASURE * self.period
+                || libm::fabs(bc.start - bp.start - self.period) > REMEASURE * self.period;
+            if moved
+                && g - self.period > self.n as f64 - (RING - 2) as f64
+                && g + self.period <= self.n as f64
+            {
+                let (pm, ps) = self.bit_corr(g - self.period, self.period);
+                let (cm, cs) = self.bit_corr(g, self.period);
+                bp = BitRec {
+                    start: g - self.period,
+                    ym: pm,
+                    ys: ps,
+                };
+                bc = BitRec {
+                    start: g,
+                    ym: cm,
+                    ys: cs,
+                };
+            }
+        }
         let yp = if prev { bp.ym } else { bp.ys };
         let yc = if cur { bc.ym } else { bc.ys };
         // Undo the previous tone's phase advance over the windows' actual spacing.
@@ -904,7 +1122,7 @@ impl Demodulator {
         };
         let late = dphi / (2.0 * core::f64::consts::PI * df) * self.fs;
         let late = late.clamp(-self.period / 2.0, self.period / 2.0);
-        self.on_transition(bc.start - late);
+        self.on_transition(bc.start - late, j as i64);
     }
 
     /// One trellis step; `spacing` is the distance from the previous bit window's start
@@ -1100,10 +1318,30 @@ fn lo_at(f: u64, n: u64, fs: u32) -> C64 {
     C64::expj(-(r as f64) / fs as f64)
 }
 
+/// `floor` for the sample positions and phases of the inner loops (|x| < 2^53): a cast
+/// instead of `libm`'s portable implementation, which costs several per cent of the
+/// demodulator's time.
+#[inline]
+fn floor_fast(x: f64) -> f64 {
+    let i = x as i64 as f64;
+    if i > x {
+        i - 1.0
+    } else {
+        i
+    }
+}
+
+/// Nearest integer, halves rounded up (the callers do not care which way).
+#[inline]
+fn round_fast(x: f64) -> f64 {
+    floor_fast(x + 0.5)
+}
+
 /// e^{+j2πf·t/fs} at a fractional sample position `t` (the conjugate oscillator).
+#[inline]
 fn lo_frac(f: u64, t: f64, fs: u32) -> C64 {
     let fs_c = u64::from(fs.clamp(8000, 192_000));
-    let ti = libm::floor(t);
+    let ti = floor_fast(t);
     let frac = t - ti;
     let r = (f % fs_c) * ((ti as u64) % fs_c) % fs_c;
     C64::expj((r as f64 + f as f64 * frac) / fs_c as f64)
