@@ -370,7 +370,7 @@ const SLOPE_PRIOR: f64 = 2.0;
 const SLOPE_PRIOR_ACQUIRE: f64 = 50.0;
 /// Forgetting factor while the clock is still being acquired: the phase references
 /// built from badly placed windows must not last.
-const LAMBDA_ACQUIRE: f64 = 0.5;
+const LAMBDA_ACQUIRE: f64 = 0.4;
 /// Transitions after which the clock counts as settled.
 const SETTLED_TRANSITIONS: u32 = 16;
 /// Transitions after which the phase references get the longer memory of [`LAMBDA`]:
@@ -561,7 +561,18 @@ impl TimingFit {
                 seg,
             };
             self.acq_len += 1;
-            robust_slope(&self.acq[..self.acq_len], nominal, prior).0
+            let (slope, _, fitted) = robust_slope(&self.acq[..self.acq_len], nominal, prior);
+            if let Some(f) = fitted {
+                // The grid follows the robust line, not every rough transition: one
+                // transition measured a third of a bit off would otherwise move the
+                // windows so far that the next gap is counted a bit too long.
+                self.short = LineSums {
+                    s0: 1.0,
+                    sz: f - z,
+                    ..LineSums::default()
+                };
+            }
+            slope
         } else {
             if self.acq_len > 0 {
                 // The clock has settled: carry on from the inliers alone.
@@ -577,7 +588,7 @@ impl TimingFit {
     /// Gaps between segments are numbered with the fitted bit length.
     fn rebuild_long(&mut self, nominal: f64, prior: f64) {
         let pts = &self.acq[..self.acq_len];
-        let (slope, inliers) = robust_slope(pts, nominal, prior);
+        let (slope, inliers, _) = robust_slope(pts, nominal, prior);
         let mut long = LineSums::default();
         let mut prev = pts[0];
         for (i, p) in pts.iter().enumerate() {
@@ -627,8 +638,9 @@ struct AcqPoint {
 /// Bit length from the acquisition's transitions: least-squares lines with one slope
 /// and an intercept per segment, the slope pulled towards `nominal` by `prior`,
 /// refitted three times without the points that lie too far from the previous fit.
-/// Returns the slope and the inliers as a bit mask.
-fn robust_slope(pts: &[AcqPoint], nominal: f64, prior: f64) -> (f64, u32) {
+/// Returns the slope, the inliers as a bit mask and the fitted time of the newest
+/// point (`None` when its segment has no inlier but the newest point itself).
+fn robust_slope(pts: &[AcqPoint], nominal: f64, prior: f64) -> (f64, u32, Option<f64>) {
     let mut mask: u32 = if pts.len() >= 32 {
         u32::MAX
     } else {
@@ -684,7 +696,13 @@ fn robust_slope(pts: &[AcqPoint], nominal: f64, prior: f64) -> (f64, u32) {
         mask = keep;
         slope = fit(mask, &mut means);
     }
-    (slope, mask)
+    let (count, mn, mz) = means[pts.len() - 1];
+    let fitted = if count >= 2.0 {
+        Some(z0 + mz - slope * mn)
+    } else {
+        None
+    };
+    (slope, mask, fitted)
 }
 
 /// Forgetting factor of the per-survivor phase estimate (memory about 1/(1-λ) bits).
