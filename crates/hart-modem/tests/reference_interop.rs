@@ -72,7 +72,10 @@ fn our_modulator_decodes_with_the_reference_receiver() {
 fn the_reference_generator_decodes_with_our_demodulator() {
     let fr = frames(40, 3);
     let want: Vec<_> = fr.iter().map(|f| f.1.clone()).collect();
+    // At 8 kHz the reference puts every bit edge on a whole sample, up to 0.15 bit
+    // off (our modulator integrates across the sample instead).
     for (fs, speed) in [
+        (8000, 1.0),
         (9600, 1.0),
         (11025, 1.0),
         (44100, 1.0),
@@ -99,15 +102,4 @@ fn the_reference_generator_decodes_with_our_demodulator() {
             );
         }
     }
-    // At 8 kHz the reference puts every bit edge on a whole sample, up to 0.15 bit
-    // off (our modulator integrates across the sample instead); the demodulator
-    // loses a frame or two of forty to that jitter.
-    let (s, _) = reference::generate(8000, 0.5, &fr, 0.02);
-    let got = decode(DemodConfig::new(8000), &s);
-    let n = good(
-        got.iter()
-            .map(|g| (g.pdu.clone(), g.checksum_ok && g.parity_errors == 0)),
-    )
-    .len();
-    assert!(n >= 38, "8000 Hz: {n} of 40");
 }
