@@ -88,7 +88,9 @@ pub const NOISE_TEST_TONES: [(f64, f64); 5] = [
 /// Every condition of the benchmark.
 pub fn conditions() -> Vec<Condition> {
     let mut v = Vec::new();
-    for e in [8.0, 9.0, 10.0, 11.0, 12.0, 12.5, 13.0, 14.0, 16.0] {
+    for e in [
+        8.0, 9.0, 10.0, 10.5, 11.0, 11.5, 12.0, 12.5, 13.0, 14.0, 16.0,
+    ] {
         v.push(Condition::awgn(&format!("awgn-{e}"), "awgn", e));
     }
     for e in [11.0, 12.5] {
