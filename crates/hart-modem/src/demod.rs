@@ -16,8 +16,13 @@
 //! 3. **Clock recovery**: the first transition is where the tones' energy balance over a
 //!    sliding one-bit window crosses zero; after that, each transition the detector
 //!    decides is timed by the carrier phase step across it (a window that starts δ late
-//!    sees ±2π·1000 Hz·δ). Two weighted line fits of transition time against bit number
-//!    give the bit grid and the bit length; they hold at ±4 % of bit rate.
+//!    sees ±2π·1000 Hz·δ), measured on the grid the clock predicts now over up to three
+//!    bits of each tone. Transitions are numbered by the detector's bit windows. While
+//!    the clock is acquired (the preamble), the bit length is a robust fit through the
+//!    transitions (outliers dropped, a new segment after a gap too long to count) and
+//!    the grid sits on it; after that, two weighted line fits of transition time
+//!    against bit number give the bit grid and the bit length. They hold at ±4 % of
+//!    bit rate.
 //! 4. **Detection** with the memory of continuous-phase FSK: per bit, the complex
 //!    correlations with both tones, referred to the start of the bit, feed a Viterbi
 //!    search over the last three bits in which every survivor carries its own

@@ -68,7 +68,7 @@ impl Modulator {
         self.config = config;
     }
 
-    /// Number of samples [`Modulator::burst`] produces for `chars` characters.
+    /// Number of samples [`Modulator::bytes`] produces for `chars` characters.
     pub fn burst_len(&self, chars: usize) -> usize {
         let bits = self.burst_bits(chars);
         let fs = f64::from(self.config.sample_rate);
