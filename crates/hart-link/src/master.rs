@@ -13,6 +13,7 @@
 //! | ACK to the other master | at E + HOLD + 2 characters (the slot at E + HOLD is a burst device's), until E + RT2; later after RT1 |
 //! | BACK to this master | at E + HOLD, until E + RT2; later after RT1 |
 //! | anything else (request of the other master, BACK to the other, noise, power-up) | after RT1 of silence |
+//! | its own request, when it has just given up on it | at E + max(STO + RT2, RT1 of the other master + 2 characters) |
 //!
 //! and never while characters are arriving.
 
@@ -147,6 +148,9 @@ pub struct Master {
     state: State,
     pending: Option<Pending>,
     burst_seen: bool,
+    /// After giving up on a request: not before this, so the other master, which
+    /// counts its RT1 from the last frame it heard, gets the line first.
+    yield_until: Micros,
     out: [Option<MasterOutput>; OUT_CAP],
     out_len: usize,
     stats: MasterStats,
@@ -163,6 +167,7 @@ impl Master {
             state: State::Idle,
             pending: None,
             burst_seen: false,
+            yield_until: 0,
             out: Default::default(),
             out_len: 0,
             stats: MasterStats::default(),
@@ -364,7 +369,17 @@ impl Master {
             self.pending = None;
             self.state = State::Idle;
             self.stats.failed += 1;
-            // Like a finished transaction: the other master may take the line.
+            // Like a finished transaction, the other master may take the line. It has
+            // not heard the transaction end: it waits its RT1 from the last frame on
+            // the line, which for a secondary (41 characters) is later than this
+            // master's STO + RT2 (36). Leave it that slot, and two characters to be
+            // heard in, before starting again.
+            let other = match self.kind {
+                MasterKind::Primary => MasterKind::Secondary,
+                MasterKind::Secondary => MasterKind::Primary,
+            };
+            let p = *self.line.profile();
+            self.yield_until = self.line.last().1 + p.rt1(other) + p.chars(2);
             self.line.sent(LastFrame::Ack { to: self.kind }, now);
             self.push(MasterOutput::Done(Err(err)));
         }
@@ -481,7 +496,11 @@ impl Master {
             }
         };
         // Never while characters are arriving.
-        Some(at.max(not_before).max(self.line.quiet_from()?))
+        Some(
+            at.max(not_before)
+                .max(self.yield_until)
+                .max(self.line.quiet_from()?),
+        )
     }
 
     /// The next time [`Master::poll`] has something to do (absent new characters).

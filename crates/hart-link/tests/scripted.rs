@@ -100,6 +100,35 @@ fn power_up_waits_rt1_then_sto_retries_then_fails() {
 }
 
 #[test]
+fn a_master_that_gave_up_leaves_the_other_masters_rt1_slot_first() {
+    // The other master counts its RT1 from the last request it heard; the master that
+    // gave up starts again only after that slot and the two characters it needs to hear
+    // the other's carrier, not at STO + RT2.
+    for (kind, other_rt1) in [
+        (MasterKind::Primary, P.rt1_secondary),
+        (MasterKind::Secondary, P.rt1_primary),
+    ] {
+        let policy = RetryPolicy {
+            retries: 0,
+            ..RetryPolicy::default()
+        };
+        let mut m = Master::new(kind, P, policy, 0);
+        m.request(&cmd1_request(), 0).unwrap();
+        let t0 = P.rt1(kind);
+        let tx = transmit_at(&mut m, t0).unwrap();
+        let sent = t0 + tx.len() as Micros * CT;
+        m.transmitted(sent);
+        match m.poll(sent + P.sto) {
+            Some(MasterOutput::Done(Err(LinkError::NoReply { attempts: 1 }))) => {}
+            other => panic!("{kind:?}: {other:?}"),
+        }
+        m.request(&cmd1_request(), sent + P.sto).unwrap();
+        let at = (sent + P.sto + P.rt2).max(sent + other_rt1 + P.chars(2));
+        expect_tx_exactly_at(&mut m, at);
+    }
+}
+
+#[test]
 fn secondary_waits_its_longer_rt1() {
     let mut m = Master::new(MasterKind::Secondary, P, RetryPolicy::default(), 1000);
     m.request(&cmd1_request(), 1000).unwrap();

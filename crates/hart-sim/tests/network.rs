@@ -437,14 +437,12 @@ fn a_reply_after_sto_collides_with_the_retry_and_the_network_recovers() {
     );
 }
 
-/// Known gap, in `hart-link` (see "Access rules" in docs/data-link.md): a master that
-/// gives up may start again STO + RT2 after its last request (36 characters on FSK),
-/// before the secondary's RT1 (41) lets it in, so a primary whose requests go unanswered
-/// keeps the line from a waiting secondary (unless a burst device's BACK hands it over).
-/// Run with `--ignored`; it passes once a master that gives up leaves the other master
-/// the first slot.
+/// A master that gives up must leave the other master the first slot: the other one
+/// counts its RT1 from the last request it heard (41 characters for a secondary), later
+/// than the STO + RT2 (36) after which the master that gave up would start again, so a
+/// primary whose requests go unanswered would otherwise keep the line from a waiting
+/// secondary (unless a burst device's BACK handed it over).
 #[test]
-#[ignore = "hart-link: a primary whose requests go unanswered starves the secondary"]
 fn a_master_whose_requests_go_unanswered_leaves_the_other_a_slot() {
     let cfg = SimConfig {
         devices: 1,
