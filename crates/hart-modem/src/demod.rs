@@ -338,6 +338,8 @@ pub struct Demodulator {
 
     // Detection.
     surv: [Survivor; STATES],
+    /// Index of the best survivor (the first with the highest metric).
+    best_idx: usize,
     /// Bits detected since the carrier came on.
     k: usize,
     bits: [BitRec; BIT_RING],
@@ -763,6 +765,7 @@ impl Demodulator {
             eps: 0.0,
             pairs: 0,
             surv: [DEAD; STATES],
+            best_idx: 0,
             k: 0,
             bits: [BitRec::default(); BIT_RING],
             pos: 0,
@@ -991,6 +994,7 @@ impl Demodulator {
         // character must not be lost.
         self.next_bit = (now - 4.0 * self.spb).max(0.0);
         self.surv = [DEAD; STATES];
+        self.best_idx = STATES - 1;
         self.surv[STATES - 1] = Survivor {
             metric: 0.0,
             r: C64::ZERO,
@@ -1195,6 +1199,19 @@ impl Demodulator {
             C64::expj(-crate::SPACE_HZ * f * spacing / self.fs),
             C64::expj(-crate::MARK_HZ * f * spacing / self.fs),
         ];
+        // Per predecessor (each feeds two branches): the path's rotation brought up to
+        // this bit's start (the previous bit's tone ran across the spacing), its
+        // forgotten reference λR and the λ|R| its metric gives back.
+        let mut pre = [(C64::ZERO, C64::ZERO, 0.0); STATES];
+        for (p, s) in pre.iter_mut().zip(&self.surv) {
+            if s.metric != f64::NEG_INFINITY {
+                *p = (
+                    s.rot.mul(step[(s.hist & 1) as usize]),
+                    s.r.scale(lambda),
+                    lambda * s.r.abs(),
+                );
+            }
+        }
         let mut next = [DEAD; STATES];
         for (ns, slot) in next.iter_mut().enumerate() {
             let bit = ns & 1 == 1;
@@ -1205,12 +1222,10 @@ impl Demodulator {
                 if s.metric == f64::NEG_INFINITY {
                     continue;
                 }
-                // Bring the path's rotation up to this bit's start (the previous bit's
-                // tone ran across the spacing).
-                let rot = s.rot.mul(step[(s.hist & 1) as usize]);
+                let (rot, lr, lr_abs) = pre[ps];
                 let y = y0.mul(rot);
-                let rr = s.r.scale(lambda).add(y);
-                let m = s.metric + rr.abs() - lambda * s.r.abs();
+                let rr = lr.add(y);
+                let m = s.metric + rr.abs() - lr_abs;
                 if m > slot.metric {
                     *slot = Survivor {
                         metric: m,
@@ -1234,6 +1249,7 @@ impl Demodulator {
             .iter()
             .map(|s| s.metric)
             .fold(f64::NEG_INFINITY, f64::max);
+        self.best_idx = next.iter().position(|s| s.metric == best).unwrap_or(0);
         for s in next.iter_mut() {
             s.metric -= best;
         }
@@ -1241,13 +1257,7 @@ impl Demodulator {
     }
 
     fn best(&self) -> &Survivor {
-        let mut b = &self.surv[0];
-        for s in &self.surv[1..] {
-            if s.metric > b.metric {
-                b = s;
-            }
-        }
-        b
+        &self.surv[self.best_idx]
     }
 
     /// Bit `idx` (counted since the carrier came on) on the best path.
