@@ -1526,7 +1526,86 @@ pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFr
 
 #[cfg(test)]
 mod tests {
-    use super::C64;
+    use super::{floor_fast, robust_slope, AcqPoint, C64};
+
+    /// Preamble-like transitions (pairs one bit apart, eleven bits between pairs) of a
+    /// signal 2 % slow, 40 samples per nominal bit.
+    fn preamble(chars: usize) -> [AcqPoint; 32] {
+        let mut pts = [AcqPoint::default(); 32];
+        for c in 0..chars {
+            for (k, dn) in [0.0, 1.0].into_iter().enumerate() {
+                let n = c as f64 * 11.0 + dn;
+                pts[2 * c + k] = AcqPoint {
+                    n,
+                    z: 1000.0 + n * 40.8,
+                    seg: 0,
+                };
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn the_robust_fit_drops_a_transition_measured_far_off() {
+        let mut pts = preamble(5);
+        let clean = robust_slope(&pts[..10], 40.0, 0.0);
+        assert!((clean.0 - 40.8).abs() < 1e-9, "{}", clean.0);
+        assert_eq!(clean.1, 0b11_1111_1111);
+        // A third of a bit off: dropped, and the slope is unchanged.
+        pts[4].z += 0.35 * 40.0;
+        let (slope, inliers, fitted) = robust_slope(&pts[..10], 40.0, 0.0);
+        assert!((slope - 40.8).abs() < 1e-9, "{slope}");
+        assert_eq!(inliers, 0b11_1110_1111);
+        assert!((fitted.unwrap() - pts[9].z).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_segment_after_a_long_gap_keeps_its_own_intercept() {
+        // Two preamble characters lost: the bits counted across the gap are one short,
+        // as a drifting window count would make them; a new segment must not care.
+        let mut pts = preamble(6);
+        for p in &mut pts[4..12] {
+            p.n -= 1.0;
+            p.seg = 1;
+        }
+        let (slope, inliers, _) = robust_slope(&pts[..12], 40.0, 0.0);
+        assert!((slope - 40.8).abs() < 1e-9, "{slope}");
+        assert_eq!(inliers.count_ones(), 12);
+        // Counted as one segment, the points before the gap no longer fit the line
+        // and are lost to the fit.
+        for p in &mut pts[4..12] {
+            p.seg = 0;
+        }
+        let (_, inliers, _) = robust_slope(&pts[..12], 40.0, 0.0);
+        assert!(inliers.count_ones() < 12, "{inliers:b}");
+    }
+
+    #[test]
+    fn the_prior_pulls_a_short_fit_towards_nominal() {
+        let pts = preamble(2);
+        let (slope, _, _) = robust_slope(&pts[..4], 40.0, 50.0);
+        assert!(slope > 40.0 && slope < 40.8, "{slope}");
+        let (more, _, _) = robust_slope(&preamble(5)[..10], 40.0, 50.0);
+        assert!(more > slope && more < 40.8, "{more}");
+    }
+
+    #[test]
+    fn floor_fast_matches_floor() {
+        for x in [
+            -2.5,
+            -1.0,
+            -0.5,
+            -0.0,
+            0.0,
+            0.25,
+            1.0,
+            1.999_999,
+            12_345.678,
+            -12_345.678,
+        ] {
+            assert_eq!(floor_fast(x), libm::floor(x), "{x}");
+        }
+    }
 
     #[test]
     fn expj_matches_sin_and_cos() {
