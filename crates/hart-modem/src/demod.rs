@@ -74,13 +74,14 @@ pub struct RxChar {
     pub t: f64,
 }
 
-/// A received frame.
+/// A received frame; `P` holds its bytes: borrowed in [`DemodEvent::Frame`]
+/// ([`RxFrame`]), owned from `decode` (`DecodedFrame`, with the `alloc` feature).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RxFrame<'a> {
+pub struct ReceivedFrame<P> {
     /// Time of the delimiter's start bit, seconds since the first sample.
     pub t: f64,
     /// Delimiter through check byte.
-    pub pdu: &'a [u8],
+    pub pdu: P,
     /// Preamble characters before the delimiter.
     pub preambles: usize,
     /// True when the check byte matches.
@@ -95,6 +96,31 @@ pub struct RxFrame<'a> {
     pub rate_error: f64,
     /// Estimated tone frequency error when the frame ended (+0.01 = 1 % high).
     pub tone_error: f64,
+}
+
+/// A received frame as the demodulator reports it, its bytes borrowed.
+pub type RxFrame<'a> = ReceivedFrame<&'a [u8]>;
+
+/// A received frame with its bytes owned, as [`decode`] returns it.
+#[cfg(feature = "alloc")]
+pub type DecodedFrame = ReceivedFrame<alloc::vec::Vec<u8>>;
+
+impl RxFrame<'_> {
+    /// The same frame with its bytes copied.
+    #[cfg(feature = "alloc")]
+    pub fn to_decoded(&self) -> DecodedFrame {
+        ReceivedFrame {
+            t: self.t,
+            pdu: self.pdu.to_vec(),
+            preambles: self.preambles,
+            checksum_ok: self.checksum_ok,
+            parity_errors: self.parity_errors,
+            framing_errors: self.framing_errors,
+            level_vpp: self.level_vpp,
+            rate_error: self.rate_error,
+            tone_error: self.tone_error,
+        }
+    }
 }
 
 /// Something the demodulator found.
@@ -466,8 +492,8 @@ struct TimingFit {
     acq: [AcqPoint; ACQ_POINTS],
     /// Entries of `acq` in use.
     acq_len: usize,
-    /// Bit number of the newest transition since the fit started.
-    n_abs: f64,
+    /// Bit window of the first transition of the fit.
+    first_j: i64,
     /// Bit window at which the newest transition was decided.
     last_j: i64,
     /// Time of the newest transition (the origin), samples.
@@ -490,7 +516,7 @@ impl TimingFit {
             short: one,
             acq,
             acq_len: 1,
-            n_abs: 0.0,
+            first_j: j,
             last_j: j,
             last: z,
             rejected: 0,
@@ -530,7 +556,6 @@ impl TimingFit {
             // The grid itself is off: restart the short fit from this transition,
             // keeping what the long one knows of the bit length.
             self.rejected = 0;
-            self.n_abs += dn;
             self.last_j = j;
             self.long.shift_add(dn, dz, FIT_FORGET_LONG);
             self.short = LineSums {
@@ -549,7 +574,6 @@ impl TimingFit {
         self.short.shift_add(dn, dz, FIT_FORGET);
         self.last = z;
         self.last_j = j;
-        self.n_abs += dn;
         let acquiring = prior > SLOPE_PRIOR;
         let slope = if acquiring && self.acq_len > 0 && self.acq_len < ACQ_POINTS {
             let mut seg = self.acq[self.acq_len - 1].seg;
@@ -565,7 +589,7 @@ impl TimingFit {
                 };
             }
             self.acq[self.acq_len] = AcqPoint {
-                n: self.n_abs,
+                n: self.n_abs(),
                 z,
                 seg,
             };
@@ -593,6 +617,11 @@ impl TimingFit {
         Some((z + self.short.intercept(slope), slope))
     }
 
+    /// Bit number of the newest transition since the fit started.
+    fn n_abs(&self) -> f64 {
+        (self.last_j - self.first_j) as f64
+    }
+
     /// Rebuilds the long fit from the acquisition's inliers and ends the acquisition.
     /// Gaps between segments are numbered with the fitted bit length.
     fn rebuild_long(&mut self, nominal: f64, prior: f64) {
@@ -612,9 +641,9 @@ impl TimingFit {
             prev = *p;
         }
         // Points since the last one kept in `acq` (none when it was full only now).
-        if prev.n != self.n_abs {
+        if prev.n != self.n_abs() {
             long.shift_add_weighted(
-                self.n_abs - prev.n,
+                self.n_abs() - prev.n,
                 self.last - prev.z,
                 FIT_FORGET_LONG,
                 1.0,
@@ -1475,30 +1504,6 @@ impl FrameCtx<'_> {
     }
 }
 
-/// A frame found by [`decode`], owned.
-#[cfg(feature = "alloc")]
-#[derive(Debug, Clone, PartialEq)]
-pub struct DecodedFrame {
-    /// Time of the delimiter's start bit, seconds from the first sample.
-    pub t: f64,
-    /// Delimiter through check byte.
-    pub pdu: alloc::vec::Vec<u8>,
-    /// Preamble characters before the delimiter.
-    pub preambles: usize,
-    /// True when the check byte matches.
-    pub checksum_ok: bool,
-    /// Characters with a parity error.
-    pub parity_errors: usize,
-    /// Characters with a framing error.
-    pub framing_errors: usize,
-    /// Estimated level, volts peak-to-peak.
-    pub level_vpp: f64,
-    /// Estimated bit rate error (+0.01 = 1 % fast).
-    pub rate_error: f64,
-    /// Estimated tone frequency error (+0.01 = 1 % high).
-    pub tone_error: f64,
-}
-
 /// Decodes every frame in a buffer of samples.
 #[cfg(feature = "alloc")]
 pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFrame> {
@@ -1506,17 +1511,7 @@ pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFr
     let mut out = alloc::vec::Vec::new();
     let mut take = |ev: DemodEvent<'_>| {
         if let DemodEvent::Frame(f) = ev {
-            out.push(DecodedFrame {
-                t: f.t,
-                pdu: f.pdu.to_vec(),
-                preambles: f.preambles,
-                checksum_ok: f.checksum_ok,
-                parity_errors: f.parity_errors,
-                framing_errors: f.framing_errors,
-                level_vpp: f.level_vpp,
-                rate_error: f.rate_error,
-                tone_error: f.tone_error,
-            });
+            out.push(f.to_decoded());
         }
     };
     d.push(samples, &mut take);
