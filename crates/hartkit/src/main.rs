@@ -822,13 +822,13 @@ fn serve_hart_ip(
         }
         _ => vec!["sim".to_string()],
     };
-    let config = hart_gateway::Config {
+    let config = hart_ip_server::Config {
         bind: addr,
         udp: udp || !tcp,
         tcp: tcp || !udp,
         max_sessions,
         read_only,
-        ..hart_gateway::Config::default()
+        ..hart_ip_server::Config::default()
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -842,7 +842,7 @@ fn serve_hart_ip(
                 hart_host::target::open_async(t).await.map_err(|e| (e, 2))?,
             ));
         }
-        let server = hart_gateway::start(config, loops)
+        let server = hart_ip_server::start(config, loops)
             .await
             .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
         {

@@ -3,10 +3,10 @@
 
 use std::time::Duration;
 
-use hart_gateway::{start, Config};
 use hart_host::hartip::HartIpTransport;
 use hart_host::target::{open, AnyTransport};
 use hart_host::{Client, DeviceRef, HostError};
+use hart_ip_server::{start, Config};
 
 fn config() -> Config {
     Config {
@@ -184,7 +184,7 @@ fn multiplexer_routes_to_sub_devices() {
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async {
         let plant2 =
-            std::env::temp_dir().join(format!("hart-gateway-plant2-{}.toml", std::process::id()));
+            std::env::temp_dir().join(format!("hart-ip-server-plant2-{}.toml", std::process::id()));
         std::fs::write(&plant2, "[[device]]\nprofile = \"valve\"\npoll = 5\n").unwrap();
         let loops = vec![
             Client::new(open("sim?virtual").unwrap()),
@@ -461,7 +461,7 @@ fn publish_subscriptions_with_commands_532_and_533() {
             devices.push(hart_device::Device::new(c));
         }
         let ids: Vec<[u8; 5]> = devices.iter().map(|d| d.unique_id().to_bytes()).collect();
-        let server = hart_gateway::start_in_memory(config(), devices)
+        let server = hart_ip_server::start_in_memory(config(), devices)
             .await
             .unwrap();
         let addr = server.udp_addr.unwrap();

@@ -2,18 +2,18 @@
 //! UDP with a simulated device behind the server (virtual time), concurrent sessions,
 //! and memory per idle session.
 //!
-//! `cargo run --release -p hart-gateway --example loopback_bench -- [SESSIONS] [SECONDS] [line]`
-//! `cargo run --release -p hart-gateway --example loopback_bench -- soak [SECONDS]`: 200
+//! `cargo run --release -p hart-ip-server --example loopback_bench -- [SESSIONS] [SECONDS] [line]`
+//! `cargo run --release -p hart-ip-server --example loopback_bench -- soak [SECONDS]`: 200
 //! sessions connecting, polling and dropping at random; lost replies, memory and open
 //! descriptors before and after.
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use hart_gateway::{start, start_in_memory, Config};
 use hart_host::target::open;
 use hart_host::Client;
 use hart_ip::{encode, Message, MessageId, MessageType};
+use hart_ip_server::{start, start_in_memory, Config};
 use tokio::net::UdpSocket;
 
 fn rss_kib() -> u64 {

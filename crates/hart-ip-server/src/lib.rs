@@ -1,0 +1,284 @@
+//! # hart-ip-server
+//!
+//! A HART-IP server (UDP and TCP, port 5094) in front of a HART loop: sessions with a
+//! limit and an inactivity timer, keep-alive, token-passing PDUs forwarded to the
+//! devices on the loop, direct PDUs answered by the server itself, burst frames
+//! published to every session, a read-only mode, and a read audit log.
+//!
+//! Every session is independent: a malformed message closes (TCP) or is refused
+//! (UDP) for its own session only. The loop is reached through a
+//! `hart_host::Client`, one transaction at a time, by a single backend task.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use hart_host::target::AnyTransport;
+use hart_host::Client;
+use hart_ip::{encode, MessageId, MessageType, HEADER_LEN};
+use hart_proto::frame::{Frame, FrameSpec, FrameType};
+use tokio::net::{TcpListener, UdpSocket};
+use tokio::sync::{broadcast, mpsc, Mutex};
+
+mod audit;
+mod backend;
+pub mod mux;
+mod session;
+mod subscriptions;
+mod tcp;
+mod udp;
+
+use audit::AuditLog;
+pub use audit::{AuditRecord, AUDIT_RECORDS};
+use backend::{backend, memory_backend};
+use mux::LoopRequest;
+pub use mux::{GatewayIdentity, Mux, Route, SubDevice};
+pub use subscriptions::subscription;
+use tcp::serve_tcp;
+use udp::serve_udp;
+
+/// Server settings.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Address to listen on (UDP and TCP).
+    pub bind: SocketAddr,
+    /// Serve UDP.
+    pub udp: bool,
+    /// Serve TCP.
+    pub tcp: bool,
+    /// Most sessions at once (UDP and TCP together).
+    pub max_sessions: usize,
+    /// Refuse every command that changes a device ("access restricted").
+    pub read_only: bool,
+    /// Scan each loop's polling addresses 0..=N at start (for routing by long address
+    /// and command 84); `None` skips the scan.
+    pub scan_to: Option<u8>,
+    /// The gateway's own identity.
+    pub identity: GatewayIdentity,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            bind: "127.0.0.1:5094".parse().unwrap(),
+            udp: true,
+            tcp: true,
+            max_sessions: 64,
+            read_only: false,
+            scan_to: Some(15),
+            identity: GatewayIdentity::default(),
+        }
+    }
+}
+
+/// Shortest inactivity timer the server accepts, ms.
+pub const MIN_TIMER_MS: u32 = 1000;
+
+/// Counters for the audit log and tests.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Stats {
+    /// Sessions opened.
+    pub sessions_opened: u64,
+    /// Sessions refused (limit reached, bad initiate).
+    pub sessions_refused: u64,
+    /// Token-passing requests forwarded.
+    pub forwarded: u64,
+    /// Publish messages sent.
+    pub published: u64,
+    /// Malformed messages.
+    pub malformed: u64,
+}
+
+pub(crate) struct Shared {
+    pub(crate) config: Config,
+    pub(crate) sessions: Mutex<usize>,
+    pub(crate) stats: Mutex<Stats>,
+    pub(crate) mux: Mux,
+    pub(crate) bursts: broadcast::Sender<Vec<u8>>,
+    pub(crate) audit: Mutex<AuditLog>,
+    pub(crate) power_up: u64,
+}
+
+/// A running server.
+pub struct Server {
+    /// UDP address actually bound.
+    pub udp_addr: Option<SocketAddr>,
+    /// TCP address actually bound.
+    pub tcp_addr: Option<SocketAddr>,
+    shared: Arc<Shared>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+impl Server {
+    /// Stops serving: every task ends and the sockets close.
+    pub fn stop(self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+
+    /// Counters so far.
+    pub async fn stats(&self) -> Stats {
+        *self.shared.stats.lock().await
+    }
+
+    /// Sessions open now (UDP and TCP).
+    pub async fn active_sessions(&self) -> usize {
+        *self.shared.sessions.lock().await
+    }
+}
+
+/// Starts the server with `client` reaching the loop; returns once the sockets are
+/// bound. The server runs on local tasks: call it inside a `tokio::task::LocalSet`
+/// (the loop's client is not `Send`: serial ports and simulated plants stay on one
+/// thread).
+pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io::Result<Server> {
+    let mut senders = vec![];
+    let mut receivers = vec![];
+    for _ in 0..loops.len() {
+        let (tx, rx) = mpsc::channel::<LoopRequest>(256);
+        senders.push(tx);
+        receivers.push(rx);
+    }
+    let scan_to = config.scan_to;
+    start_with(config, senders, move |bursts, subs| {
+        loops
+            .into_iter()
+            .zip(receivers)
+            .enumerate()
+            .map(|(channel, (client, rx))| {
+                tokio::task::spawn_local(backend(
+                    client,
+                    channel as u8,
+                    scan_to,
+                    subs.clone(),
+                    rx,
+                    bursts.clone(),
+                ))
+            })
+            .collect()
+    })
+    .await
+}
+
+/// Starts the sockets with loop request queues `senders`, whose consumers `spawn`
+/// starts.
+async fn start_with(
+    config: Config,
+    senders: Vec<mpsc::Sender<LoopRequest>>,
+    spawn: impl FnOnce(
+        broadcast::Sender<Vec<u8>>,
+        Arc<Mutex<Vec<SubDevice>>>,
+    ) -> Vec<tokio::task::JoinHandle<()>>,
+) -> std::io::Result<Server> {
+    let (bursts, _) = broadcast::channel(64);
+    let subs = Arc::new(Mutex::new(vec![]));
+    let mut tasks = spawn(bursts.clone(), subs.clone());
+    let mux = Mux {
+        identity: config.identity.clone(),
+        loops: senders,
+        subs,
+    };
+    let shared = Arc::new(Shared {
+        config: config.clone(),
+        sessions: Mutex::new(0),
+        stats: Mutex::new(Stats::default()),
+        mux,
+        bursts: bursts.clone(),
+        audit: Mutex::new(AuditLog::default()),
+        power_up: unix_now(),
+    });
+    let mut udp_addr = None;
+    let mut tcp_addr = None;
+    if config.udp {
+        let sock = Arc::new(UdpSocket::bind(config.bind).await?);
+        udp_addr = Some(sock.local_addr()?);
+        tasks.push(tokio::task::spawn_local(serve_udp(sock, shared.clone())));
+    }
+    if config.tcp {
+        let bind = match udp_addr {
+            Some(a) if config.bind.port() == 0 => a,
+            _ => config.bind,
+        };
+        let listener = TcpListener::bind(bind).await?;
+        tcp_addr = Some(listener.local_addr()?);
+        tasks.push(tokio::task::spawn_local(serve_tcp(
+            listener,
+            shared.clone(),
+        )));
+    }
+    Ok(Server {
+        udp_addr,
+        tcp_addr,
+        shared,
+        tasks,
+    })
+}
+
+/// Starts the server with field devices answered in memory, without a simulated line
+/// (for benchmarks and tests of the server itself): requests are answered by the
+/// device with that address at once; burst messages are published when due. Call it
+/// inside a `tokio::task::LocalSet`.
+pub async fn start_in_memory(
+    config: Config,
+    devices: Vec<hart_device::Device>,
+) -> std::io::Result<Server> {
+    let (tx, rx) = mpsc::channel::<LoopRequest>(1024);
+    let server = start_with(config, vec![tx], |bursts, subs| {
+        vec![tokio::task::spawn_local(memory_backend(
+            devices, subs, rx, bursts,
+        ))]
+    })
+    .await?;
+    Ok(server)
+}
+
+pub(crate) fn message(ty: MessageType, id: MessageId, st: u8, seq: u16, body: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; HEADER_LEN + body.len()];
+    let _ = encode(1, ty, id, st, seq, body, &mut out);
+    out
+}
+
+/// The PDU of `spec` (no preambles, as HART-IP carries it); empty if it cannot be
+/// encoded.
+pub(crate) fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
+    hart_proto::frame::FrameBuf::encode(spec).map_or_else(|_| vec![], |b| b.as_slice().to_vec())
+}
+
+/// The gateway's own reply to a request frame: response code `code` and `data` (left
+/// out for error codes), the field device status 0.
+pub(crate) fn local_frame(f: &Frame<'_>, code: u8, data: &[u8]) -> Vec<u8> {
+    let data =
+        if hart_proto::tables::response_class(code) == hart_proto::tables::ResponseClass::Error {
+            &[][..]
+        } else {
+            data
+        };
+    pdu(&FrameSpec {
+        frame_type: FrameType::Ack,
+        extended: f.extended,
+        status: Some((code, 0)),
+        ..FrameSpec::request(f.address, f.command, data)
+    })
+}
+
+/// Aborts a task when dropped (children of a server task end with it).
+pub(crate) struct AbortOnDrop(pub(crate) tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+pub(crate) fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// The address of a frame, for messages.
+pub fn describe(pdu: &[u8]) -> String {
+    Frame::parse_pdu(pdu)
+        .map(|f| f.address.to_string())
+        .unwrap_or_else(|e| e.to_string())
+}

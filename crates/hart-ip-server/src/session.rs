@@ -1,0 +1,254 @@
+//! One HART-IP session, whatever the transport: the message handler.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use hart_ip::{status, Body, Header, MessageId, MessageType};
+use hart_proto::frame::{Frame, FrameType};
+
+use crate::audit::AuditRecord;
+use crate::mux::Route;
+use crate::subscriptions::{subscription_command, Subscriptions};
+use crate::{local_frame, message, unix_now, Shared, MIN_TIMER_MS};
+
+/// What to do with one received message of a session.
+pub(crate) enum Action {
+    Reply(Vec<u8>),
+    ReplyAndClose(Vec<u8>),
+    Close,
+    /// Forward a token-passing request to a loop and answer with sequence number `seq`
+    /// when the reply comes (over TCP, other requests and publish messages go on
+    /// meanwhile).
+    Forward {
+        channel: usize,
+        pdu: Vec<u8>,
+        seq: u16,
+    },
+}
+
+/// Waits for a loop's reply to a forwarded request and builds the response message:
+/// the reply PDU with status 0, or an empty response with status 6 when the device did
+/// not answer (so the client stops waiting at once).
+pub(crate) async fn forwarded(shared: &Shared, channel: usize, pdu: Vec<u8>, seq: u16) -> Vec<u8> {
+    let (st, body) = match shared.mux.forward(channel, pdu).await {
+        Some(reply) => (status::SUCCESS, reply),
+        None => (status::DEVICE_SPECIFIC, vec![]),
+    };
+    message(
+        MessageType::Response,
+        MessageId::TokenPassingPdu,
+        st,
+        seq,
+        &body,
+    )
+}
+
+/// Session state shared by UDP and TCP.
+pub(crate) struct Session {
+    pub(crate) open: bool,
+    pub(crate) timer: Duration,
+    pub(crate) last_rx: Instant,
+    pub(crate) publish_seq: u16,
+    pub(crate) peer: SocketAddr,
+    pub(crate) local_port: u16,
+    /// Number of this session's audit record.
+    pub(crate) audit: Option<u64>,
+    /// Publish subscriptions (commands 532/533).
+    pub(crate) subs: Subscriptions,
+}
+
+impl Session {
+    pub(crate) fn new(peer: SocketAddr, local_port: u16) -> Self {
+        Session {
+            open: false,
+            timer: Duration::from_secs(60),
+            last_rx: Instant::now(),
+            publish_seq: 0,
+            peer,
+            local_port,
+            audit: None,
+            subs: None,
+        }
+    }
+}
+
+pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
+    s.last_rx = Instant::now();
+    if h.message_type != MessageType::Request || h.reserved != 0 {
+        shared.stats.lock().await.malformed += 1;
+        return Action::Close;
+    }
+    let reply = |st: u8, b: &[u8]| message(MessageType::Response, h.message_id, st, h.sequence, b);
+    match h.message_id {
+        MessageId::SessionInitiate => {
+            if body.len() < 5 {
+                shared.stats.lock().await.sessions_refused += 1;
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            }
+            let master = body[0];
+            if master > 1 {
+                shared.stats.lock().await.sessions_refused += 1;
+                return Action::Reply(reply(status::INVALID_SELECTION, &[]));
+            }
+            let asked = u32::from_be_bytes([body[1], body[2], body[3], body[4]]);
+            if !s.open {
+                let mut n = shared.sessions.lock().await;
+                if *n >= shared.config.max_sessions {
+                    shared.stats.lock().await.sessions_refused += 1;
+                    return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
+                }
+                *n += 1;
+                s.open = true;
+                shared.stats.lock().await.sessions_opened += 1;
+                // Every HART-IP v1 session is an insecure session (0x0010).
+                s.audit = Some(shared.audit.lock().await.push(AuditRecord {
+                    client: s.peer,
+                    server_port: s.local_port,
+                    connected: unix_now(),
+                    disconnected: 0,
+                    status: 0x0010,
+                    publishes: 0,
+                    requests: 0,
+                    responses: 0,
+                }));
+            }
+            let timer = asked.max(MIN_TIMER_MS);
+            s.timer = Duration::from_millis(u64::from(timer));
+            let mut st = if timer != asked {
+                status::SET_TO_NEAREST
+            } else {
+                status::SUCCESS
+            };
+            if h.version != 1 {
+                st = status::VERSION_NOT_SUPPORTED;
+            }
+            Action::Reply(reply(st, &hart_ip::session_initiate_body(master, timer)))
+        }
+        _ if !s.open => Action::Close,
+        MessageId::SessionClose => Action::ReplyAndClose(reply(status::SUCCESS, &[])),
+        MessageId::KeepAlive => Action::Reply(reply(status::SUCCESS, &[])),
+        MessageId::TokenPassingPdu => {
+            if let Some(i) = s.audit {
+                if let Some(r) = shared.audit.lock().await.get_mut(i) {
+                    r.requests += 1;
+                    r.responses += 1;
+                    if Frame::parse_pdu(body).is_ok_and(|f| {
+                        hart_proto::command::info(f.command).is_some_and(|c| c.writes)
+                    }) && !shared.config.read_only
+                    {
+                        r.status |= 0x0001;
+                    }
+                }
+            }
+            let Ok(f) = Frame::parse_pdu(body) else {
+                shared.stats.lock().await.malformed += 1;
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            };
+            if f.frame_type() != FrameType::Stx {
+                return Action::Reply(reply(status::INVALID_SELECTION, &[]));
+            }
+            if shared.config.read_only
+                && hart_proto::command::info(f.command).is_some_and(|i| i.writes)
+            {
+                return Action::Reply(reply(
+                    status::SUCCESS,
+                    &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, &[]),
+                ));
+            }
+            if matches!(f.command, 532 | 533) {
+                // Subscriptions belong to this session: the server answers them whatever
+                // the address.
+                let (code, data) =
+                    subscription_command(shared, &mut s.subs, f.command, f.data).await;
+                return Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)));
+            }
+            let route = shared.mux.route(&f).await;
+            match route {
+                Route::Local => {
+                    let (code, data) = shared.mux.local(f.command, f.data).await;
+                    Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)))
+                }
+                Route::Loop(channel) => {
+                    shared.stats.lock().await.forwarded += 1;
+                    Action::Forward {
+                        channel,
+                        pdu: body.to_vec(),
+                        seq: h.sequence,
+                    }
+                }
+                Route::Nowhere => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+            }
+        }
+        MessageId::DirectPdu => {
+            let Ok(Body::Direct { entries, .. }) = Body::parse(h.message_id, h.message_type, body)
+            else {
+                return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
+            };
+            // Commands to the gateway itself, each answered in turn.
+            let mut out = vec![0u8, 0u8];
+            for e in hart_ip::DirectEntries(entries).flatten() {
+                let (code, data) = shared.mux.local(e.command, e.data).await;
+                let data = if hart_proto::tables::response_class(code)
+                    == hart_proto::tables::ResponseClass::Error
+                {
+                    vec![]
+                } else {
+                    data
+                };
+                out.extend_from_slice(&e.command.to_be_bytes());
+                out.push((1 + data.len()).min(255) as u8);
+                out.push(code);
+                out.extend_from_slice(&data[..data.len().min(254)]);
+            }
+            Action::Reply(reply(status::SUCCESS, &out))
+        }
+        MessageId::ReadAuditLog => {
+            let (start, count) = match Body::parse(h.message_id, h.message_type, body) {
+                Ok(Body::AuditLogRequest { start, count }) => (start, count),
+                _ => return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[])),
+            };
+            let audit = shared.audit.lock().await;
+            let records: Vec<&AuditRecord> = audit
+                .records
+                .iter()
+                .skip(usize::from(start))
+                .take(usize::from(count))
+                .collect();
+            let mut out = vec![start, records.len() as u8];
+            out.extend(shared.power_up.to_be_bytes());
+            out.extend(0u64.to_be_bytes()); // last security change: never
+            out.extend(0u16.to_be_bytes()); // server status: no syslog in use
+            out.extend(58u16.to_be_bytes());
+            for r in records {
+                out.extend(r.bytes());
+            }
+            Action::Reply(reply(status::SUCCESS, &out))
+        }
+        MessageId::Other(_) => {
+            shared.stats.lock().await.malformed += 1;
+            Action::Reply(message(
+                MessageType::Nak,
+                h.message_id,
+                status::INVALID_SELECTION,
+                h.sequence,
+                &[],
+            ))
+        }
+    }
+}
+
+/// Ends a session; `why` goes into its audit record (0 normal, 0x0004 aborted,
+/// 0x0008 timed out).
+pub(crate) async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
+    if s.open {
+        s.open = false;
+        if let Some(r) = s.audit {
+            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+                rec.disconnected = unix_now();
+                rec.status |= why;
+            }
+        }
+        let mut n = shared.sessions.lock().await;
+        *n = n.saturating_sub(1);
+    }
+}
