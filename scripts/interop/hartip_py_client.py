@@ -11,7 +11,7 @@ script with that venv's python, as a separate process:
         --host 127.0.0.1 --port 5094 --transport udp      # or tcp
 
 Sessions, HART-IP framing, PDU building/checking and the parsers for commands
-0, 1 and 3 all come from hartip-py (HARTIPClient, send_command, read_unique_id,
+0, 1 and 3 all come from hartip-py (HARTIPClient.connect/send_command/close,
 parse_cmd0/1/3), so the server is judged by an implementation that shares no
 code with hartkit. hartip-py has no parser for command 84 and decodes the
 command 20 long tag as ASCII, so those two payloads are decoded here (from the

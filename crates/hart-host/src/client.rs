@@ -69,6 +69,9 @@ pub struct DeviceInfo {
     pub descriptor: Option<String>,
     /// Long tag (command 20, HART 6+), when read.
     pub long_tag: Option<String>,
+    /// Reached through an I/O system (a HART-IP gateway or multiplexer): its I/O card
+    /// and channel, from command 84.
+    pub io_channel: Option<(u8, u8)>,
 }
 
 impl DeviceInfo {
@@ -88,6 +91,26 @@ impl DeviceInfo {
             .manufacturer_id
             .unwrap_or(self.identity.expanded_device_type >> 8)
     }
+
+    /// Whether the device is an I/O system (gateway, multiplexer) with sub-devices:
+    /// command 0 flag 0x04, "protocol bridge device", as hosts recognise one.
+    pub fn is_io_system(&self) -> bool {
+        self.identity.flags.0 & 0x04 != 0
+    }
+}
+
+/// What [`Client::scan`] reports as it goes.
+#[derive(Debug, Clone, Copy)]
+pub enum ScanEvent<'a> {
+    /// A polling address was tried: the device there (tags read), or none.
+    Address {
+        /// The polling address.
+        poll: u8,
+        /// The device found there.
+        found: Option<&'a DeviceInfo>,
+    },
+    /// A sub-device listed by an I/O system the scan found (command 84), tags read.
+    SubDevice(&'a DeviceInfo),
 }
 
 /// Direction of a logged transfer.
@@ -128,6 +151,43 @@ pub struct Client<T: Transport> {
     carrier_since: Option<Micros>,
     /// When the last character arrived.
     last_rx: Micros,
+}
+
+/// A sub-device as command 84 (read sub-device identity summary) describes it: index
+/// (2 bytes), I/O card, channel, manufacturer ID (2), expanded device type (2), device
+/// ID (3), universal revision, long tag (32), then, from HART 7 on, device revision,
+/// device profile and private label distributor (2).
+fn summary_identity(d: &[u8]) -> Option<DeviceInfo> {
+    if d.len() < 44 {
+        return None;
+    }
+    let long_tag = hart_proto::types::Latin1String::<32>(d[12..44].try_into().ok()?).to_string();
+    let identity = Identity {
+        expansion_code: 254,
+        expanded_device_type: u16::from_be_bytes([d[6], d[7]]),
+        min_request_preambles: 5,
+        universal_revision: d[11],
+        device_revision: d.get(44).copied().unwrap_or(0),
+        software_revision: 0,
+        hardware: Default::default(),
+        flags: Default::default(),
+        device_id: hart_proto::types::DeviceId(d[8..11].try_into().ok()?),
+        min_response_preambles: None,
+        max_device_variables: None,
+        config_change_counter: None,
+        extended_status: None,
+        manufacturer_id: Some(u16::from_be_bytes([d[4], d[5]])),
+        private_label_distributor: d.get(46..48).map(|b| u16::from_be_bytes([b[0], b[1]])),
+        device_profile: d.get(45).map(|&p| hart_proto::types::DeviceProfile(p)),
+    };
+    Some(DeviceInfo {
+        polling_address: None,
+        identity,
+        tag: None,
+        descriptor: None,
+        long_tag: Some(long_tag),
+        io_channel: Some((d[2], d[3])),
+    })
 }
 
 impl<T: Transport> Client<T> {
@@ -324,9 +384,22 @@ impl<T: Transport> Client<T> {
         }
     }
 
-    fn finish(&mut self, pdu: &[u8], command: u16, _what: &str) -> Result<Reply, HostError> {
+    fn finish(&mut self, pdu: &[u8], command: u16, what: &str) -> Result<Reply, HostError> {
         let f = Frame::parse_pdu(pdu).map_err(|e| HostError::Decode(e.to_string()))?;
         let rc = f.response_code.unwrap_or(0);
+        // A HART-IP I/O system answers for a sub-device that did not reply on its loop
+        // with response code 35 and no data.
+        if rc == hart_proto::tables::rc::DR_DEAD
+            && f.data.is_empty()
+            && self.transport.profile() == hart_link::TimingProfile::hart_ip()
+        {
+            return Err(HostError::NoReplyBehindServer {
+                target: what.to_string(),
+                port: self.transport.describe(),
+                status: "response code 35: the I/O system reports the sub-device silent or unknown"
+                    .into(),
+            });
+        }
         if response_class(rc) == ResponseClass::Error {
             return Err(HostError::Device {
                 command,
@@ -386,6 +459,7 @@ impl<T: Transport> Client<T> {
             tag: None,
             descriptor: None,
             long_tag: None,
+            io_channel: None,
         };
         self.remember(&info);
         Ok(info)
@@ -441,6 +515,7 @@ impl<T: Transport> Client<T> {
             tag: None,
             descriptor: None,
             long_tag: None,
+            io_channel: None,
         };
         self.remember(&info);
         Ok(info)
@@ -470,52 +545,112 @@ impl<T: Transport> Client<T> {
         Ok(reply)
     }
 
-    /// Scans polling addresses (command 0 in short frames, one retry), then reads tag,
-    /// descriptor and (HART 6+) long tag of each device found in long frames.
+    /// Scans polling addresses (command 0 in short frames, one retry) and reads each
+    /// device's tag, descriptor and (HART 6+) long tag as it is found. An address
+    /// where nothing answers (directly, or behind a HART-IP server) is reported and the
+    /// scan goes on. When a device is an I/O system (a HART-IP gateway or
+    /// multiplexer), its sub-devices are listed with commands 74 and 84 and identified
+    /// by their unique IDs. `progress` hears of every address and sub-device in turn.
     pub async fn scan(
         &mut self,
         range: std::ops::RangeInclusive<u8>,
-        mut progress: impl FnMut(u8, Option<&DeviceInfo>),
+        mut progress: impl FnMut(ScanEvent<'_>),
     ) -> Result<Vec<DeviceInfo>, HostError> {
-        let normal = self.policy;
-        self.master.set_policy(RetryPolicy {
-            retries: 1,
-            ..normal
-        });
-        let mut found = vec![];
+        let mut found: Vec<DeviceInfo> = vec![];
+        let mut io_systems = vec![];
         for poll in range {
-            match self.identify(poll).await {
-                Ok(info) => {
-                    progress(poll, Some(&info));
+            let normal = self.policy;
+            self.master.set_policy(RetryPolicy {
+                retries: 1,
+                ..normal
+            });
+            let r = self.identify(poll).await;
+            self.master.set_policy(normal);
+            match r {
+                Ok(mut info) => {
+                    self.read_tags(&mut info).await;
+                    progress(ScanEvent::Address {
+                        poll,
+                        found: Some(&info),
+                    });
+                    if info.is_io_system() {
+                        io_systems.push(info.unique_id());
+                    }
                     found.push(info);
                 }
-                Err(HostError::NoReply { .. }) | Err(HostError::Communication { .. }) => {
-                    progress(poll, None)
-                }
-                Err(e) => {
-                    self.master.set_policy(normal);
-                    return Err(e);
-                }
+                Err(HostError::NoReply { .. })
+                | Err(HostError::NoReplyBehindServer { .. })
+                | Err(HostError::Communication { .. })
+                | Err(HostError::Device { .. })
+                | Err(HostError::Decode(_)) => progress(ScanEvent::Address { poll, found: None }),
+                Err(e) => return Err(e),
             }
         }
-        self.master.set_policy(normal);
-        for info in &mut found {
-            if let Ok(r) = self.command(info, 13, &[]).await {
-                if let Ok(t) =
-                    hart_proto::command::TagDescriptorDate::decode(&mut Reader::new(&r.data))
-                {
-                    info.tag = Some(t.tag.to_string());
-                    info.descriptor = Some(t.descriptor.to_string());
-                }
-            }
-            if info.revision() >= 6 {
-                if let Ok(r) = self.command(info, 20, &[]).await {
-                    if let Ok(t) = hart_proto::command::LongTag::decode(&mut Reader::new(&r.data)) {
-                        info.long_tag = Some(t.long_tag.to_string());
-                    }
-                }
+        // Then the sub-devices of each I/O system, those not found by polling address
+        // already (on other channels, or at addresses outside the range).
+        for io in io_systems {
+            let known: Vec<UniqueId> = found.iter().map(|d| d.unique_id()).collect();
+            for sub in self.sub_devices(io, &known).await {
+                progress(ScanEvent::SubDevice(&sub));
+                found.push(sub);
             }
         }
         Ok(found)
+    }
+
+    /// Reads tag and descriptor (command 13) and, from HART 6 on, the long tag
+    /// (command 20); what fails stays unknown.
+    pub async fn read_tags(&mut self, info: &mut DeviceInfo) {
+        if let Ok(r) = self.command(info, 13, &[]).await {
+            if let Ok(t) = hart_proto::command::TagDescriptorDate::decode(&mut Reader::new(&r.data))
+            {
+                info.tag = Some(t.tag.to_string());
+                info.descriptor = Some(t.descriptor.to_string());
+            }
+        }
+        if info.revision() >= 6 {
+            if let Ok(r) = self.command(info, 20, &[]).await {
+                if let Ok(t) = hart_proto::command::LongTag::decode(&mut Reader::new(&r.data)) {
+                    info.long_tag = Some(t.long_tag.to_string());
+                }
+            }
+        }
+    }
+
+    /// The sub-devices of the I/O system `io` but those in `skip`: command 74 for their
+    /// number, command 84 for each (index 1 on; index 0 is the I/O system itself), then
+    /// command 0 by unique ID for the full identity (the summary's when the sub-device
+    /// is silent) and its tags.
+    pub async fn sub_devices(&mut self, io: UniqueId, skip: &[UniqueId]) -> Vec<DeviceInfo> {
+        let gateway = Address::long(io);
+        let count = match self.transact(gateway, 74, &[], 5, "the I/O system").await {
+            Ok(r) if r.data.len() >= 5 => u16::from_be_bytes([r.data[3], r.data[4]]),
+            _ => 256,
+        };
+        let mut subs = vec![];
+        for ix in 1..count {
+            let Ok(r) = self
+                .transact(gateway, 84, &ix.to_be_bytes(), 5, "the I/O system")
+                .await
+            else {
+                break;
+            };
+            let Some(mut info) = summary_identity(&r.data) else {
+                break;
+            };
+            if info.unique_id() == io || skip.contains(&info.unique_id()) {
+                continue;
+            }
+            let channel = info.io_channel;
+            if let Ok(mut full) = self.resolve(&DeviceRef::UniqueId(info.unique_id())).await {
+                full.long_tag = info.long_tag.take();
+                full.io_channel = channel;
+                info = full;
+            }
+            self.read_tags(&mut info).await;
+            self.remember(&info);
+            subs.push(info);
+        }
+        subs
     }
 }

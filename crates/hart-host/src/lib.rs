@@ -13,5 +13,5 @@ pub mod hartip;
 pub mod target;
 pub mod transport;
 
-pub use client::{Client, DeviceInfo, DeviceRef, Reply};
+pub use client::{Client, DeviceInfo, DeviceRef, Reply, ScanEvent};
 pub use error::HostError;

@@ -10,7 +10,7 @@ fn client() -> Client<AnyTransport> {
 #[tokio::test(flavor = "current_thread")]
 async fn scan_finds_every_device_of_the_demo_plant() {
     let mut c = client();
-    let found = c.scan(0..=20, |_, _| {}).await.unwrap();
+    let found = c.scan(0..=20, |_| {}).await.unwrap();
     let polls: Vec<u8> = found.iter().map(|d| d.polling_address.unwrap()).collect();
     assert_eq!(polls, vec![1, 2, 3, 17]);
     assert_eq!(found[0].tag.as_deref(), Some("PT-100"));

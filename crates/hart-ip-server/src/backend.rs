@@ -10,7 +10,7 @@ use hart_link::master::RetryPolicy;
 use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::sync::{broadcast, mpsc, Mutex};
 
-use crate::mux::{LoopRequest, SubDevice};
+use crate::io_system::{LoopRequest, SubDevice};
 use crate::pdu;
 
 pub(crate) async fn memory_backend(
@@ -36,6 +36,7 @@ pub(crate) async fn memory_backend(
                     tag: Some(c.tag.clone()),
                     descriptor: Some(c.descriptor.clone()),
                     long_tag: Some(c.long_tag.clone()),
+                    io_channel: None,
                 },
             });
         }
@@ -85,8 +86,22 @@ pub(crate) async fn memory_backend(
     }
 }
 
-/// The one task that talks to a loop: requests in turn; between them, one polling
-/// address of the scan at a time (so requests never wait long) and listening for
+/// After the first pass, one more address of the scan is visited whenever the loop has
+/// had no request for this long, so the sub-device list stays current.
+pub(crate) const RESCAN_IDLE: Duration = Duration::from_secs(2);
+
+/// During the first pass the scan waits this long after a request before it takes the
+/// line again, so a client's next request (which follows its reply within
+/// milliseconds) does not queue behind a scan step.
+pub(crate) const SCAN_GRACE: Duration = Duration::from_millis(150);
+
+/// Rescan visits without a reply after which a known sub-device is dropped.
+pub(crate) const MISSES_TO_FORGET: u8 = 2;
+
+/// The one task that talks to a loop: requests in turn (each with the retries its
+/// route asks for); between them, one polling address of the scan at a time (so
+/// requests never wait long for the line), then the scan again, slowly, to learn
+/// devices that were connected and forget those that were removed; and listening for
 /// burst frames.
 pub(crate) async fn backend(
     mut client: Client<AnyTransport>,
@@ -96,53 +111,77 @@ pub(crate) async fn backend(
     mut requests: mpsc::Receiver<LoopRequest>,
     bursts: broadcast::Sender<Vec<u8>>,
 ) {
+    let last = scan_to.unwrap_or(0).min(63);
     let mut next_scan = scan_to.map(|_| 0u8);
+    let mut first_pass = true;
+    // Rescan visits without a reply, per polling address of a known device.
+    let mut misses = [0u8; 64];
+    // The last request, or after the first pass the last scan step: the rescan takes
+    // one address per RESCAN_IDLE of quiet.
+    let mut quiet_since: Option<Instant> = None;
     loop {
+        // A loop in virtual time never waits: let the sessions run between steps.
+        tokio::task::yield_now().await;
+        let idle = quiet_since.map_or(Duration::MAX, |t| t.elapsed());
+        let scan_wait = if first_pass { SCAN_GRACE } else { RESCAN_IDLE };
+        let scan_due = next_scan.is_some() && idle >= scan_wait;
         let req = match requests.try_recv() {
             Ok(r) => Some(r),
             Err(mpsc::error::TryRecvError::Disconnected) => return,
-            Err(mpsc::error::TryRecvError::Empty) if next_scan.is_some() => None,
-            Err(mpsc::error::TryRecvError::Empty) => tokio::select! {
-                r = requests.recv() => match r { Some(r) => Some(r), None => return },
-                _ = tokio::time::sleep(Duration::from_millis(20)) => None,
-            },
+            Err(mpsc::error::TryRecvError::Empty) if scan_due => None,
+            Err(mpsc::error::TryRecvError::Empty) => {
+                let wait = match next_scan {
+                    Some(_) => scan_wait
+                        .saturating_sub(idle)
+                        .min(Duration::from_millis(20)),
+                    None => Duration::from_millis(20),
+                };
+                tokio::select! {
+                    r = requests.recv() => match r { Some(r) => Some(r), None => return },
+                    _ = tokio::time::sleep(wait) => None,
+                }
+            }
         };
+        let idle = quiet_since.map_or(Duration::MAX, |t| t.elapsed());
+        let scan_due = next_scan.is_some() && idle >= scan_wait;
         match (req, next_scan) {
             (Some(r), _) => {
+                client.set_policy(RetryPolicy {
+                    retries: r.retries,
+                    ..RetryPolicy::default()
+                });
                 let reply = client.forward(&r.pdu).await.ok();
                 if let Some(reply) = &reply {
                     learn(&subs, channel, &r.pdu, reply).await;
                 }
                 let _ = r.reply.send(reply);
+                quiet_since = Some(Instant::now());
             }
-            (None, Some(poll)) => {
-                // One retry only: an empty address must not hold the line (and the
-                // requests queued behind it) for four slave time-outs.
-                client.set_policy(RetryPolicy {
-                    retries: 1,
-                    ..RetryPolicy::default()
-                });
-                let found = client.identify(poll).await;
-                client.set_policy(RetryPolicy::default());
-                if let Ok(mut info) = found {
-                    if info.revision() >= 6 {
-                        if let Ok(r) = client.command(&info, 20, &[]).await {
-                            info.long_tag = Some(
-                                hart_proto::types::Latin1String::<32>(
-                                    r.data
-                                        .get(..32)
-                                        .and_then(|b| b.try_into().ok())
-                                        .unwrap_or([0; 32]),
-                                )
-                                .to_string(),
-                            );
+            (None, Some(poll)) if scan_due => {
+                match scan_address(&mut client, poll).await {
+                    Some(info) => {
+                        misses[usize::from(poll)] = 0;
+                        remember(&subs, SubDevice { channel, info }).await;
+                    }
+                    None => {
+                        let m = &mut misses[usize::from(poll)];
+                        *m = m.saturating_add(1);
+                        if *m >= MISSES_TO_FORGET {
+                            subs.lock().await.retain(|s| {
+                                s.channel != channel || s.info.polling_address != Some(poll)
+                            });
                         }
                     }
-                    remember(&subs, SubDevice { channel, info }).await;
                 }
-                next_scan = (poll < scan_to.unwrap_or(0).min(63)).then_some(poll + 1);
+                if poll >= last {
+                    first_pass = false;
+                }
+                if !first_pass {
+                    quiet_since = Some(Instant::now());
+                }
+                next_scan = Some(if poll >= last { 0 } else { poll + 1 });
             }
-            (None, None) => {
+            (None, _) => {
                 let _ = client.listen(20_000).await;
             }
         }
@@ -152,9 +191,49 @@ pub(crate) async fn backend(
     }
 }
 
+/// Identifies the device at `poll` (one retry only: an empty address must not hold the
+/// line, and the requests queued behind it, for four slave time-outs), then reads its
+/// tag and descriptor (command 13) and, from HART 6 on, its long tag (command 20).
+async fn scan_address(
+    client: &mut Client<AnyTransport>,
+    poll: u8,
+) -> Option<hart_host::DeviceInfo> {
+    use hart_proto::wire::{Reader, Wire};
+    client.set_policy(RetryPolicy {
+        retries: 1,
+        ..RetryPolicy::default()
+    });
+    let found = client.identify(poll).await;
+    client.set_policy(RetryPolicy::default());
+    let mut info = found.ok()?;
+    if let Ok(r) = client.command(&info, 13, &[]).await {
+        if let Ok(t) = hart_proto::command::TagDescriptorDate::decode(&mut Reader::new(&r.data)) {
+            info.tag = Some(t.tag.to_string().trim_end().to_string());
+            info.descriptor = Some(t.descriptor.to_string().trim_end().to_string());
+        }
+    }
+    if info.revision() >= 6 {
+        if let Ok(r) = client.command(&info, 20, &[]).await {
+            if let Ok(t) = hart_proto::command::LongTag::decode(&mut Reader::new(&r.data)) {
+                info.long_tag = Some(t.long_tag.to_string());
+            }
+        }
+    }
+    Some(info)
+}
+
 /// Adds a sub-device, or updates the one with the same unique ID.
 pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
     let mut subs = subs.lock().await;
+    // A different device now answering at a polling address replaces the one seen
+    // there before.
+    if let Some(p) = sub.info.polling_address {
+        subs.retain(|s| {
+            s.channel != sub.channel
+                || s.info.polling_address != Some(p)
+                || s.info.unique_id() == sub.info.unique_id()
+        });
+    }
     match subs
         .iter_mut()
         .find(|s| s.info.unique_id() == sub.info.unique_id())
@@ -194,6 +273,7 @@ pub(crate) async fn learn(subs: &Mutex<Vec<SubDevice>>, channel: u8, request: &[
         tag: None,
         descriptor: None,
         long_tag: None,
+        io_channel: None,
     };
     remember(subs, SubDevice { channel, info }).await;
 }

@@ -21,7 +21,7 @@ use tokio::sync::{broadcast, mpsc, Mutex};
 
 mod audit;
 mod backend;
-pub mod mux;
+pub mod io_system;
 mod session;
 mod subscriptions;
 mod tcp;
@@ -30,8 +30,8 @@ mod udp;
 use audit::AuditLog;
 pub use audit::{AuditRecord, AUDIT_RECORDS};
 use backend::{backend, memory_backend};
-use mux::LoopRequest;
-pub use mux::{GatewayIdentity, Mux, Route, SubDevice};
+use io_system::LoopRequest;
+pub use io_system::{GatewayIdentity, IoSystem, Route, SubDevice};
 pub use subscriptions::subscription;
 use tcp::serve_tcp;
 use udp::serve_udp;
@@ -49,11 +49,14 @@ pub struct Config {
     pub max_sessions: usize,
     /// Refuse every command that changes a device ("access restricted").
     pub read_only: bool,
-    /// Scan each loop's polling addresses 0..=N at start (for routing by long address
-    /// and command 84); `None` skips the scan.
+    /// Scan each loop's polling addresses 0..=N at start and keep the list current
+    /// (for routing by long address and command 84); `None` skips the scan.
     pub scan_to: Option<u8>,
-    /// The gateway's own identity.
+    /// The I/O system's own identity.
     pub identity: GatewayIdentity,
+    /// A loop device at polling address 0 answers there instead of the I/O system
+    /// (servers with one loop only).
+    pub transparent: bool,
 }
 
 impl Default for Config {
@@ -64,8 +67,9 @@ impl Default for Config {
             tcp: true,
             max_sessions: 64,
             read_only: false,
-            scan_to: Some(15),
+            scan_to: Some(63),
             identity: GatewayIdentity::default(),
+            transparent: false,
         }
     }
 }
@@ -92,7 +96,7 @@ pub(crate) struct Shared {
     pub(crate) config: Config,
     pub(crate) sessions: Mutex<usize>,
     pub(crate) stats: Mutex<Stats>,
-    pub(crate) mux: Mux,
+    pub(crate) io: IoSystem,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
     pub(crate) audit: Mutex<AuditLog>,
     pub(crate) power_up: u64,
@@ -173,16 +177,12 @@ async fn start_with(
     let (bursts, _) = broadcast::channel(64);
     let subs = Arc::new(Mutex::new(vec![]));
     let mut tasks = spawn(bursts.clone(), subs.clone());
-    let mux = Mux {
-        identity: config.identity.clone(),
-        loops: senders,
-        subs,
-    };
+    let io = IoSystem::new(config.identity.clone(), senders, subs, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
         sessions: Mutex::new(0),
         stats: Mutex::new(Stats::default()),
-        mux,
+        io,
         bursts: bursts.clone(),
         audit: Mutex::new(AuditLog::default()),
         power_up: unix_now(),
@@ -244,9 +244,9 @@ pub(crate) fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
     hart_proto::frame::FrameBuf::encode(spec).map_or_else(|_| vec![], |b| b.as_slice().to_vec())
 }
 
-/// The gateway's own reply to a request frame: response code `code` and `data` (left
-/// out for error codes), the field device status 0.
-pub(crate) fn local_frame(f: &Frame<'_>, code: u8, data: &[u8]) -> Vec<u8> {
+/// The server's own reply to a request frame: response code `code`, field device
+/// status `status` and `data` (left out for error codes).
+pub(crate) fn local_frame(f: &Frame<'_>, code: u8, status: u8, data: &[u8]) -> Vec<u8> {
     let data =
         if hart_proto::tables::response_class(code) == hart_proto::tables::ResponseClass::Error {
             &[][..]
@@ -256,7 +256,7 @@ pub(crate) fn local_frame(f: &Frame<'_>, code: u8, data: &[u8]) -> Vec<u8> {
     pdu(&FrameSpec {
         frame_type: FrameType::Ack,
         extended: f.extended,
-        status: Some((code, 0)),
+        status: Some((code, status)),
         ..FrameSpec::request(f.address, f.command, data)
     })
 }

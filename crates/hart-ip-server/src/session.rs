@@ -7,7 +7,7 @@ use hart_ip::{status, Body, Header, MessageId, MessageType};
 use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
-use crate::mux::Route;
+use crate::io_system::Route;
 use crate::subscriptions::{subscription_command, Subscriptions};
 use crate::{local_frame, message, unix_now, Shared, MIN_TIMER_MS};
 
@@ -21,26 +21,45 @@ pub(crate) enum Action {
     /// meanwhile).
     Forward {
         channel: usize,
+        retries: u8,
         pdu: Vec<u8>,
         seq: u16,
     },
 }
 
 /// Waits for a loop's reply to a forwarded request and builds the response message:
-/// the reply PDU with status 0, or an empty response with status 6 when the device did
-/// not answer (so the client stops waiting at once).
-pub(crate) async fn forwarded(shared: &Shared, channel: usize, pdu: Vec<u8>, seq: u16) -> Vec<u8> {
-    let (st, body) = match shared.mux.forward(channel, pdu).await {
-        Some(reply) => (status::SUCCESS, reply),
-        None => (status::DEVICE_SPECIFIC, vec![]),
+/// the reply PDU, or, when the device did not answer after the loop's retries, the I/O
+/// system's answer for a silent sub-device ([`not_responding`]).
+pub(crate) async fn forwarded(
+    shared: &Shared,
+    channel: usize,
+    retries: u8,
+    pdu: Vec<u8>,
+    seq: u16,
+) -> Vec<u8> {
+    let body = match shared.io.forward(channel, pdu.clone(), retries).await {
+        Some(reply) => reply,
+        None => not_responding(&pdu),
     };
     message(
         MessageType::Response,
         MessageId::TokenPassingPdu,
-        st,
+        status::SUCCESS,
         seq,
         &body,
     )
+}
+
+/// The answer to a request for a sub-device that did not reply or that the server does
+/// not know: an ACK frame from the requested address with response code 35 ("delayed
+/// response dead") and no data, HART-IP status 0. Clients read it as a HART reply
+/// (hipserver and WirelessHART gateways answer in frames, never with an empty body)
+/// and do not repeat it.
+pub(crate) fn not_responding(request: &[u8]) -> Vec<u8> {
+    match Frame::parse_pdu(request) {
+        Ok(f) => local_frame(&f, crate::io_system::SUB_DEVICE_NOT_RESPONDING, 0, &[]),
+        Err(_) => vec![],
+    }
 }
 
 /// Session state shared by UDP and TCP.
@@ -152,7 +171,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             {
                 return Action::Reply(reply(
                     status::SUCCESS,
-                    &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, &[]),
+                    &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
                 ));
             }
             if matches!(f.command, 532 | 533) {
@@ -160,23 +179,28 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 // the address.
                 let (code, data) =
                     subscription_command(shared, &mut s.subs, f.command, f.data).await;
-                return Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)));
+                return Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, 0, &data)));
             }
-            let route = shared.mux.route(&f).await;
+            let route = shared.io.route(&f).await;
             match route {
                 Route::Local => {
-                    let (code, data) = shared.mux.local(f.command, f.data).await;
-                    Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, &data)))
+                    let (code, status, data) =
+                        shared.io.local(f.address.master(), f.command, f.data).await;
+                    Action::Reply(reply(
+                        status::SUCCESS,
+                        &local_frame(&f, code, status, &data),
+                    ))
                 }
-                Route::Loop(channel) => {
+                Route::Loop { channel, retries } => {
                     shared.stats.lock().await.forwarded += 1;
                     Action::Forward {
                         channel,
+                        retries,
                         pdu: body.to_vec(),
                         seq: h.sequence,
                     }
                 }
-                Route::Nowhere => Action::Reply(reply(status::DEVICE_SPECIFIC, &[])),
+                Route::Nowhere => Action::Reply(reply(status::SUCCESS, &not_responding(body))),
             }
         }
         MessageId::DirectPdu => {
@@ -187,7 +211,11 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             // Commands to the gateway itself, each answered in turn.
             let mut out = vec![0u8, 0u8];
             for e in hart_ip::DirectEntries(entries).flatten() {
-                let (code, data) = shared.mux.local(e.command, e.data).await;
+                // Direct PDUs come from the session's host, a primary master.
+                let (code, _, data) = shared
+                    .io
+                    .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
+                    .await;
                 let data = if hart_proto::tables::response_class(code)
                     == hart_proto::tables::ResponseClass::Error
                 {

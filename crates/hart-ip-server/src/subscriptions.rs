@@ -86,7 +86,7 @@ pub(crate) async fn subscription_command(
             return (INDIVIDUAL_SUBSCRIPTION_NOT_ALLOWED, vec![]);
         }
         let known = shared
-            .mux
+            .io
             .subs
             .lock()
             .await

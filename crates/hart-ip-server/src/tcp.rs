@@ -64,7 +64,12 @@ pub(crate) async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                             close_session(&shared, &mut s, 0x0004).await;
                             return;
                         }
-                        Action::Forward { channel, pdu, seq } => {
+                        Action::Forward {
+                            channel,
+                            retries,
+                            pdu,
+                            seq,
+                        } => {
                             // Several requests may be in flight on one connection: each
                             // reply goes out when its loop answers, with its sequence
                             // number, while this task reads on and publishes. The
@@ -72,7 +77,7 @@ pub(crate) async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                             let (shared, wr) = (shared.clone(), wr.clone());
                             in_flight.retain(|t: &AbortOnDrop| !t.0.is_finished());
                             in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
-                                let r = forwarded(&shared, channel, pdu, seq).await;
+                                let r = forwarded(&shared, channel, retries, pdu, seq).await;
                                 let _ = wr.lock().await.write_all(&r).await;
                             })));
                         }

@@ -140,9 +140,14 @@ pub(crate) async fn udp_datagram(
                 }
                 0x0004
             }
-            Action::Forward { channel, pdu, seq } => {
+            Action::Forward {
+                channel,
+                retries,
+                pdu,
+                seq,
+            } => {
                 // In order, per client: the session waits for its loop's reply.
-                let r = forwarded(&shared, channel, pdu, seq).await;
+                let r = forwarded(&shared, channel, retries, pdu, seq).await;
                 let _ = sock.send_to(&r, peer).await;
                 continue;
             }

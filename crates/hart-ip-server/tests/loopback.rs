@@ -68,8 +68,14 @@ fn udp_and_tcp_sessions_reach_the_devices() {
             .send_to(&[1, 0, 5, 0, 0, 2, 0, 10, 0, 10], udp)
             .await
             .unwrap();
-        let (n, _) = probe.recv_from(&mut buf).await.unwrap();
-        let (m, _) = hart_ip::Message::parse(&buf[..n]).unwrap();
+        // Publish messages (the burst device) may come first.
+        let m = loop {
+            let (n, _) = probe.recv_from(&mut buf).await.unwrap();
+            let (m, _) = hart_ip::Message::parse(&buf[..n]).unwrap();
+            if m.header.message_type == hart_ip::MessageType::Response {
+                break m;
+            }
+        };
         let b = m.body;
         assert_eq!(
             (b[0], b[1]),
@@ -215,9 +221,17 @@ fn multiplexer_routes_to_sub_devices() {
             (caps[0], caps[1], u16::from_be_bytes([caps[3], caps[4]])),
             (1, 2, 5)
         );
-        // Command 84 lists the sub-devices with their channel.
+        // Command 84: index 0 is the I/O system itself (card and channel 251, "none"),
+        // then the sub-devices with their channel.
+        let me = c.command(&gw, 84, &0u16.to_be_bytes()).await.unwrap().data;
+        assert_eq!((me[2], me[3]), (251, 251));
+        assert_eq!(
+            &me[6..11],
+            &[0x26, 0xFF, 0, 0, 1],
+            "the I/O system's own ID"
+        );
         let mut channels = vec![];
-        for i in 0..4u16 {
+        for i in 1..5u16 {
             let s = c.command(&gw, 84, &i.to_be_bytes()).await.unwrap().data;
             channels.push(s[3]);
         }
@@ -555,12 +569,12 @@ fn requests_to_different_loops_run_side_by_side() {
                 .to_vec()
         };
         // Wait until the start-up scan has found both devices (command 84 to the
-        // gateway itself names sub-device 1).
+        // gateway itself names sub-devices 1 and 2).
         let gateway = hart_proto::frame::UniqueId::new(0x26FF, 1);
         let mut ids = vec![];
         for _ in 0..100 {
             ids.clear();
-            for ix in [0u8, 1] {
+            for ix in [1u8, 2] {
                 let r = session
                     .request(&frame(gateway, 84, &[0, ix]), Duration::from_secs(5))
                     .await

@@ -42,6 +42,9 @@ fn symbol(u: u8) -> &'static str {
     tables::unit(u).map_or("?", |u| u.symbol)
 }
 
+/// Polling addresses the demo scans: 0 up to this.
+const SCAN_TO: u8 = 20;
+
 /// Runs the demo on `port` (normally `sim`).
 pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (String, u8)> {
     crate::host::block_on(async move {
@@ -53,37 +56,44 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
         let mut c = Client::new(t);
         let out = &mut std::io::stdout();
         let tty = out.is_terminal() && !as_json;
-        if !as_json {
-            let _ = writeln!(
-                out,
-                "hartkit demo: {}; scanning polling addresses 0-20 ...",
-                c.transport().describe()
-            );
-        }
-        let found = c
-            .scan(0..=20, |_, _| {})
-            .await
-            .map_err(|e| (e.to_string(), e.exit_code()))?;
-        let mut rows: Vec<Row> = found
-            .into_iter()
-            .map(|info| Row {
-                info,
-                pv: None,
-                current: None,
-                status: 0,
-                bursts: 0,
-                last_burst: None,
-                error: None,
-            })
-            .collect();
-        // Line statistics count from here (the scan's empty addresses are no failures).
+        // The scan goes on in the background: one polling address per round, between
+        // the rounds that read the devices found so far, so the first device shows
+        // within a second or two instead of after the whole scan.
+        let mut rows: Vec<Row> = vec![];
+        let mut next_scan = Some(0u8);
+        // Line statistics leave out the scan's empty addresses (they are no failures).
         let base = c.stats();
+        let mut scan_cost = hart_link::master::MasterStats::default();
         let start = c.transport().now();
         let end = duration.map(|d| start + (d * 1e6) as u64);
         let stop = tokio::signal::ctrl_c();
         tokio::pin!(stop);
         loop {
-            for row in rows.iter_mut() {
+            // A device just found is shown at once; its values come with the next round.
+            let mut known = rows.len();
+            if let Some(poll) = next_scan {
+                let before = c.stats();
+                let found = tokio::select! {
+                    r = c.scan(poll..=poll, |_| {}) => r.map_err(|e| (e.to_string(), e.exit_code()))?,
+                    _ = &mut stop => return Ok(()),
+                };
+                let after = c.stats();
+                scan_cost.completed += after.completed - before.completed;
+                scan_cost.failed += after.failed - before.failed;
+                scan_cost.retries += after.retries - before.retries;
+                known = rows.len();
+                rows.extend(found.into_iter().map(|info| Row {
+                    info,
+                    pv: None,
+                    current: None,
+                    status: 0,
+                    bursts: 0,
+                    last_burst: None,
+                    error: None,
+                }));
+                next_scan = (poll < SCAN_TO).then_some(poll + 1);
+            }
+            for row in rows.iter_mut().take(known) {
                 let info = row.info.clone();
                 let r = tokio::select! {
                     r = c.command(&info, 3, &[]) => r,
@@ -129,9 +139,9 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
             }
             let now = c.transport().now();
             let mut st = c.stats();
-            st.completed -= base.completed.min(st.completed);
-            st.failed -= base.failed.min(st.failed);
-            st.retries -= base.retries.min(st.retries);
+            st.completed -= (base.completed + scan_cost.completed).min(st.completed);
+            st.failed -= (base.failed + scan_cost.failed).min(st.failed);
+            st.retries -= (base.retries + scan_cost.retries).min(st.retries);
             let secondary = match c.transport() {
                 AnyTransport::Sim(s) => s.secondary_transactions(),
                 _ => 0,
@@ -159,7 +169,7 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
                 let _ = writeln!(
                     out,
                     "{}",
-                    json!({"t_s": t_s, "devices": devices, "line": {"transactions": st.completed, "failed": st.failed, "retries": st.retries, "bursts_received": st.bursts, "secondary_transactions": secondary}})
+                    json!({"t_s": t_s, "scanning": next_scan, "devices": devices, "line": {"transactions": st.completed, "failed": st.failed, "retries": st.retries, "bursts_received": st.bursts, "secondary_transactions": secondary}})
                 );
             } else {
                 let mut s = String::new();
@@ -167,9 +177,13 @@ pub fn run(port: &str, duration: Option<f64>, as_json: bool) -> Result<(), (Stri
                     s.push_str("\x1b[H\x1b[2J");
                 }
                 s.push_str(&format!(
-                    "hartkit demo: {} — {:.0} s (Ctrl-C to stop)\n\n",
+                    "hartkit demo: {} — {:.0} s (Ctrl-C to stop)\n{}\n",
                     c.transport().describe(),
-                    t_s
+                    t_s,
+                    match next_scan {
+                        Some(p) => format!("scanning polling addresses 0-{SCAN_TO}: next {p}"),
+                        None => format!("scanned polling addresses 0-{SCAN_TO}"),
+                    }
                 ));
                 s.push_str(&format!(
                     "{:>4}  {:<8}  {:>14}  {:>9}  {:>7}  {:<30}\n",

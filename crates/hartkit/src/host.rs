@@ -128,7 +128,7 @@ pub fn device_ref(
 
 fn device_json(d: &DeviceInfo) -> Value {
     let id = &d.identity;
-    json!({
+    let mut v = json!({
         "polling_address": d.polling_address,
         "unique_id": d.unique_id().to_string(),
         "expanded_device_type": id.expanded_device_type,
@@ -139,10 +139,63 @@ fn device_json(d: &DeviceInfo) -> Value {
         "tag": d.tag,
         "long_tag": if d.revision() >= 6 { json!(d.long_tag) } else { Value::Null },
         "descriptor": d.descriptor,
-    })
+    });
+    if d.is_io_system() {
+        v["io_system"] = json!(true);
+    }
+    if let Some((card, channel)) = d.io_channel {
+        v["io_card"] = json!(card);
+        v["channel"] = json!(channel);
+    }
+    v
 }
 
-/// `hartkit scan`.
+/// One row of the scan table.
+fn scan_row(d: &DeviceInfo) -> String {
+    let poll = d
+        .polling_address
+        .map_or_else(|| "-".to_string(), |p| p.to_string());
+    let via = match (d.io_channel, d.is_io_system()) {
+        (Some((card, channel)), _) => format!("{card}/{channel}"),
+        (None, true) => "I/O sys".to_string(),
+        (None, false) => String::new(),
+    };
+    format!(
+        "{:>4}  {:<7}  {:<10}  0x{:04X}    0x{:04X}    {:>3}  {:<8}  {:<16}  {}",
+        poll,
+        via,
+        d.unique_id(),
+        d.identity.expanded_device_type,
+        d.manufacturer_id(),
+        d.revision(),
+        d.tag.as_deref().unwrap_or("").trim_end(),
+        d.descriptor.as_deref().unwrap_or("").trim_end(),
+        d.long_tag.as_deref().unwrap_or("")
+    )
+}
+
+/// Polling addresses as short ranges: "0, 4-15, 17".
+fn ranges(polls: &[u8]) -> String {
+    let mut out: Vec<String> = vec![];
+    let mut i = 0;
+    while i < polls.len() {
+        let mut j = i;
+        while j + 1 < polls.len() && polls[j + 1] == polls[j] + 1 {
+            j += 1;
+        }
+        out.push(if j == i {
+            polls[i].to_string()
+        } else {
+            format!("{}-{}", polls[i], polls[j])
+        });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
+/// `hartkit scan`: each device is printed as soon as it is found (with `--json`, one
+/// JSON object per line), sub-devices of an I/O system included; addresses where
+/// nothing answered are summed up at the end; a progress bar runs on a terminal.
 pub async fn scan(
     c: &mut Client<AnyTransport>,
     from: u8,
@@ -154,54 +207,71 @@ pub async fn scan(
             "--from {from} --to {to}: polling addresses are 0-63, from ≤ to"
         )));
     }
-    let tty = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let total = usize::from(to - from) + 1;
-    let mut done = 0;
+    let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        indicatif::ProgressBar::new(u64::from(to - from) + 1)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "scanning [{bar:30}] {pos}/{len} {msg} ({elapsed})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("#>-"),
+    );
+    let port = c.transport().describe();
+    let mut out = std::io::stdout();
+    let mut print = |line: &str| {
+        bar.suspend(|| {
+            let _ = writeln!(out, "{line}");
+            let _ = out.flush();
+        })
+    };
+    if !as_json {
+        print(&format!("scanning polling addresses {from}-{to} on {port}"));
+        print(&format!(
+            "{:>4}  {:<7}  {:<10}  {:<8}  {:<10}  {:>3}  {:<8}  {:<16}  {}",
+            "poll", "via", "unique ID", "type", "manuf.", "rev", "tag", "descriptor", "long tag"
+        ));
+    }
+    let mut absent = vec![];
     let found = c
-        .scan(from..=to, |poll, info| {
-            done += 1;
-            if tty {
-                let bar = "#".repeat(done * 30 / total);
-                eprint!(
-                    "\rscanning [{bar:<30}] {done}/{total} polling address {poll}{}   ",
-                    if info.is_some() { " found" } else { "" }
-                );
-                if done == total {
-                    eprintln!();
+        .scan(from..=to, |event| {
+            let shown = match event {
+                hart_host::ScanEvent::Address { poll, found } => {
+                    bar.inc(1);
+                    bar.set_message(format!("polling address {poll}"));
+                    if found.is_none() {
+                        absent.push(poll);
+                    }
+                    found
+                }
+                hart_host::ScanEvent::SubDevice(d) => Some(d),
+            };
+            if let Some(d) = shown {
+                if as_json {
+                    print(&device_json(d).to_string());
+                } else {
+                    print(&scan_row(d));
                 }
             }
         })
         .await
-        .map_err(fail)?;
+        .map_err(fail);
+    bar.finish_and_clear();
+    let found = found?;
     if as_json {
-        return Ok(serde_json::to_string_pretty(&Value::Array(
-            found.iter().map(device_json).collect(),
-        ))
-        .unwrap_or_default());
+        return Ok(String::new());
     }
-    let mut s = format!(
-        "{} device(s) on {}\n",
-        found.len(),
-        c.transport().describe()
-    );
-    s.push_str(&format!(
-        "{:>4}  {:<10}  {:<8}  {:<10}  {:>3}  {:<8}  {:<16}  {}\n",
-        "poll", "unique ID", "type", "manuf.", "rev", "tag", "descriptor", "long tag"
-    ));
-    for d in &found {
+    let mut s = format!("{} device(s) on {port}", found.len());
+    if !absent.is_empty() {
         s.push_str(&format!(
-            "{:>4}  {:<10}  0x{:04X}    0x{:04X}    {:>3}  {:<8}  {:<16}  {}\n",
-            d.polling_address.unwrap_or(0),
-            d.unique_id(),
-            d.identity.expanded_device_type,
-            d.manufacturer_id(),
-            d.revision(),
-            d.tag.as_deref().unwrap_or(""),
-            d.descriptor.as_deref().unwrap_or(""),
-            d.long_tag.as_deref().unwrap_or("")
+            "; no device at polling address{} {}",
+            if absent.len() == 1 { "" } else { "es" },
+            ranges(&absent)
         ));
     }
-    Ok(s.trim_end().to_string())
+    Ok(s)
 }
 
 const DV_NAMES: [&str; 4] = ["PV", "SV", "TV", "QV"];

@@ -58,7 +58,7 @@ enum Top {
         /// What to write.
         what: String,
         /// Value(s).
-        #[arg(required = true, allow_hyphen_values = true)]
+        #[arg(required = true, allow_negative_numbers = true)]
         values: Vec<String>,
     },
     /// Send any command (data as hex) and decode the reply.
@@ -121,6 +121,14 @@ enum Top {
         /// Most sessions at once.
         #[arg(long, default_value_t = 64)]
         max_sessions: usize,
+        /// Let a loop device at polling address 0 answer there (one loop only); by
+        /// default the server itself, a HART I/O system, answers at polling address 0
+        /// and reaches that device by its unique ID.
+        #[arg(long)]
+        transparent: bool,
+        /// Scan polling addresses 0..=N of each loop for the sub-device list (63: all).
+        #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
+        scan_to: u8,
         /// Stop after this many seconds.
         #[arg(long)]
         run_for: Option<f64>,
@@ -768,6 +776,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             sim,
             read_only,
             max_sessions,
+            transparent,
+            scan_to,
             run_for,
         } => serve_hart_ip(
             hart_ip,
@@ -775,25 +785,41 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             *tcp,
             ports,
             sim.as_deref(),
-            *read_only,
-            *max_sessions,
+            ServeFlags {
+                read_only: *read_only,
+                max_sessions: *max_sessions,
+                transparent: *transparent,
+                scan_to: *scan_to,
+            },
             *run_for,
         ),
         _ => return None,
     })
 }
 
-#[allow(clippy::too_many_arguments)]
+/// The server settings of `hartkit serve` besides its addresses and loops.
+struct ServeFlags {
+    read_only: bool,
+    max_sessions: usize,
+    transparent: bool,
+    scan_to: u8,
+}
+
 fn serve_hart_ip(
     bind: &str,
     udp: bool,
     tcp: bool,
     ports: &[String],
     sim: Option<&[String]>,
-    read_only: bool,
-    max_sessions: usize,
+    flags: ServeFlags,
     run_for: Option<f64>,
 ) -> Result<String, (String, u8)> {
+    let ServeFlags {
+        read_only,
+        max_sessions,
+        transparent,
+        scan_to,
+    } = flags;
     use std::net::ToSocketAddrs;
     let with_port = if bind
         .rsplit_once(':')
@@ -828,8 +854,18 @@ fn serve_hart_ip(
         tcp: tcp || !udp,
         max_sessions,
         read_only,
+        transparent,
+        scan_to: Some(scan_to),
         ..hart_ip_server::Config::default()
     };
+    if transparent && targets.len() > 1 {
+        return Err((
+            "--transparent needs exactly one loop: with several, polling address 0 of each \
+             loop is reached by the device's unique ID"
+                .into(),
+            2,
+        ));
+    }
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()

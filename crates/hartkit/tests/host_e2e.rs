@@ -70,14 +70,23 @@ fn host_commands_over_a_pseudo_terminal() {
     // Scan finds every device, including one above polling address 15.
     let (code, out, err) = hartkit(&["scan", "-p", p, "--from", "0", "--to", "21", "--json"]);
     assert_eq!(code, 0, "{err}");
-    let devices: Value = serde_json::from_str(&out).unwrap();
+    // One JSON object per line and device, printed as each is found.
+    let devices: Vec<Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     let polls: Vec<u64> = devices
-        .as_array()
-        .unwrap()
         .iter()
         .map(|d| d["polling_address"].as_u64().unwrap())
         .collect();
     assert_eq!(polls, vec![1, 2, 20]);
+    // The table view sums up the empty addresses.
+    let (code, out, _) = hartkit(&["scan", "-p", p, "--from", "0", "--to", "3"]);
+    assert_eq!(code, 0);
+    assert!(
+        out.contains("2 device(s)") && out.contains("no device at polling addresses 0, 3"),
+        "{out}"
+    );
     for key in [
         "unique_id",
         "expanded_device_type",
@@ -173,7 +182,8 @@ fn host_commands_over_a_pseudo_terminal() {
 
 #[test]
 fn demo_runs_on_the_builtin_plant() {
-    let (code, out, err) = hartkit(&["demo", "--duration", "4", "--json"]);
+    // Virtual time: the whole scan (0-20) and a few rounds cost no wall time.
+    let (code, out, err) = hartkit(&["demo", "--duration", "60", "--json", "-p", "sim?virtual"]);
     assert_eq!(code, 0, "{err}");
     let last: Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
     let polls: Vec<u64> = last["devices"]

@@ -1,0 +1,706 @@
+//! The server as a HART 7 I/O system (device profile 68, HART-IP I/O system).
+//!
+//! Whatever sits behind it, the server answers at polling address 0 and at its own
+//! unique ID as a device of its own, and reaches the field devices on its loops (its
+//! sub-devices) by their unique IDs, through command 77 (send command to sub-device)
+//! and, on a server with one loop, by their polling addresses 1-63. Each loop is a
+//! channel of I/O card 0. The addressing rules are in `docs/hart-ip.md`.
+//!
+//! [`IoSystem::route`] decides where a request frame goes; [`IoSystem::local`]
+//! answers the commands addressed to the I/O system itself.
+
+use std::sync::Arc;
+
+use hart_host::DeviceInfo;
+use hart_proto::command::{self as cmd, Identity, LongTag, TagDescriptorDate};
+use hart_proto::frame::{checksum, Address, Frame, MasterKind, UniqueId};
+use hart_proto::tables::rc;
+use hart_proto::types::{
+    hart_nan, AlarmSelection, Classification, Date, DeviceId, DeviceProfile, DeviceVariableCode,
+    ExtendedStatus, Flags, HardwareRevision, Latin1String, LoopCurrentMode, MilliAmps,
+    PackedString, Percent, Seconds, TransferFunction, UnitCode, WriteProtect, U24,
+};
+use hart_proto::wire::{List, Reader, Wire, Writer};
+use tokio::sync::{mpsc, oneshot, Mutex};
+
+/// A request for a loop: a PDU, and where to send the reply PDU.
+pub struct LoopRequest {
+    /// The frame (delimiter through check byte).
+    pub pdu: Vec<u8>,
+    /// Retries on the loop after no reply: the loop's full count for a device the
+    /// server knows, one for an address where it found no device (so an absent
+    /// device is reported after two slave time-outs, not four).
+    pub retries: u8,
+    /// The reply frame, or `None` when the device did not answer.
+    pub reply: oneshot::Sender<Option<Vec<u8>>>,
+}
+
+/// The I/O system's own identity (the fixed part; tag, descriptor, message and long
+/// tag can be written by hosts and start from these).
+#[derive(Debug, Clone)]
+pub struct GatewayIdentity {
+    /// Expanded device type.
+    pub expanded_device_type: u16,
+    /// Device ID (24 bits).
+    pub device_id: u32,
+    /// Manufacturer ID (and private label distributor).
+    pub manufacturer_id: u16,
+    /// Tag (8 packed characters).
+    pub tag: String,
+    /// Descriptor (16 packed characters).
+    pub descriptor: String,
+    /// Long tag (32 Latin-1 characters).
+    pub long_tag: String,
+    /// Message (32 packed characters).
+    pub message: String,
+}
+
+impl Default for GatewayIdentity {
+    fn default() -> Self {
+        GatewayIdentity {
+            expanded_device_type: 0x26FF,
+            device_id: 0x00_0001,
+            manufacturer_id: 0x00F0,
+            tag: "HARTGW".into(),
+            descriptor: "HARTKIT GATEWAY".into(),
+            long_tag: "hartkit HART-IP gateway".into(),
+            message: "HARTKIT HART-IP I/O SYSTEM".into(),
+        }
+    }
+}
+
+/// A device found on a loop.
+#[derive(Debug, Clone)]
+pub struct SubDevice {
+    /// Channel (loop index).
+    pub channel: u8,
+    /// What the scan found.
+    pub info: DeviceInfo,
+}
+
+/// Where a token-passing request goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Route {
+    /// To the I/O system itself.
+    Local,
+    /// To the loop with this index, with this many retries after no reply.
+    Loop {
+        /// The loop (channel).
+        channel: usize,
+        /// Retries on the loop ([`LoopRequest::retries`]).
+        retries: u8,
+    },
+    /// Nowhere: no sub-device with that address (answered at once, without the line).
+    Nowhere,
+}
+
+/// Retries on a loop for a device the server knows (the data link's default).
+pub const KNOWN_RETRIES: u8 = 3;
+/// Retries on a loop for an address where the server has seen no device.
+pub const UNKNOWN_RETRIES: u8 = 1;
+
+/// Command 38: the counter in the request is not the current one.
+const CONFIG_CHANGE_COUNTER_MISMATCH: u8 = 9;
+/// The answer for a sub-device that did not reply (token-passing requests and command
+/// 77): response code 35, "delayed response dead", as WirelessHART gateways and I/O
+/// modules answer for a device that is not connected or does not respond. Hosts do
+/// not repeat a request answered 35 (they do for 32, 33, 34 and 36).
+pub const SUB_DEVICE_NOT_RESPONDING: u8 = rc::DR_DEAD;
+/// Command 75: no device at that polling address.
+const NO_SUB_DEVICE_FOUND: u8 = 9;
+/// Commands 101 and 102: no such burst message.
+const INVALID_BURST_MESSAGE: u8 = rc::INVALID_SELECTION;
+/// Command 102: no sub-device with that index.
+const INVALID_SUB_DEVICE_INDEX: u8 = 9;
+/// Command 84: I/O card and channel given for index 0, the I/O system itself ("none").
+const NONE: u8 = 251;
+
+/// Burst messages the I/O system offers for commands 101 and 102.
+pub const BURST_MESSAGES: usize = 3;
+
+/// What hosts can change in the I/O system, and its status bits.
+struct Local {
+    tag: PackedString<6>,
+    descriptor: PackedString<12>,
+    date: Date,
+    message: PackedString<24>,
+    long_tag: Latin1String<32>,
+    final_assembly: u32,
+    config_change_counter: u16,
+    /// Configuration changed, per master (primary, secondary).
+    changed: [bool; 2],
+    /// Cold start not yet reported, per master.
+    cold: [bool; 2],
+    /// Commands 101/102: the sub-device index each burst message publishes (0: the
+    /// I/O system itself).
+    burst_map: [u16; BURST_MESSAGES],
+    /// The sub-device list as the last command 48 reported it; a different list sets
+    /// "sub-device list changed" (standardized status 2, bit 0) until command 48 reads
+    /// it.
+    reported: Vec<UniqueId>,
+}
+
+/// The I/O system state.
+pub struct IoSystem {
+    /// The fixed identity.
+    pub identity: GatewayIdentity,
+    /// One request queue per loop.
+    pub loops: Vec<mpsc::Sender<LoopRequest>>,
+    /// Devices found on the loops.
+    pub subs: Arc<Mutex<Vec<SubDevice>>>,
+    /// A loop device at polling address 0 answers there instead of the I/O system
+    /// (one loop only).
+    pub transparent: bool,
+    local: std::sync::Mutex<Local>,
+}
+
+fn encode(v: &impl Wire) -> Vec<u8> {
+    let mut buf = vec![0u8; v.encoded_len()];
+    let _ = v.encode(&mut Writer::new(&mut buf));
+    buf
+}
+
+fn master_index(m: MasterKind) -> usize {
+    match m {
+        MasterKind::Primary => 0,
+        MasterKind::Secondary => 1,
+    }
+}
+
+/// The commands [`IoSystem::local`] answers (for documentation and tests).
+pub const LOCAL_COMMANDS: &[u16] = &[
+    0, 1, 2, 3, 7, 8, 9, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 38, 48, 74, 75, 77, 84,
+    101, 102,
+];
+
+impl IoSystem {
+    /// An I/O system with `identity` in front of `loops`.
+    pub fn new(
+        identity: GatewayIdentity,
+        loops: Vec<mpsc::Sender<LoopRequest>>,
+        subs: Arc<Mutex<Vec<SubDevice>>>,
+        transparent: bool,
+    ) -> Self {
+        let local = Local {
+            tag: PackedString::new(&identity.tag).unwrap_or_default(),
+            descriptor: PackedString::new(&identity.descriptor).unwrap_or_default(),
+            date: Date::new(2026, 1, 1).unwrap_or_default(),
+            message: PackedString::new(&identity.message).unwrap_or_default(),
+            long_tag: Latin1String::new(&identity.long_tag).unwrap_or_default(),
+            final_assembly: 0,
+            config_change_counter: 0,
+            changed: [false; 2],
+            cold: [true; 2],
+            burst_map: [0; BURST_MESSAGES],
+            reported: vec![],
+        };
+        IoSystem {
+            identity,
+            loops,
+            subs,
+            transparent,
+            local: std::sync::Mutex::new(local),
+        }
+    }
+
+    fn state(&self) -> std::sync::MutexGuard<'_, Local> {
+        self.local.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The I/O system's unique ID.
+    pub fn unique_id(&self) -> UniqueId {
+        UniqueId::new(self.identity.expanded_device_type, self.identity.device_id)
+    }
+
+    /// Where a request frame goes (the table in `docs/hart-ip.md`).
+    pub async fn route(&self, f: &Frame<'_>) -> Route {
+        let single = self.loops.len() == 1;
+        let subs = self.subs.lock().await;
+        let on_loop = |channel: u8, known: bool| Route::Loop {
+            channel: usize::from(channel),
+            retries: if known {
+                KNOWN_RETRIES
+            } else {
+                UNKNOWN_RETRIES
+            },
+        };
+        match f.address {
+            Address::Long(a) if a.id == self.unique_id() => Route::Local,
+            Address::Long(a) if a.id.is_broadcast() => {
+                // Commands 11 and 21 find a device by its tag: the I/O system's own,
+                // else the sub-device that has it.
+                let state = self.state();
+                let mine = match f.command {
+                    11 => f.data.get(..6) == Some(&state.tag.0[..]),
+                    21 => f.data.get(..32) == Some(&state.long_tag.0[..]),
+                    _ => false,
+                };
+                drop(state);
+                if mine {
+                    return Route::Local;
+                }
+                let by_tag = subs.iter().find(|s| match f.command {
+                    11 => s.info.tag.as_deref().is_some_and(|t| {
+                        PackedString::<6>::new(t).is_ok_and(|p| f.data.get(..6) == Some(&p.0[..]))
+                    }),
+                    21 => s.info.long_tag.as_deref().is_some_and(|t| {
+                        Latin1String::<32>::new(t).is_ok_and(|p| f.data.get(..32) == Some(&p.0[..]))
+                    }),
+                    _ => false,
+                });
+                match by_tag {
+                    Some(s) => on_loop(s.channel, true),
+                    None if single => on_loop(0, false),
+                    None => Route::Nowhere,
+                }
+            }
+            Address::Long(a) => match subs.iter().find(|s| s.info.unique_id() == a.id) {
+                Some(s) => on_loop(s.channel, true),
+                // A device connected since the last scan may answer on the one loop.
+                None if single => on_loop(0, false),
+                None => Route::Nowhere,
+            },
+            Address::Short(a) if a.polling_address == 0 => {
+                let device_at_0 = subs
+                    .iter()
+                    .any(|s| s.channel == 0 && s.info.polling_address == Some(0));
+                if self.transparent && single && device_at_0 {
+                    on_loop(0, true)
+                } else {
+                    Route::Local
+                }
+            }
+            Address::Short(a) => {
+                let known = |s: &&SubDevice| s.info.polling_address == Some(a.polling_address);
+                if single {
+                    return on_loop(0, subs.iter().any(|s| known(&s)));
+                }
+                // Several loops: the polling address must name one device.
+                let mut matching = subs.iter().filter(known);
+                match (matching.next(), matching.next()) {
+                    (Some(s), None) => on_loop(s.channel, true),
+                    _ => Route::Nowhere,
+                }
+            }
+        }
+    }
+
+    /// Forwards a PDU to loop `channel` with `retries`.
+    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> Option<Vec<u8>> {
+        let (tx, rx) = oneshot::channel();
+        self.loops
+            .get(channel)?
+            .send(LoopRequest {
+                pdu,
+                retries,
+                reply: tx,
+            })
+            .await
+            .ok()?;
+        rx.await.ok().flatten()
+    }
+
+    fn identity_reply(&self, state: &Local) -> Vec<u8> {
+        encode(&Identity {
+            expansion_code: 254,
+            expanded_device_type: self.identity.expanded_device_type,
+            min_request_preambles: 5,
+            universal_revision: 7,
+            device_revision: 1,
+            software_revision: 1,
+            hardware: HardwareRevision::new(1, 6), // physical signalling 6: special (HART-IP)
+            flags: Flags(0x04),                    // protocol bridge device
+            device_id: DeviceId::new(self.identity.device_id & 0xFF_FFFF).unwrap_or_default(),
+            min_response_preambles: Some(5),
+            max_device_variables: Some(0),
+            config_change_counter: Some(state.config_change_counter),
+            extended_status: Some(ExtendedStatus(0)),
+            manufacturer_id: Some(self.identity.manufacturer_id),
+            private_label_distributor: Some(self.identity.manufacturer_id),
+            device_profile: Some(DeviceProfile(68)), // HART-IP I/O system
+        })
+    }
+
+    /// Unique IDs of the sub-devices now.
+    async fn sub_ids(&self) -> Vec<UniqueId> {
+        self.subs
+            .lock()
+            .await
+            .iter()
+            .map(|s| s.info.unique_id())
+            .collect()
+    }
+
+    /// The field device status byte for a reply to `master`: cold start once per
+    /// master after power-up, configuration changed until that master resets it, more
+    /// status available while command 48 has news (the sub-device list changed).
+    fn status(&self, state: &mut Local, master: MasterKind, list_changed: bool) -> u8 {
+        let i = master_index(master);
+        let mut s = 0;
+        if list_changed {
+            s |= 0x10;
+        }
+        if std::mem::take(&mut state.cold[i]) {
+            s |= 0x20;
+        }
+        if state.changed[i] {
+            s |= 0x40;
+        }
+        s
+    }
+
+    fn configuration_changed(state: &mut Local) {
+        state.config_change_counter = state.config_change_counter.wrapping_add(1);
+        state.changed = [true; 2];
+    }
+
+    /// Answers a command addressed to the I/O system itself (from `master`): response
+    /// code, field device status and data.
+    pub async fn local(&self, master: MasterKind, command: u16, data: &[u8]) -> (u8, u8, Vec<u8>) {
+        let ids = self.sub_ids().await;
+        let (code, out) = match command {
+            74 => self.capabilities().await,
+            75 => self.poll_sub_device(data).await,
+            77 => self.send_to_sub_device(data).await,
+            84 => self.sub_device_summary(data).await,
+            101 | 102 => self.burst_map(command, data).await,
+            48 => {
+                // Device-specific status 0-5, extended status, operating mode,
+                // standardized status 0 and 1, analog channel saturated, standardized
+                // status 2 (bit 0: sub-device list changed, reported once), 3, analog
+                // channel fixed.
+                let mut st = self.state();
+                let mut d = vec![0u8; 14];
+                if st.reported != ids {
+                    d[11] |= 0x01;
+                    st.reported = ids.clone();
+                }
+                (rc::SUCCESS, d)
+            }
+            _ => self.universal(command, data),
+        };
+        let mut st = self.state();
+        let list_changed = st.reported != ids;
+        let status = self.status(&mut st, master, list_changed);
+        (code, status, out)
+    }
+
+    /// Universal commands answered from the I/O system's own data. It has no process
+    /// variable and no analog output: values are NaN with unit code 250 ("not used"),
+    /// the loop current is fixed (multidrop).
+    fn universal(&self, command: u16, data: &[u8]) -> (u8, Vec<u8>) {
+        let mut st = self.state();
+        let ok = |v: Vec<u8>| (rc::SUCCESS, v);
+        let not_used = UnitCode(250);
+        match command {
+            0 => ok(self.identity_reply(&st)),
+            11 if data.len() < 6 => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            11 if data[..6] == st.tag.0 => ok(self.identity_reply(&st)),
+            21 if data.len() < 32 => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            21 if data[..32] == st.long_tag.0 => ok(self.identity_reply(&st)),
+            // Not this device's tag: the I/O system stays silent like a field device
+            // (answered as "not implemented" only when a host sends it here directly).
+            11 | 21 => (rc::NOT_IMPLEMENTED, vec![]),
+            1 => ok(encode(&cmd::ReadPvResponse {
+                pv_units: not_used,
+                pv: hart_nan(),
+            })),
+            2 => ok(encode(&cmd::ReadLoopCurrentResponse {
+                loop_current: MilliAmps(hart_nan()),
+                percent_of_range: Percent(hart_nan()),
+            })),
+            3 => ok(encode(&cmd::ReadDynamicVariablesResponse {
+                loop_current: MilliAmps(hart_nan()),
+                variables: List::default(),
+            })),
+            7 => ok(encode(&cmd::LoopConfiguration {
+                polling_address: 0,
+                loop_current_mode: LoopCurrentMode(0),
+            })),
+            8 => ok(encode(&cmd::DynamicVariableClassifications {
+                pv_classification: Classification(0),
+                sv_classification: Classification(0),
+                tv_classification: Classification(0),
+                qv_classification: Classification(0),
+            })),
+            9 => {
+                let Ok(r) = cmd::ReadDeviceVariablesRequest::decode(&mut Reader::new(data)) else {
+                    return (rc::TOO_FEW_DATA_BYTES, vec![]);
+                };
+                let mut slots = List::<cmd::VariableSlot, 8>::default();
+                for code in r.slots.as_slice() {
+                    if code.0 >= 251 {
+                        return (rc::INVALID_SELECTION, vec![]);
+                    }
+                    // No device variables: each slot "not used", status bad / constant.
+                    let _ = slots.push(cmd::VariableSlot {
+                        code: DeviceVariableCode(code.0),
+                        classification: Classification(0),
+                        units: not_used,
+                        value: hart_nan(),
+                        status: hart_proto::types::VariableStatus(0x30),
+                    });
+                }
+                ok(encode(&cmd::ReadDeviceVariablesResponse {
+                    extended_status: ExtendedStatus(0),
+                    data: cmd::SlotsWithTimestamp {
+                        slots,
+                        timestamp: Some(time_of_day()),
+                    },
+                }))
+            }
+            12 => ok(encode(&cmd::Message {
+                message: st.message,
+            })),
+            13 => ok(encode(&TagDescriptorDate {
+                tag: st.tag,
+                descriptor: st.descriptor,
+                date: st.date,
+            })),
+            14 => ok(encode(&cmd::TransducerInfo {
+                transducer_serial_number: U24::default(),
+                limits_units: not_used,
+                upper_transducer_limit: hart_nan(),
+                lower_transducer_limit: hart_nan(),
+                minimum_span: hart_nan(),
+            })),
+            15 => ok(encode(&cmd::DeviceInformation {
+                alarm_selection: AlarmSelection(251), // none
+                transfer_function: TransferFunction(0),
+                range_units: not_used,
+                upper_range_value: hart_nan(),
+                lower_range_value: hart_nan(),
+                damping: Seconds(hart_nan()),
+                write_protect: WriteProtect(0),
+                reserved: 250,
+                analog_channel_flags: Some(hart_proto::types::AnalogChannelFlags(0)),
+            })),
+            16 => ok(encode(&cmd::FinalAssemblyNumber {
+                final_assembly_number: U24::new(st.final_assembly).unwrap_or_default(),
+            })),
+            17 => match cmd::Message::decode(&mut Reader::new(data)) {
+                Ok(m) => {
+                    st.message = m.message;
+                    Self::configuration_changed(&mut st);
+                    ok(encode(&m))
+                }
+                Err(_) => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            },
+            18 => match TagDescriptorDate::decode(&mut Reader::new(data)) {
+                Ok(t) => {
+                    st.tag = t.tag;
+                    st.descriptor = t.descriptor;
+                    st.date = t.date;
+                    Self::configuration_changed(&mut st);
+                    ok(encode(&t))
+                }
+                Err(_) => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            },
+            19 => match cmd::FinalAssemblyNumber::decode(&mut Reader::new(data)) {
+                Ok(n) => {
+                    st.final_assembly = n.final_assembly_number.get();
+                    Self::configuration_changed(&mut st);
+                    ok(encode(&n))
+                }
+                Err(_) => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            },
+            20 => ok(encode(&LongTag {
+                long_tag: st.long_tag,
+            })),
+            22 => match LongTag::decode(&mut Reader::new(data)) {
+                Ok(t) => {
+                    st.long_tag = t.long_tag;
+                    Self::configuration_changed(&mut st);
+                    ok(encode(&t))
+                }
+                Err(_) => (rc::TOO_FEW_DATA_BYTES, vec![]),
+            },
+            38 => {
+                // HART 7: the request carries the counter the host read; a stale one
+                // leaves the flag set (RC 9).
+                if data.len() >= 2
+                    && u16::from_be_bytes([data[0], data[1]]) != st.config_change_counter
+                {
+                    return (CONFIG_CHANGE_COUNTER_MISMATCH, vec![]);
+                }
+                st.changed = [false; 2];
+                ok(st.config_change_counter.to_be_bytes().to_vec())
+            }
+            _ => (rc::NOT_IMPLEMENTED, vec![]),
+        }
+    }
+
+    /// Command 74: read I/O system capabilities.
+    async fn capabilities(&self) -> (u8, Vec<u8>) {
+        let n = self.subs.lock().await.len() as u16 + 1;
+        let mut d = vec![1, self.loops.len() as u8, 63];
+        d.extend(n.to_be_bytes());
+        d.extend([1, 1, UNKNOWN_RETRIES.max(KNOWN_RETRIES)]); // delayed responses, master mode primary, retries
+        (rc::SUCCESS, d)
+    }
+
+    /// Command 75: poll sub-device (card, channel, polling address): command 0 in a
+    /// short frame on that channel; the reply is the sub-device's command 0 data.
+    async fn poll_sub_device(&self, data: &[u8]) -> (u8, Vec<u8>) {
+        let [card, channel, poll, ..] = *data else {
+            return (rc::TOO_FEW_DATA_BYTES, vec![]);
+        };
+        if card != 0 {
+            return (rc::INVALID_IO_CARD, vec![]);
+        }
+        if usize::from(channel) >= self.loops.len() {
+            return (rc::INVALID_CHANNEL, vec![]);
+        }
+        if poll > 63 {
+            return (rc::INVALID_SELECTION, vec![]);
+        }
+        let pdu = pdu_of(&hart_proto::frame::FrameSpec::request(
+            Address::short(poll),
+            0,
+            &[],
+        ));
+        match self
+            .forward(usize::from(channel), pdu, UNKNOWN_RETRIES)
+            .await
+            .and_then(|r| Frame::parse_pdu(&r).ok().map(|f| f.data.to_vec()))
+        {
+            Some(identity) => (rc::SUCCESS, identity),
+            None => (NO_SUB_DEVICE_FOUND, vec![]),
+        }
+    }
+
+    /// Command 84: read sub-device identity summary (index). Index 0 is the I/O system
+    /// itself (card and channel 251, "none"); its sub-devices are 1..=N.
+    async fn sub_device_summary(&self, data: &[u8]) -> (u8, Vec<u8>) {
+        let Some(ix) = data.get(..2).map(|b| u16::from_be_bytes([b[0], b[1]])) else {
+            return (rc::TOO_FEW_DATA_BYTES, vec![]);
+        };
+        let mut d = ix.to_be_bytes().to_vec();
+        if ix == 0 {
+            let st = self.state();
+            d.extend([NONE, NONE]);
+            d.extend(self.identity.manufacturer_id.to_be_bytes());
+            d.extend(self.identity.expanded_device_type.to_be_bytes());
+            d.extend(&self.identity.device_id.to_be_bytes()[1..]);
+            d.push(7);
+            d.extend(st.long_tag.0);
+            d.extend([1, 68]);
+            d.extend(self.identity.manufacturer_id.to_be_bytes());
+            return (rc::SUCCESS, d);
+        }
+        let subs = self.subs.lock().await;
+        let Some(s) = subs.get(usize::from(ix) - 1) else {
+            return (rc::INVALID_SELECTION, vec![]);
+        };
+        let id = &s.info.identity;
+        d.extend([0, s.channel]);
+        d.extend(s.info.manufacturer_id().to_be_bytes());
+        d.extend(id.expanded_device_type.to_be_bytes());
+        d.extend(id.device_id.0);
+        d.push(id.universal_revision);
+        d.extend(
+            Latin1String::<32>::new(s.info.long_tag.as_deref().unwrap_or(""))
+                .unwrap_or_default()
+                .0,
+        );
+        d.push(id.device_revision);
+        d.push(id.device_profile.map_or(1, |p| p.0));
+        d.extend(id.private_label_distributor.unwrap_or(0).to_be_bytes());
+        (rc::SUCCESS, d)
+    }
+
+    /// Commands 101 (read sub-device to burst message map: burst message number) and
+    /// 102 (map sub-device to burst message: burst message number, sub-device index
+    /// u16). Both answer with the burst message number and the sub-device index.
+    async fn burst_map(&self, command: u16, data: &[u8]) -> (u8, Vec<u8>) {
+        let need = if command == 101 { 1 } else { 3 };
+        if data.len() < need {
+            return (rc::TOO_FEW_DATA_BYTES, vec![]);
+        }
+        let msg = usize::from(data[0]);
+        if msg >= BURST_MESSAGES {
+            return (INVALID_BURST_MESSAGE, vec![]);
+        }
+        if command == 102 {
+            let ix = u16::from_be_bytes([data[1], data[2]]);
+            if usize::from(ix) > self.subs.lock().await.len() {
+                return (INVALID_SUB_DEVICE_INDEX, vec![]);
+            }
+            let mut st = self.state();
+            st.burst_map[msg] = ix;
+            Self::configuration_changed(&mut st);
+        }
+        let ix = self.state().burst_map[msg];
+        let mut d = vec![data[0]];
+        d.extend(ix.to_be_bytes());
+        (rc::SUCCESS, d)
+    }
+
+    /// The sub-device a burst message publishes (commands 101/102); `None` for the
+    /// I/O system itself.
+    pub async fn burst_sub_device(&self, msg: usize) -> Option<SubDevice> {
+        let ix = *self.state().burst_map.get(msg)?;
+        let ix = usize::from(ix).checked_sub(1)?;
+        self.subs.lock().await.get(ix).cloned()
+    }
+
+    /// Command 77: I/O card, channel, transmit preamble count, then the embedded frame
+    /// from the delimiter through the data (no check byte). The reply carries card,
+    /// channel and the sub-device's reply frame in the same form.
+    async fn send_to_sub_device(&self, data: &[u8]) -> (u8, Vec<u8>) {
+        if data.len() < 4 {
+            return (rc::TOO_FEW_DATA_BYTES, vec![]);
+        }
+        let (card, channel) = (data[0], data[1]);
+        if card != 0 {
+            return (rc::INVALID_IO_CARD, vec![]);
+        }
+        if usize::from(channel) >= self.loops.len() {
+            return (rc::INVALID_CHANNEL, vec![]);
+        }
+        let mut pdu = data[3..].to_vec();
+        pdu.push(checksum(&pdu));
+        let Ok(f) = Frame::parse_pdu(&pdu) else {
+            return (rc::TOO_FEW_DATA_BYTES, vec![]);
+        };
+        let known = {
+            let subs = self.subs.lock().await;
+            subs.iter().any(|s| {
+                s.channel == channel
+                    && match f.address {
+                        Address::Long(a) => s.info.unique_id() == a.id,
+                        Address::Short(a) => s.info.polling_address == Some(a.polling_address),
+                    }
+            })
+        };
+        let retries = if known {
+            KNOWN_RETRIES
+        } else {
+            UNKNOWN_RETRIES
+        };
+        match self.forward(usize::from(channel), pdu, retries).await {
+            Some(reply) => {
+                let mut d = vec![card, channel];
+                d.extend_from_slice(&reply[..reply.len().saturating_sub(1)]);
+                if d.len() > 253 {
+                    return (rc::SUB_DEVICE_RESPONSE_TOO_LONG, vec![]);
+                }
+                (rc::SUCCESS, d)
+            }
+            None => (SUB_DEVICE_NOT_RESPONDING, vec![]),
+        }
+    }
+}
+
+/// The PDU of `spec` (no preambles); empty if it cannot be encoded.
+fn pdu_of(spec: &hart_proto::frame::FrameSpec<'_>) -> Vec<u8> {
+    hart_proto::frame::FrameBuf::encode(spec).map_or_else(|_| vec![], |b| b.as_slice().to_vec())
+}
+
+/// Time of day for command 9's time stamp.
+fn time_of_day() -> hart_proto::types::HartTime {
+    let ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() % 86_400_000) as u32;
+    hart_proto::types::HartTime(ms.wrapping_mul(32))
+}

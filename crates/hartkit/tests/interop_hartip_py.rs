@@ -1,0 +1,118 @@
+//! An outside HART-IP client against `hartkit serve --sim` with its defaults: the
+//! third-party package hartip-py (run as a separate process by
+//! `scripts/interop/hartip_py_client.py`; GPL, never linked or imported by hartkit)
+//! opens a session over UDP and over TCP, reads command 0 at polling address 0 (the
+//! server as a HART I/O system), lists the sub-devices with command 84 and reads
+//! commands 1, 3 and 20 from a field device found through it.
+//!
+//! `scripts/interop/setup` (run by `.ci/run`) installs hartip-py into
+//! `target/interop-venv`. Without it the test says so and passes, unless
+//! `HARTKIT_REQUIRE_INTEROP=1` (set by `.ci/run` once the install worked).
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+
+fn workspace() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The venv's python, if hartip-py is installed there.
+fn python() -> Option<PathBuf> {
+    let venv = std::env::var_os("HARTKIT_INTEROP_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join("target/interop-venv"));
+    let py = venv.join("bin/python");
+    let ok = Command::new(&py)
+        .args(["-c", "import hartip"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(py);
+    }
+    assert!(
+        std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
+        "hartip-py is not installed in {} although HARTKIT_REQUIRE_INTEROP=1; run scripts/interop/setup",
+        venv.display()
+    );
+    eprintln!(
+        "hartip-py not installed ({}); skipping the interop check (scripts/interop/setup installs it)",
+        venv.display()
+    );
+    None
+}
+
+/// A server on a free port; killed when dropped.
+struct Server(Child, u16);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn serve(extra: &[&str]) -> Server {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["serve", "--hart-ip", "127.0.0.1:0", "--run-for", "300"])
+        .args(extra)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    let _ = BufReader::new(child.stdout.take().unwrap()).read_line(&mut line);
+    // "hart-ip: udp 127.0.0.1:PORT tcp 127.0.0.1:PORT"
+    let port = line
+        .split_whitespace()
+        .nth(2)
+        .and_then(|a| a.rsplit(':').next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("server did not start: {line:?}"));
+    Server(child, port)
+}
+
+fn run_client(py: &PathBuf, port: u16, transport: &str) -> Vec<serde_json::Value> {
+    let out = Command::new(py)
+        .arg(workspace().join("scripts/interop/hartip_py_client.py"))
+        .args(["--host", "127.0.0.1", "--port", &port.to_string()])
+        .args(["--transport", transport])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "hartip-py over {transport} failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
+#[test]
+fn hartip_py_finds_and_reads_devices_over_udp_and_tcp() {
+    let Some(py) = python() else { return };
+    let server = serve(&["--sim"]);
+    for transport in ["udp", "tcp"] {
+        let steps = run_client(&py, server.1, transport);
+        let step = |name: &str| {
+            steps
+                .iter()
+                .find(|s| s["step"] == name)
+                .unwrap_or_else(|| panic!("no {name} step over {transport}: {steps:?}"))
+        };
+        // Polling address 0 answers at once, as a HART-IP I/O system.
+        let id = step("cmd0");
+        assert_eq!(id["poll"], 0);
+        assert_eq!(id["response_code"], 0);
+        assert_eq!(id["device_profile"], 68, "{id}");
+        assert_eq!(id["io_system"], true);
+        // Commands 1, 3 and 20 from a field device found through it.
+        for c in ["cmd1", "cmd3", "cmd20"] {
+            assert_eq!(step(c)["response_code"], 0, "{c} over {transport}");
+        }
+        assert_eq!(step("cmd1")["pv_unit"], "kPa");
+        assert_eq!(step("result")["ok"], true);
+    }
+}
