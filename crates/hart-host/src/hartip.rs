@@ -13,9 +13,19 @@ use tokio::net::{TcpStream, UdpSocket};
 
 use crate::transport::Transport;
 
+/// A byte stream a secure session runs over: TCP for TLS, a datagram stream for DTLS.
+trait Stream: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
+impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> Stream for T {}
+
+/// A TLS or DTLS connection.
+type Secure = hart_ip_tls::SslStream<Box<dyn Stream>>;
+
 enum Socket {
     Udp(UdpSocket),
     Tcp(TcpStream, Vec<u8>),
+    /// TLS (over TCP) or DTLS (over UDP) with a pre-shared key, and the bytes read
+    /// but not yet split into messages.
+    Secure(Box<Secure>, Vec<u8>),
 }
 
 /// A HART-IP session.
@@ -23,6 +33,8 @@ pub struct HartIpTransport {
     socket: Socket,
     addr: String,
     tcp: bool,
+    /// The key of a secure (TLS/DTLS) session, kept to reconnect.
+    psk: Option<hart_ip_tls::Psk>,
     peer: SocketAddr,
     start: Instant,
     sequence: u16,
@@ -44,11 +56,18 @@ fn proto_err(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidData, msg)
 }
 
-async fn open_socket(addr: &str, tcp: bool) -> io::Result<(Socket, SocketAddr)> {
+async fn open_socket(
+    addr: &str,
+    tcp: bool,
+    psk: Option<&hart_ip_tls::Psk>,
+) -> io::Result<(Socket, SocketAddr)> {
     let peer: SocketAddr = tokio::net::lookup_host(addr)
         .await?
         .next()
         .ok_or_else(|| io::Error::new(io::ErrorKind::NotFound, format!("{addr}: no address")))?;
+    if let Some(psk) = psk {
+        return Ok((secure_socket(peer, tcp, psk).await?, peer));
+    }
     let socket = if tcp {
         let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
             .await
@@ -69,6 +88,57 @@ async fn open_socket(addr: &str, tcp: bool) -> io::Result<(Socket, SocketAddr)> 
         Socket::Udp(UdpSocket::bind(local).await?)
     };
     Ok((socket, peer))
+}
+
+/// A TLS (`tcp`) or DTLS connection to `peer` with `psk`, handshake done.
+async fn secure_socket(peer: SocketAddr, tcp: bool, psk: &hart_ip_tls::Psk) -> io::Result<Socket> {
+    let what = if tcp { "TLS" } else { "DTLS" };
+    let ctx = hart_ip_tls::client_context(psk, !tcp).map_err(io::Error::other)?;
+    let ssl = hart_ip_tls::client_ssl(&ctx, !tcp).map_err(io::Error::other)?;
+    let io: Box<dyn Stream> = if tcp {
+        let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
+            .await
+            .map_err(|_| {
+                io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    format!("HART-IP server {peer}: TCP connect timed out"),
+                )
+            })??;
+        s.set_nodelay(true)?;
+        Box::new(s)
+    } else {
+        let local: SocketAddr = if peer.is_ipv4() {
+            "0.0.0.0:0".parse().unwrap()
+        } else {
+            "[::]:0".parse().unwrap()
+        };
+        let s = UdpSocket::bind(local).await?;
+        s.connect(peer).await?;
+        Box::new(hart_ip_tls::DatagramStream::connected(s, peer))
+    };
+    let mut stream = hart_ip_tls::SslStream::new(ssl, io).map_err(io::Error::other)?;
+    match tokio::time::timeout(
+        Duration::from_secs(10),
+        std::pin::Pin::new(&mut stream).connect(),
+    )
+    .await
+    {
+        Ok(Ok(())) => Ok(Socket::Secure(Box::new(stream), vec![])),
+        Ok(Err(e)) => Err(io::Error::new(
+            io::ErrorKind::PermissionDenied,
+            format!(
+                "HART-IP server {peer} refused the {what} handshake with identity {:?} ({e}); check the identity and the key (the server logs the cause), and that the server serves {what} there (hartkit serve --psk-file)",
+                psk.identity
+            ),
+        )),
+        Err(_) => Err(io::Error::new(
+            io::ErrorKind::TimedOut,
+            format!(
+                "HART-IP server {peer}: no {what} handshake within 10 s; is a secure server there (hartkit serve --psk-file), and does a firewall let {} through?",
+                if tcp { "TCP" } else { "UDP" }
+            ),
+        )),
+    }
 }
 
 /// What a session initiate response means: the inactivity timer the server granted (at
@@ -96,11 +166,23 @@ fn initiate_outcome(server: &str, st: u8, body: &[u8], again: bool) -> io::Resul
 impl HartIpTransport {
     /// Connects and initiates a session (primary master, `timer_ms` inactivity timer).
     pub async fn connect(addr: &str, tcp: bool, timer_ms: u32) -> io::Result<Self> {
-        let (socket, peer) = open_socket(addr, tcp).await?;
+        Self::connect_with(addr, tcp, None, timer_ms).await
+    }
+
+    /// Connects, with HART-IP version 2 security when `psk` is given (TLS over TCP,
+    /// DTLS over UDP), and initiates a session.
+    pub async fn connect_with(
+        addr: &str,
+        tcp: bool,
+        psk: Option<hart_ip_tls::Psk>,
+        timer_ms: u32,
+    ) -> io::Result<Self> {
+        let (socket, peer) = open_socket(addr, tcp, psk.as_ref()).await?;
         let mut t = HartIpTransport {
             socket,
             addr: addr.to_string(),
             tcp,
+            psk,
             peer,
             start: Instant::now(),
             sequence: 0,
@@ -146,7 +228,7 @@ impl HartIpTransport {
     /// A new connection and session after the server went away, then the last request
     /// again.
     async fn reconnect(&mut self) -> io::Result<()> {
-        let (socket, peer) = open_socket(&self.addr, self.tcp).await?;
+        let (socket, peer) = open_socket(&self.addr, self.tcp, self.psk.as_ref()).await?;
         self.socket = socket;
         self.peer = peer;
         self.outstanding.clear();
@@ -162,13 +244,19 @@ impl HartIpTransport {
         self.sequence = self.sequence.wrapping_add(1);
         let seq = self.sequence;
         let mut buf = vec![0u8; HEADER_LEN + body.len()];
-        encode(1, MessageType::Request, id, 0, seq, body, &mut buf)
+        // HART-IP version 2 inside TLS/DTLS, 1 in the clear.
+        let version = if self.psk.is_some() { 2 } else { 1 };
+        encode(version, MessageType::Request, id, 0, seq, body, &mut buf)
             .map_err(|e| proto_err(e.to_string()))?;
         match &mut self.socket {
             Socket::Udp(s) => {
                 s.send_to(&buf, self.peer).await?;
             }
             Socket::Tcp(s, _) => s.write_all(&buf).await?,
+            Socket::Secure(s, _) => {
+                s.write_all(&buf).await?;
+                s.flush().await?;
+            }
         }
         self.last_tx = Instant::now();
         Ok(seq)
@@ -180,7 +268,7 @@ impl HartIpTransport {
         deadline: Instant,
     ) -> io::Result<Option<(hart_ip::Header, Vec<u8>)>> {
         loop {
-            if let Socket::Tcp(_, buf) = &mut self.socket {
+            if let Socket::Tcp(_, buf) | Socket::Secure(_, buf) = &mut self.socket {
                 match Message::parse(buf) {
                     Ok((m, n)) => {
                         let out = (m.header, m.body.to_vec());
@@ -211,6 +299,19 @@ impl HartIpTransport {
                     if let Ok((m, _)) = Message::parse(&tmp[..n]) {
                         return Ok(Some((m.header, m.body.to_vec())));
                     }
+                }
+                Socket::Secure(s, buf) => {
+                    let Ok(r) = tokio::time::timeout(deadline - now, s.read(&mut tmp)).await else {
+                        return Ok(None);
+                    };
+                    let n = r?;
+                    if n == 0 {
+                        return Err(io::Error::new(
+                            io::ErrorKind::ConnectionReset,
+                            format!("HART-IP server {} closed the secure connection", self.peer),
+                        ));
+                    }
+                    buf.extend_from_slice(&tmp[..n]);
                 }
                 Socket::Tcp(s, buf) => {
                     let Ok(r) = tokio::time::timeout(deadline - now, s.read(&mut tmp)).await else {
@@ -390,10 +491,11 @@ impl Transport for HartIpTransport {
     fn describe(&self) -> String {
         format!(
             "HART-IP {} {}",
-            if matches!(self.socket, Socket::Tcp(..)) {
-                "tcp"
-            } else {
-                "udp"
+            match (&self.socket, self.tcp) {
+                (Socket::Tcp(..), _) => "tcp",
+                (Socket::Udp(..), _) => "udp",
+                (Socket::Secure(..), true) => "tls",
+                (Socket::Secure(..), false) => "dtls",
             },
             self.peer
         )
@@ -423,6 +525,8 @@ impl Drop for HartIpTransport {
                 Socket::Tcp(s, _) => {
                     let _ = s.try_write(&buf);
                 }
+                // A secure session ends with its connection (no blocking write here).
+                Socket::Secure(..) => {}
             }
         }
     }
@@ -463,7 +567,7 @@ impl HartIpSession {
     /// Connects to `addr` (`HOST:PORT`) over TCP or UDP and initiates a session as
     /// primary master with the inactivity timer `timer_ms`.
     pub async fn connect(addr: &str, tcp: bool, timer_ms: u32) -> io::Result<Self> {
-        let (socket, peer) = open_socket(addr, tcp).await?;
+        let (socket, peer) = open_socket(addr, tcp, None).await?;
         let waiters: Waiters = Default::default();
         let peer = std::sync::Arc::new(std::sync::Mutex::new(peer));
         let (ptx, prx) = tokio::sync::mpsc::channel(256);
@@ -516,6 +620,10 @@ impl HartIpSession {
                     }
                 });
                 (SessionWriter::Tcp(wr), reader)
+            }
+            // Opened without a key: never secure.
+            Socket::Secure(..) => {
+                return Err(io::Error::other("HartIpSession carries plain HART-IP only"))
             }
         };
         let mut session = HartIpSession {

@@ -99,8 +99,11 @@ pub enum Target {
     HartIp {
         /// `HOST:PORT` (port 5094 when the target names none).
         address: String,
-        /// TCP (`tcp://`) rather than UDP (`udp://`).
+        /// TCP (`tcp://`, `tls://`) rather than UDP (`udp://`, `dtls://`).
         tcp: bool,
+        /// HART-IP version 2 security: TLS (`tls://`) or DTLS (`dtls://`) with a
+        /// pre-shared key.
+        secure: bool,
     },
 }
 
@@ -169,7 +172,12 @@ pub fn parse(target: &str) -> Result<Target, String> {
             virtual_time,
         });
     }
-    for (scheme, tcp) in [("udp://", false), ("tcp://", true)] {
+    for (scheme, tcp, secure) in [
+        ("udp://", false, false),
+        ("tcp://", true, false),
+        ("tls://", true, true),
+        ("dtls://", false, true),
+    ] {
         if let Some(rest) = base.strip_prefix(scheme) {
             check("HART-IP", &[])?;
             let port_of = |p: &str| -> Result<u16, String> {
@@ -202,7 +210,11 @@ pub fn parse(target: &str) -> Result<Target, String> {
                 ));
             }
             let address = format!("{host}:{port}");
-            return Ok(Target::HartIp { address, tcp });
+            return Ok(Target::HartIp {
+                address,
+                tcp,
+                secure,
+            });
         }
     }
     let (rs485, path) = if let Some(p) = base.strip_prefix("rs485:") {
@@ -211,7 +223,7 @@ pub fn parse(target: &str) -> Result<Target, String> {
         (false, p)
     } else if base.contains("://") {
         return Err(format!(
-            "--port {target}: unknown scheme (udp:// or tcp:// for HART-IP, serial:, rs485:, sim)"
+            "--port {target}: unknown scheme (udp://, tcp://, tls:// or dtls:// for HART-IP, serial:, rs485:, sim)"
         ));
     } else {
         (false, base)
@@ -298,8 +310,31 @@ pub fn open(target: &str) -> Result<AnyTransport, String> {
 /// Opens any target, including HART-IP (`udp://HOST[:PORT]`, `tcp://HOST[:PORT]`,
 /// default port 5094), which needs the runtime to connect.
 pub async fn open_async(target: &str) -> Result<AnyTransport, String> {
-    if let Target::HartIp { address, tcp } = parse(target)? {
-        return crate::hartip::HartIpTransport::connect(&address, tcp, 60_000)
+    open_async_with(target, None).await
+}
+
+/// Opens any target; `psk` is the key for HART-IP version 2 targets
+/// (`tls://HOST[:PORT]`, `dtls://HOST[:PORT]`), which need one.
+pub async fn open_async_with(
+    target: &str,
+    psk: Option<&hart_ip_tls::Psk>,
+) -> Result<AnyTransport, String> {
+    if let Target::HartIp {
+        address,
+        tcp,
+        secure,
+    } = parse(target)?
+    {
+        let psk = match (secure, psk) {
+            (true, None) => {
+                return Err(format!(
+                    "--port {target}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
+                ))
+            }
+            (true, Some(k)) => Some(k.clone()),
+            (false, _) => None,
+        };
+        return crate::hartip::HartIpTransport::connect_with(&address, tcp, psk, 60_000)
             .await
             .map(|t| AnyTransport::HartIp(Box::new(t)))
             .map_err(|e| format!("--port {target}: {e}"));

@@ -111,7 +111,7 @@ fn sim_targets_are_the_demo_plant_or_a_plant_file_in_real_or_virtual_time() {
 #[test]
 fn hart_ip_targets_default_to_port_5094() {
     let ip = |t: &str| match parse(t) {
-        Ok(Target::HartIp { address, tcp }) => (address, tcp),
+        Ok(Target::HartIp { address, tcp, .. }) => (address, tcp),
         other => panic!("{t}: {other:?}"),
     };
     assert_eq!(ip("udp://127.0.0.1"), ("127.0.0.1:5094".into(), false));

@@ -21,10 +21,11 @@ use tokio::sync::{broadcast, mpsc, Mutex};
 
 mod audit;
 mod backend;
+mod dtls;
 pub mod io_system;
 mod session;
+mod stream;
 mod subscriptions;
-mod tcp;
 mod udp;
 
 use audit::AuditLog;
@@ -32,8 +33,8 @@ pub use audit::{AuditRecord, AUDIT_RECORDS};
 use backend::{backend, memory_backend};
 use io_system::LoopRequest;
 pub use io_system::{GatewayIdentity, IoSystem, Route, SubDevice};
+use stream::serve_tcp;
 pub use subscriptions::subscription;
-use tcp::serve_tcp;
 use udp::serve_udp;
 
 /// Server settings.
@@ -57,6 +58,11 @@ pub struct Config {
     /// A loop device at polling address 0 answers there instead of the I/O system
     /// (servers with one loop only).
     pub transparent: bool,
+    /// HART-IP version 2 security: with keys, `bind` serves TLS (TCP) and DTLS (UDP)
+    /// with these pre-shared keys only.
+    pub psk: Option<Arc<hart_ip_tls::PskTable>>,
+    /// Also serve plain HART-IP here (with `psk`; without, `bind` is plain anyway).
+    pub plain: Option<SocketAddr>,
 }
 
 impl Default for Config {
@@ -70,6 +76,8 @@ impl Default for Config {
             scan_to: Some(63),
             identity: GatewayIdentity::default(),
             transparent: false,
+            psk: None,
+            plain: None,
         }
     }
 }
@@ -92,6 +100,13 @@ pub struct Stats {
     pub malformed: u64,
 }
 
+/// The OpenSSL contexts of a secure server, built once.
+pub(crate) struct Security {
+    pub(crate) keys: Arc<hart_ip_tls::PskTable>,
+    pub(crate) tls: openssl::ssl::SslContext,
+    pub(crate) dtls: openssl::ssl::SslContext,
+}
+
 pub(crate) struct Shared {
     pub(crate) config: Config,
     pub(crate) sessions: Mutex<usize>,
@@ -108,6 +123,12 @@ pub struct Server {
     pub udp_addr: Option<SocketAddr>,
     /// TCP address actually bound.
     pub tcp_addr: Option<SocketAddr>,
+    /// Whether `udp_addr` and `tcp_addr` serve DTLS and TLS (pre-shared keys).
+    pub secure: bool,
+    /// Plain UDP address bound besides the secure ones (`Config::plain`).
+    pub plain_udp_addr: Option<SocketAddr>,
+    /// Plain TCP address bound besides the secure ones.
+    pub plain_tcp_addr: Option<SocketAddr>,
     shared: Arc<Shared>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
@@ -187,31 +208,68 @@ async fn start_with(
         audit: Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
+    let security = match &config.psk {
+        Some(keys) => {
+            let err = |e: String| std::io::Error::other(e);
+            Some(Arc::new(Security {
+                keys: keys.clone(),
+                tls: hart_ip_tls::server_context(keys.clone(), false).map_err(err)?,
+                dtls: hart_ip_tls::server_context(keys.clone(), true).map_err(err)?,
+            }))
+        }
+        None => None,
+    };
+    let (udp_addr, tcp_addr) =
+        bind_pair(&config, config.bind, &shared, security.clone(), &mut tasks).await?;
+    let (mut plain_udp_addr, mut plain_tcp_addr) = (None, None);
+    if let (Some(plain), Some(_)) = (config.plain, &security) {
+        (plain_udp_addr, plain_tcp_addr) =
+            bind_pair(&config, plain, &shared, None, &mut tasks).await?;
+    }
+    Ok(Server {
+        udp_addr,
+        tcp_addr,
+        secure: security.is_some(),
+        plain_udp_addr,
+        plain_tcp_addr,
+        shared,
+        tasks,
+    })
+}
+
+/// Binds UDP and TCP (as `config` asks) at `bind`: plain, or DTLS and TLS with
+/// `security`. With port 0, TCP takes the port UDP got.
+async fn bind_pair(
+    config: &Config,
+    bind: SocketAddr,
+    shared: &Arc<Shared>,
+    security: Option<Arc<Security>>,
+    tasks: &mut Vec<tokio::task::JoinHandle<()>>,
+) -> std::io::Result<(Option<SocketAddr>, Option<SocketAddr>)> {
     let mut udp_addr = None;
     let mut tcp_addr = None;
     if config.udp {
-        let sock = Arc::new(UdpSocket::bind(config.bind).await?);
+        let sock = Arc::new(UdpSocket::bind(bind).await?);
         udp_addr = Some(sock.local_addr()?);
-        tasks.push(tokio::task::spawn_local(serve_udp(sock, shared.clone())));
+        tasks.push(match security.clone() {
+            None => tokio::task::spawn_local(serve_udp(sock, shared.clone())),
+            Some(sec) => tokio::task::spawn_local(dtls::serve_dtls(sock, shared.clone(), sec)),
+        });
     }
     if config.tcp {
         let bind = match udp_addr {
-            Some(a) if config.bind.port() == 0 => a,
-            _ => config.bind,
+            Some(a) if bind.port() == 0 => a,
+            _ => bind,
         };
         let listener = TcpListener::bind(bind).await?;
         tcp_addr = Some(listener.local_addr()?);
         tasks.push(tokio::task::spawn_local(serve_tcp(
             listener,
             shared.clone(),
+            security,
         )));
     }
-    Ok(Server {
-        udp_addr,
-        tcp_addr,
-        shared,
-        tasks,
-    })
+    Ok((udp_addr, tcp_addr))
 }
 
 /// Starts the server with field devices answered in memory, without a simulated line
@@ -232,9 +290,17 @@ pub async fn start_in_memory(
     Ok(server)
 }
 
-pub(crate) fn message(ty: MessageType, id: MessageId, st: u8, seq: u16, body: &[u8]) -> Vec<u8> {
+/// A HART-IP message of protocol `version` (1 plain, 2 secure sessions).
+pub(crate) fn message(
+    version: u8,
+    ty: MessageType,
+    id: MessageId,
+    st: u8,
+    seq: u16,
+    body: &[u8],
+) -> Vec<u8> {
     let mut out = vec![0u8; HEADER_LEN + body.len()];
-    let _ = encode(1, ty, id, st, seq, body, &mut out);
+    let _ = encode(version, ty, id, st, seq, body, &mut out);
     out
 }
 

@@ -32,6 +32,7 @@ pub(crate) enum Action {
 /// system's answer for a silent sub-device ([`not_responding`]).
 pub(crate) async fn forwarded(
     shared: &Shared,
+    version: u8,
     channel: usize,
     retries: u8,
     pdu: Vec<u8>,
@@ -42,6 +43,7 @@ pub(crate) async fn forwarded(
         None => not_responding(&pdu),
     };
     message(
+        version,
         MessageType::Response,
         MessageId::TokenPassingPdu,
         status::SUCCESS,
@@ -74,6 +76,11 @@ pub(crate) struct Session {
     pub(crate) audit: Option<u64>,
     /// Publish subscriptions (commands 532/533).
     pub(crate) subs: Subscriptions,
+    /// HART-IP version of the session's messages: 1 plain, 2 (or what a secure
+    /// client's initiate asked) inside TLS/DTLS.
+    pub(crate) version: u8,
+    /// The PSK identity of a secure session and what it may do.
+    pub(crate) secure: Option<(String, hart_ip_tls::Rights)>,
 }
 
 impl Session {
@@ -87,7 +94,49 @@ impl Session {
             local_port,
             audit: None,
             subs: None,
+            version: 1,
+            secure: None,
         }
+    }
+
+    /// A session inside TLS/DTLS, authenticated with PSK `identity`.
+    pub(crate) fn secure(
+        peer: SocketAddr,
+        local_port: u16,
+        identity: String,
+        rights: hart_ip_tls::Rights,
+    ) -> Self {
+        Session {
+            version: 2,
+            secure: Some((identity, rights)),
+            ..Session::new(peer, local_port)
+        }
+    }
+
+    /// Whether this session may only read (the server's `--read-only`, or a read-only
+    /// PSK identity).
+    fn read_only(&self, shared: &Shared) -> bool {
+        shared.config.read_only
+            || self
+                .secure
+                .as_ref()
+                .is_some_and(|(_, r)| *r == hart_ip_tls::Rights::ReadOnly)
+    }
+}
+
+/// Whether a request changes a device: a write command of the table, the I/O system's
+/// command 102, or a write wrapped in command 77 (send command to sub-device).
+fn writes(f: &Frame<'_>) -> bool {
+    let table = |c: u16| hart_proto::command::info(c).is_some_and(|i| i.writes);
+    match f.command {
+        102 => true,
+        77 => {
+            // Card, channel, preambles, then the embedded frame without its check byte.
+            let mut inner = f.data.get(3..).unwrap_or(&[]).to_vec();
+            inner.push(hart_proto::frame::checksum(&inner));
+            Frame::parse_pdu(&inner).is_ok_and(|g| table(g.command))
+        }
+        c => table(c),
     }
 }
 
@@ -97,7 +146,17 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
         shared.stats.lock().await.malformed += 1;
         return Action::Close;
     }
-    let reply = |st: u8, b: &[u8]| message(MessageType::Response, h.message_id, st, h.sequence, b);
+    let version = s.version;
+    let reply = |st: u8, b: &[u8]| {
+        message(
+            version,
+            MessageType::Response,
+            h.message_id,
+            st,
+            h.sequence,
+            b,
+        )
+    };
     match h.message_id {
         MessageId::SessionInitiate => {
             if body.len() < 5 {
@@ -119,13 +178,13 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 *n += 1;
                 s.open = true;
                 shared.stats.lock().await.sessions_opened += 1;
-                // Every HART-IP v1 session is an insecure session (0x0010).
+                // A plain session is an insecure session (0x0010).
                 s.audit = Some(shared.audit.lock().await.push(AuditRecord {
                     client: s.peer,
                     server_port: s.local_port,
                     connected: unix_now(),
                     disconnected: 0,
-                    status: 0x0010,
+                    status: if s.secure.is_some() { 0 } else { 0x0010 },
                     publishes: 0,
                     requests: 0,
                     responses: 0,
@@ -138,10 +197,23 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             } else {
                 status::SUCCESS
             };
-            if h.version != 1 {
+            if s.secure.is_some() {
+                // Inside TLS/DTLS: HART-IP 2, or 1 from a client that predates it.
+                s.version = h.version.clamp(1, 2);
+                if h.version > 2 {
+                    st = status::VERSION_NOT_SUPPORTED;
+                }
+            } else if h.version != 1 {
                 st = status::VERSION_NOT_SUPPORTED;
             }
-            Action::Reply(reply(st, &hart_ip::session_initiate_body(master, timer)))
+            Action::Reply(message(
+                s.version,
+                MessageType::Response,
+                h.message_id,
+                st,
+                h.sequence,
+                &hart_ip::session_initiate_body(master, timer),
+            ))
         }
         _ if !s.open => Action::Close,
         MessageId::SessionClose => Action::ReplyAndClose(reply(status::SUCCESS, &[])),
@@ -151,10 +223,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 if let Some(r) = shared.audit.lock().await.get_mut(i) {
                     r.requests += 1;
                     r.responses += 1;
-                    if Frame::parse_pdu(body).is_ok_and(|f| {
-                        hart_proto::command::info(f.command).is_some_and(|c| c.writes)
-                    }) && !shared.config.read_only
-                    {
+                    if Frame::parse_pdu(body).is_ok_and(|f| writes(&f)) && !s.read_only(shared) {
                         r.status |= 0x0001;
                     }
                 }
@@ -166,9 +235,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             if f.frame_type() != FrameType::Stx {
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
-            if shared.config.read_only
-                && hart_proto::command::info(f.command).is_some_and(|i| i.writes)
-            {
+            if s.read_only(shared) && writes(&f) {
                 return Action::Reply(reply(
                     status::SUCCESS,
                     &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
@@ -255,6 +322,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
         MessageId::Other(_) => {
             shared.stats.lock().await.malformed += 1;
             Action::Reply(message(
+                s.version,
                 MessageType::Nak,
                 h.message_id,
                 status::INVALID_SELECTION,

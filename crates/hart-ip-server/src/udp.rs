@@ -66,6 +66,7 @@ pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                             }
                             s.publish_seq = s.publish_seq.wrapping_add(1);
                             let m = message(
+                                1,
                                 MessageType::Publish,
                                 MessageId::TokenPassingPdu,
                                 0,
@@ -147,7 +148,7 @@ pub(crate) async fn udp_datagram(
                 seq,
             } => {
                 // In order, per client: the session waits for its loop's reply.
-                let r = forwarded(&shared, channel, retries, pdu, seq).await;
+                let r = forwarded(&shared, 1, channel, retries, pdu, seq).await;
                 let _ = sock.send_to(&r, peer).await;
                 continue;
             }

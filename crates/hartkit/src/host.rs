@@ -43,11 +43,14 @@ fn decode<T: Wire>(r: &Reply, what: &str) -> Result<T, Failure> {
 /// Opens the client for `--port`, with a trace file and a log level.
 pub async fn client(
     port: &str,
+    psk: Option<&hart_ip_tls::Psk>,
     trace: Option<&std::path::Path>,
     verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
-    let t = hart_host::target::open_async(port).await.map_err(usage)?;
+    let t = hart_host::target::open_async_with(port, psk)
+        .await
+        .map_err(usage)?;
     let kind = if secondary {
         hart_proto::MasterKind::Secondary
     } else {

@@ -126,6 +126,14 @@ enum Top {
         /// and reaches that device by its unique ID.
         #[arg(long)]
         transparent: bool,
+        /// HART-IP version 2 security: serve TLS (TCP) and DTLS (UDP) with the
+        /// pre-shared keys in FILE (lines IDENTITY:HEXKEY, optionally :read-only) at
+        /// --hart-ip; plain HART-IP only where --plain asks for it.
+        #[arg(long, value_name = "FILE")]
+        psk_file: Option<std::path::PathBuf>,
+        /// With --psk-file, also serve plain HART-IP (version 1) at this address.
+        #[arg(long, value_name = "ADDR[:PORT]", requires = "psk_file")]
+        plain: Option<String>,
         /// Scan polling addresses 0..=N of each loop for the sub-device list (63: all).
         #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
         scan_to: u8,
@@ -255,7 +263,8 @@ enum LoopCmd {
 struct HostArgs {
     /// Where the devices are: /dev/ttyUSB0, serial:PATH?baud=1200&rts=high-tx&carrier=dcd,
     /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual, udp://HOST[:PORT],
-    /// tcp://HOST[:PORT] (HART-IP, port 5094 by default).
+    /// tcp://HOST[:PORT] (HART-IP, port 5094 by default), tls://HOST[:PORT],
+    /// dtls://HOST[:PORT] (HART-IP version 2, with --psk or --psk-file).
     #[arg(long, short = 'p', value_name = "TARGET")]
     port: String,
     /// Print JSON instead of tables.
@@ -270,6 +279,29 @@ struct HostArgs {
     /// Act as the secondary master (default primary).
     #[arg(long)]
     secondary: bool,
+    /// Pre-shared key for tls:// and dtls:// targets (HART-IP version 2).
+    #[arg(long, value_name = "IDENTITY:HEXKEY", conflicts_with = "psk_file")]
+    psk: Option<String>,
+    /// File with the pre-shared key for tls:// and dtls:// targets (its first line
+    /// IDENTITY:HEXKEY is used).
+    #[arg(long, value_name = "FILE")]
+    psk_file: Option<std::path::PathBuf>,
+}
+
+impl HostArgs {
+    /// The key --psk or --psk-file gives, if any.
+    fn key(&self) -> Result<Option<hart_ip_tls::Psk>, (String, u8)> {
+        if let Some(text) = &self.psk {
+            return hart_ip_tls::Psk::parse(text)
+                .map(Some)
+                .map_err(|e| (format!("--psk: {e}"), 2));
+        }
+        if let Some(path) = &self.psk_file {
+            let table = hart_ip_tls::PskTable::load(path).map_err(|e| (e, 2))?;
+            return Ok(table.keys.into_iter().next());
+        }
+        Ok(None)
+    }
 }
 
 #[derive(Args, Clone)]
@@ -668,7 +700,15 @@ async fn host_client(
             2,
         ));
     }
-    hartkit::host::client(&h.port, h.trace.as_deref(), verbose, h.secondary).await
+    let psk = h.key()?;
+    hartkit::host::client(
+        &h.port,
+        psk.as_ref(),
+        h.trace.as_deref(),
+        verbose,
+        h.secondary,
+    )
+    .await
 }
 
 fn target(t: &TargetArgs) -> Result<hart_host::DeviceRef, (String, u8)> {
@@ -755,7 +795,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             host::burst(&mut c, &d, &a, h.json).await
         }),
         Top::Monitor { host: h, duration } => host::block_on(async {
-            let mut t = hart_host::target::open_async(&h.port)
+            let psk = h.key()?;
+            let mut t = hart_host::target::open_async_with(&h.port, psk.as_ref())
                 .await
                 .map_err(|e| (e, 2))?;
             let mut out = std::io::stdout();
@@ -778,6 +819,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             max_sessions,
             transparent,
             scan_to,
+            psk_file,
+            plain,
             run_for,
         } => serve_hart_ip(
             hart_ip,
@@ -790,6 +833,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 max_sessions: *max_sessions,
                 transparent: *transparent,
                 scan_to: *scan_to,
+                psk_file: psk_file.clone(),
+                plain: plain.clone(),
             },
             *run_for,
         ),
@@ -803,6 +848,26 @@ struct ServeFlags {
     max_sessions: usize,
     transparent: bool,
     scan_to: u8,
+    psk_file: Option<std::path::PathBuf>,
+    plain: Option<String>,
+}
+
+/// `ADDR[:PORT]` (port 5094 when none) as a socket address; `what` names the option.
+fn socket_addr(what: &str, text: &str) -> Result<std::net::SocketAddr, (String, u8)> {
+    use std::net::ToSocketAddrs;
+    let with_port = if text
+        .rsplit_once(':')
+        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+    {
+        text.to_string()
+    } else {
+        format!("{text}:{}", hart_ip::PORT)
+    };
+    with_port
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .ok_or_else(|| (format!("{what} {text}: not an address"), 2))
 }
 
 fn serve_hart_ip(
@@ -819,21 +884,24 @@ fn serve_hart_ip(
         max_sessions,
         transparent,
         scan_to,
+        psk_file,
+        plain,
     } = flags;
-    use std::net::ToSocketAddrs;
-    let with_port = if bind
-        .rsplit_once(':')
-        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
-    {
-        bind.to_string()
-    } else {
-        format!("{bind}:{}", hart_ip::PORT)
-    };
-    let addr = with_port
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.next())
-        .ok_or_else(|| (format!("--hart-ip {bind}: not an address"), 2))?;
+    let addr = socket_addr("--hart-ip", bind)?;
+    let plain = plain.map(|p| socket_addr("--plain", &p)).transpose()?;
+    let psk = psk_file
+        .map(|p| hart_ip_tls::PskTable::load(&p).map(std::sync::Arc::new))
+        .transpose()
+        .map_err(|e| (format!("--psk-file: {e}"), 2))?;
+    // Refusals and secure sessions are logged on standard error.
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("HARTKIT_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .try_init();
     let targets: Vec<String> = match (ports, sim) {
         (p, _) if !p.is_empty() => p.to_vec(),
         (_, Some(profiles)) if !profiles.is_empty() => {
@@ -856,6 +924,8 @@ fn serve_hart_ip(
         read_only,
         transparent,
         scan_to: Some(scan_to),
+        psk,
+        plain,
         ..hart_ip_server::Config::default()
     };
     if transparent && targets.len() > 1 {
@@ -888,11 +958,24 @@ fn serve_hart_ip(
                 |a: Option<std::net::SocketAddr>| a.map_or("-".to_string(), |a| a.to_string());
             let _ = writeln!(
                 out,
-                "hart-ip: udp {} tcp {}{}",
+                "hart-ip: udp {} tcp {}{}{}",
                 show(server.udp_addr),
                 show(server.tcp_addr),
+                if server.secure {
+                    " (DTLS/TLS with pre-shared keys)"
+                } else {
+                    ""
+                },
                 if read_only { " (read only)" } else { "" }
             );
+            if server.plain_udp_addr.is_some() || server.plain_tcp_addr.is_some() {
+                let _ = writeln!(
+                    out,
+                    "hart-ip plain: udp {} tcp {}",
+                    show(server.plain_udp_addr),
+                    show(server.plain_tcp_addr)
+                );
+            }
             let _ = out.flush();
         }
         match run_for {

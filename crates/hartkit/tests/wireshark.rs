@@ -80,6 +80,21 @@ fn wireshark_decodes_our_hart_ip_traffic() {
         "1",
     ]);
     let (c5, _, e5) = hartkit(&["burst", "-p", &tcp, "--poll", "1", "on"]);
+    // The server as an I/O system (command 84 at polling address 0), and its answer
+    // for an absent device (an ACK with response code 35).
+    let (c7, _, e7) = hartkit(&["command", "-p", &udp, "--poll", "0", "84", "0001"]);
+    let (c8, _, _) = hartkit(&["read", "-p", &tcp, "--poll", "9", "pv"]);
+    // An outside client's session, when hartip-py is installed (scripts/interop/setup).
+    let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../target/interop-venv/bin/python");
+    if venv.exists() {
+        let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../scripts/interop/hartip_py_client.py");
+        let _ = Command::new(&venv)
+            .arg(script)
+            .args(["--host", "127.0.0.1", "--port", port, "--transport", "udp"])
+            .output();
+    }
     // The device bursts every second; a few seconds of listening hear several.
     let (c6, mon, e6) = hartkit(&["monitor", "-p", &udp, "--duration", "5"]);
     std::thread::sleep(Duration::from_millis(500));
@@ -94,6 +109,8 @@ fn wireshark_decodes_our_hart_ip_traffic() {
     assert_eq!(c2, 0, "{e2}");
     assert_eq!(c3, 4, "command 1024 is not implemented: {e3}");
     assert_eq!((c4, c5, c6), (0, 0, 0), "{e4}{e5}{e6}");
+    assert_eq!(c7, 0, "{e7}");
+    assert_eq!(c8, 3, "absent device");
     assert!(
         mon.contains("BACK"),
         "publish messages reach the monitor: {mon}"
@@ -174,6 +191,14 @@ fn wireshark_decodes_our_hart_ip_traffic() {
         "command 3 reply with response code 0"
     );
     assert!(has(&|f| f[0] == "2" && f[1] == "3"), "publish messages");
+    assert!(
+        has(&|f| f[0] == "1" && f[1] == "3" && f[3] == "84" && f[4] == "0"),
+        "command 84 reply of the I/O system"
+    );
+    assert!(
+        has(&|f| f[0] == "1" && f[1] == "3" && f[4] == "35"),
+        "response code 35 for the absent device"
+    );
     assert!(has(&|f| f[0] == "0" && f[1] == "1"), "session close");
     // Sequence numbers: every response carries the sequence number of a request.
     let seqs = |ty: &str| -> std::collections::HashSet<String> {

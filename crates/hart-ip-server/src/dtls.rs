@@ -1,0 +1,183 @@
+//! HART-IP over DTLS 1.2 with pre-shared keys (UDP).
+//!
+//! One UDP socket serves every peer: datagrams are sorted by source address; a new
+//! peer must start with a DTLS handshake record (a ClientHello), and then has its own
+//! task that runs the handshake and, inside it, one HART-IP session, just as a TLS
+//! connection does (`stream::stream_session`). Anything else from an unknown peer
+//! (plain HART-IP on the secure port, stray datagrams) is dropped and logged.
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::rc::Rc;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::net::UdpSocket;
+use tokio::sync::mpsc;
+
+use crate::session::Session;
+use crate::stream::{stream_session, HANDSHAKE_TIMEOUT};
+use crate::{AbortOnDrop, Security, Shared};
+
+/// Datagrams queued for one peer's task before further ones are dropped (DTLS
+/// repeats what is lost).
+const PEER_QUEUE: usize = 64;
+
+/// Peers with a DTLS association (or a handshake in progress), by address.
+type Peers = Rc<RefCell<HashMap<SocketAddr, (mpsc::Sender<Vec<u8>>, AbortOnDrop)>>>;
+
+/// Logs refusals of non-DTLS datagrams at most once a second (a flood must not flood
+/// the log), with the number left out meanwhile.
+struct RefusalLog {
+    last: Option<Instant>,
+    quiet: u64,
+}
+
+impl RefusalLog {
+    fn refuse(&mut self, peer: SocketAddr) {
+        if self
+            .last
+            .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
+        {
+            self.quiet += 1;
+            return;
+        }
+        let more = std::mem::take(&mut self.quiet);
+        tracing::warn!(
+            "refused a datagram from {peer} on the DTLS port: not a DTLS handshake (plain HART-IP on a secure port? use the --plain port, or dtls:// with a key){}",
+            if more > 0 {
+                format!("; {more} more refused in the last second")
+            } else {
+                String::new()
+            }
+        );
+        self.last = Some(Instant::now());
+    }
+}
+
+/// Serves DTLS on `sock` until the server stops.
+pub(crate) async fn serve_dtls(sock: Arc<UdpSocket>, shared: Arc<Shared>, sec: Arc<Security>) {
+    let peers: Peers = Rc::new(RefCell::new(HashMap::new()));
+    let mut log = RefusalLog {
+        last: None,
+        quiet: 0,
+    };
+    let mut buf = vec![0u8; 65536];
+    loop {
+        let Ok((n, peer)) = sock.recv_from(&mut buf).await else {
+            continue;
+        };
+        let datagram = buf[..n].to_vec();
+        let known = peers.borrow().get(&peer).map(|(tx, _)| tx.clone());
+        if let Some(tx) = known {
+            if !tx.is_closed() {
+                let _ = tx.try_send(datagram);
+                continue;
+            }
+            peers.borrow_mut().remove(&peer);
+        }
+        // A DTLS record: content type 20-23, version DTLS 1.x (0xFE..), 13-byte header.
+        let dtls = n >= 13 && (20..=23).contains(&datagram[0]) && datagram[1] == 0xFE;
+        if dtls && datagram[0] != 22 {
+            // The end of an association the server has closed (a close_notify alert, a
+            // late record): nothing to answer.
+            tracing::debug!(
+                "DTLS record of type {} from {peer} without an association",
+                datagram[0]
+            );
+            continue;
+        }
+        if !dtls {
+            shared.stats.lock().await.malformed += 1;
+            log.refuse(peer);
+            continue;
+        }
+        let (tx, rx) = mpsc::channel(PEER_QUEUE);
+        let _ = tx.try_send(datagram);
+        let task = tokio::task::spawn_local(dtls_peer(
+            sock.clone(),
+            peer,
+            rx,
+            shared.clone(),
+            sec.clone(),
+            peers.clone(),
+        ));
+        peers.borrow_mut().insert(peer, (tx, AbortOnDrop(task)));
+    }
+}
+
+/// One peer: the handshake, then its session; forgets the peer at the end.
+async fn dtls_peer(
+    sock: Arc<UdpSocket>,
+    peer: SocketAddr,
+    rx: mpsc::Receiver<Vec<u8>>,
+    shared: Arc<Shared>,
+    sec: Arc<Security>,
+    peers: Peers,
+) {
+    let local_port = sock.local_addr().map_or(0, |a| a.port());
+    run_peer(sock, peer, rx, &shared, &sec, local_port).await;
+    // This task's own handle goes with the entry: the abort it asks for finds the task
+    // already finishing.
+    let entry = peers.borrow_mut().remove(&peer);
+    drop(entry);
+}
+
+async fn run_peer(
+    sock: Arc<UdpSocket>,
+    peer: SocketAddr,
+    rx: mpsc::Receiver<Vec<u8>>,
+    shared: &Arc<Shared>,
+    sec: &Arc<Security>,
+    local_port: u16,
+) {
+    let (ssl, note) = match hart_ip_tls::server_ssl(&sec.dtls, true) {
+        Ok(x) => x,
+        Err(e) => {
+            tracing::error!("DTLS from {peer}: {e}");
+            return;
+        }
+    };
+    let io = hart_ip_tls::DatagramStream::shared(sock, peer, rx);
+    let Ok(mut stream) = hart_ip_tls::SslStream::new(ssl, io) else {
+        return;
+    };
+    let accepted =
+        tokio::time::timeout(HANDSHAKE_TIMEOUT, std::pin::Pin::new(&mut stream).accept()).await;
+    match accepted {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => {
+            let n = note.lock().map(|n| n.clone()).unwrap_or_default();
+            shared.stats.lock().await.sessions_refused += 1;
+            tracing::warn!(
+                "refused DTLS from {peer}: {}",
+                hart_ip_tls::refusal(&n, &e, Some(0x16))
+            );
+            return;
+        }
+        Err(_) => {
+            shared.stats.lock().await.sessions_refused += 1;
+            tracing::warn!(
+                "refused DTLS from {peer}: no complete handshake within {} s",
+                HANDSHAKE_TIMEOUT.as_secs()
+            );
+            return;
+        }
+    }
+    let identity = stream
+        .ssl()
+        .psk_identity()
+        .map(|i| String::from_utf8_lossy(i).into_owned())
+        // TLS 1.3 sessions keep no identity there: the one the key was found for.
+        .or_else(|| note.lock().ok().and_then(|n| n.identity.clone()))
+        .unwrap_or_default();
+    let rights = sec
+        .keys
+        .find(&identity)
+        .map(|k| k.rights)
+        .unwrap_or(hart_ip_tls::Rights::ReadOnly);
+    tracing::info!("DTLS session from {peer}, identity {identity:?} ({rights:?})");
+    let s = Session::secure(peer, local_port, identity, rights);
+    stream_session(stream, s, shared.clone()).await
+}

@@ -1,0 +1,215 @@
+//! HART-IP over byte streams: TCP, TLS with pre-shared keys over TCP, and the
+//! session side of DTLS.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use hart_ip::{Message, MessageId, MessageType};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::Mutex;
+
+use crate::session::{close_session, forwarded, handle, Action, Session};
+use crate::subscriptions::subscribed;
+use crate::{message, AbortOnDrop, Shared};
+
+/// Longest a TLS or DTLS handshake may take before the peer is dropped.
+pub(crate) const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Accepts TCP connections: each a plain session, or, with `tls`, a TLS handshake
+/// first (pre-shared keys) and then the session inside it.
+pub(crate) async fn serve_tcp(
+    listener: TcpListener,
+    shared: Arc<Shared>,
+    tls: Option<Arc<crate::Security>>,
+) {
+    // Sessions end with the server.
+    let mut sessions: Vec<AbortOnDrop> = vec![];
+    loop {
+        let Ok((stream, peer)) = listener.accept().await else {
+            continue;
+        };
+        let _ = stream.set_nodelay(true);
+        sessions.retain(|s: &AbortOnDrop| !s.0.is_finished());
+        let shared = shared.clone();
+        let task = match tls.clone() {
+            None => tokio::task::spawn_local(async move {
+                let local_port = stream.local_addr().map_or(0, |a| a.port());
+                stream_session(stream, Session::new(peer, local_port), shared).await
+            }),
+            Some(tls) => tokio::task::spawn_local(tls_session(stream, peer, shared, tls)),
+        };
+        sessions.push(AbortOnDrop(task));
+    }
+}
+
+/// A TLS handshake with pre-shared keys, then the session; a refusal is logged with
+/// its cause and ends only this connection.
+async fn tls_session(
+    stream: TcpStream,
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    tls: Arc<crate::Security>,
+) {
+    let local_port = stream.local_addr().map_or(0, |a| a.port());
+    let mut first = [0u8; 1];
+    let first_byte = match tokio::time::timeout(HANDSHAKE_TIMEOUT, stream.peek(&mut first)).await {
+        Ok(Ok(1)) => Some(first[0]),
+        _ => None,
+    };
+    let (ssl, note) = match hart_ip_tls::server_ssl(&tls.tls, false) {
+        Ok(x) => x,
+        Err(e) => {
+            tracing::error!("TLS from {peer}: {e}");
+            return;
+        }
+    };
+    let Ok(mut stream) = hart_ip_tls::SslStream::new(ssl, stream) else {
+        return;
+    };
+    let accepted =
+        tokio::time::timeout(HANDSHAKE_TIMEOUT, std::pin::Pin::new(&mut stream).accept()).await;
+    match accepted {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => {
+            let n = note.lock().map(|n| n.clone()).unwrap_or_default();
+            let why = hart_ip_tls::refusal(&n, &e, first_byte);
+            shared.stats.lock().await.sessions_refused += 1;
+            tracing::warn!("refused TLS from {peer}: {why}");
+            return;
+        }
+        Err(_) => {
+            shared.stats.lock().await.sessions_refused += 1;
+            tracing::warn!(
+                "refused TLS from {peer}: no complete handshake within {} s",
+                HANDSHAKE_TIMEOUT.as_secs()
+            );
+            return;
+        }
+    }
+    let identity = stream
+        .ssl()
+        .psk_identity()
+        .map(|i| String::from_utf8_lossy(i).into_owned())
+        // TLS 1.3 sessions keep no identity there: the one the key was found for.
+        .or_else(|| note.lock().ok().and_then(|n| n.identity.clone()))
+        .unwrap_or_default();
+    let rights = tls
+        .keys
+        .find(&identity)
+        .map(|k| k.rights)
+        .unwrap_or(hart_ip_tls::Rights::ReadOnly);
+    tracing::info!("TLS session from {peer}, identity {identity:?} ({rights:?})");
+    let s = Session::secure(peer, local_port, identity, rights);
+    stream_session(stream, s, shared).await
+}
+
+/// One session over a byte stream: plain TCP, TLS over TCP, or DTLS (whose records
+/// carry HART-IP messages just as a stream does). `s` is the fresh session.
+pub(crate) async fn stream_session<S>(stream: S, mut s: Session, shared: Arc<Shared>)
+where
+    S: AsyncRead + AsyncWrite + 'static,
+{
+    let (mut rd, wr) = tokio::io::split(stream);
+    let wr = Arc::new(Mutex::new(wr));
+    let mut in_flight: Vec<AbortOnDrop> = vec![];
+    let mut buf: Vec<u8> = vec![];
+    let mut bursts = shared.bursts.subscribe();
+    let mut tmp = [0u8; 4096];
+    let publish_seq = Arc::new(Mutex::new(0u16));
+    loop {
+        // Complete messages first.
+        loop {
+            match Message::parse(&buf) {
+                Ok((m, used)) => {
+                    let (h, body) = (m.header, m.body.to_vec());
+                    buf.drain(..used);
+                    match handle(&shared, &mut s, h, &body).await {
+                        Action::Reply(r) => {
+                            if wr.lock().await.write_all(&r).await.is_err() {
+                                close_session(&shared, &mut s, 0x0004).await;
+                                return;
+                            }
+                        }
+                        Action::ReplyAndClose(r) => {
+                            let mut w = wr.lock().await;
+                            let _ = w.write_all(&r).await;
+                            // TLS: close_notify, so the client sees a clean end.
+                            let _ = w.shutdown().await;
+                            close_session(&shared, &mut s, 0).await;
+                            return;
+                        }
+                        Action::Close => {
+                            close_session(&shared, &mut s, 0x0004).await;
+                            return;
+                        }
+                        Action::Forward {
+                            channel,
+                            retries,
+                            pdu,
+                            seq,
+                        } => {
+                            // Several requests may be in flight on one connection: each
+                            // reply goes out when its loop answers, with its sequence
+                            // number, while this task reads on and publishes. The
+                            // replies' writers end with the session.
+                            let (shared, wr, version) = (shared.clone(), wr.clone(), s.version);
+                            in_flight.retain(|t: &AbortOnDrop| !t.0.is_finished());
+                            in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
+                                let r =
+                                    forwarded(&shared, version, channel, retries, pdu, seq).await;
+                                let _ = wr.lock().await.write_all(&r).await;
+                            })));
+                        }
+                    }
+                }
+                Err(hart_ip::Error::ShortHeader { .. }) | Err(hart_ip::Error::Truncated { .. })
+                    if buf.len() < 65536 =>
+                {
+                    break
+                }
+                Err(_) => {
+                    // A stream that cannot be split any more: this session ends.
+                    shared.stats.lock().await.malformed += 1;
+                    close_session(&shared, &mut s, 0x0004).await;
+                    return;
+                }
+            }
+        }
+        let timer = s.timer;
+        tokio::select! {
+            r = tokio::time::timeout(timer, rd.read(&mut tmp)) => match r {
+                Ok(Ok(n)) if n > 0 => buf.extend_from_slice(&tmp[..n]),
+                Err(_) => {
+                    close_session(&shared, &mut s, 0x0008).await;
+                    return;
+                }
+                _ => {
+                    close_session(&shared, &mut s, 0x0004).await;
+                    return;
+                }
+            },
+            b = bursts.recv() => if let (Ok(b), true) = (b, s.open) {
+                if !subscribed(&s.subs, &b) {
+                    continue;
+                }
+                let mut seq = publish_seq.lock().await;
+                *seq = seq.wrapping_add(1);
+                let m = message(
+                    s.version,
+                    MessageType::Publish,
+                    MessageId::TokenPassingPdu,
+                    0,
+                    *seq,
+                    &b,
+                );
+                if wr.lock().await.write_all(&m).await.is_err() {
+                    close_session(&shared, &mut s, 0x0004).await;
+                    return;
+                }
+                shared.stats.lock().await.published += 1;
+            },
+        }
+    }
+}
