@@ -19,6 +19,7 @@ use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::net::{TcpListener, UdpSocket};
 use tokio::sync::{broadcast, mpsc, Mutex};
 
+pub mod access;
 mod audit;
 mod backend;
 mod dtls;
@@ -63,6 +64,11 @@ pub struct Config {
     pub psk: Option<Arc<hart_ip_tls::PskTable>>,
     /// Also serve plain HART-IP here (with `psk`; without, `bind` is plain anyway).
     pub plain: Option<SocketAddr>,
+    /// Only these commands may be sent (others are answered "access restricted");
+    /// `None`: every command.
+    pub allow_commands: Option<access::CommandAllowList>,
+    /// Append a JSON line for every accepted write to this file (besides the log).
+    pub audit_file: Option<std::path::PathBuf>,
 }
 
 impl Default for Config {
@@ -78,6 +84,8 @@ impl Default for Config {
             transparent: false,
             psk: None,
             plain: None,
+            allow_commands: None,
+            audit_file: None,
         }
     }
 }

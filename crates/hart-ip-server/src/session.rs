@@ -124,20 +124,46 @@ impl Session {
     }
 }
 
-/// Whether a request changes a device: a write command of the table, the I/O system's
-/// command 102, or a write wrapped in command 77 (send command to sub-device).
+/// Whether a command changes a device: a write command of the table, or the I/O
+/// system's command 102.
+fn is_write(command: u16) -> bool {
+    command == 102 || hart_proto::command::info(command).is_some_and(|i| i.writes)
+}
+
+/// Whether a request changes a device, a write wrapped in command 77 included.
 fn writes(f: &Frame<'_>) -> bool {
-    let table = |c: u16| hart_proto::command::info(c).is_some_and(|i| i.writes);
-    match f.command {
-        102 => true,
-        77 => {
-            // Card, channel, preambles, then the embedded frame without its check byte.
-            let mut inner = f.data.get(3..).unwrap_or(&[]).to_vec();
-            inner.push(hart_proto::frame::checksum(&inner));
-            Frame::parse_pdu(&inner).is_ok_and(|g| table(g.command))
-        }
-        c => table(c),
-    }
+    let (outer, inner) = crate::access::commands(f);
+    is_write(outer) || inner.is_some_and(is_write)
+}
+
+/// Whether access control lets `s` send `command` (and, for command 77, the command
+/// wrapped in it): the allow-list, then read-only sessions against writes.
+fn allowed(shared: &Shared, s: &Session, command: u16, inner: Option<u16>) -> bool {
+    let listed = |c: u16| {
+        shared
+            .config
+            .allow_commands
+            .as_ref()
+            .is_none_or(|a| a.allows(c))
+    };
+    let read_only = s.read_only(shared);
+    listed(command)
+        && inner.is_none_or(listed)
+        && !(read_only && (is_write(command) || inner.is_some_and(is_write)))
+}
+
+/// Logs a write the server lets through.
+fn audit(shared: &Shared, s: &Session, device: String, command: u16) {
+    crate::access::audit_write(
+        shared.config.audit_file.as_ref(),
+        &crate::access::Write {
+            session: s.audit,
+            peer: s.peer,
+            identity: s.secure.as_ref().map(|(i, _)| i.as_str()),
+            device,
+            command,
+        },
+    );
 }
 
 pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
@@ -235,11 +261,18 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             if f.frame_type() != FrameType::Stx {
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
-            if s.read_only(shared) && writes(&f) {
+            let (outer, inner) = crate::access::commands(&f);
+            if !allowed(shared, s, outer, inner) {
                 return Action::Reply(reply(
                     status::SUCCESS,
                     &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
                 ));
+            }
+            if writes(&f) {
+                match (outer, crate::access::embedded(&f)) {
+                    (77, Some((device, c))) => audit(shared, s, device, c),
+                    _ => audit(shared, s, f.address.to_string(), outer),
+                }
             }
             if matches!(f.command, 532 | 533) {
                 // Subscriptions belong to this session: the server answers them whatever
@@ -278,11 +311,19 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             // Commands to the gateway itself, each answered in turn.
             let mut out = vec![0u8, 0u8];
             for e in hart_ip::DirectEntries(entries).flatten() {
-                // Direct PDUs come from the session's host, a primary master.
-                let (code, _, data) = shared
-                    .io
-                    .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
-                    .await;
+                let (code, data) = if !allowed(shared, s, e.command, None) {
+                    (hart_proto::tables::rc::ACCESS_RESTRICTED, vec![])
+                } else {
+                    if is_write(e.command) {
+                        audit(shared, s, "the I/O system (direct PDU)".into(), e.command);
+                    }
+                    // Direct PDUs come from the session's host, a primary master.
+                    let (code, _, data) = shared
+                        .io
+                        .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
+                        .await;
+                    (code, data)
+                };
                 let data = if hart_proto::tables::response_class(code)
                     == hart_proto::tables::ResponseClass::Error
                 {

@@ -134,6 +134,15 @@ enum Top {
         /// With --psk-file, also serve plain HART-IP (version 1) at this address.
         #[arg(long, value_name = "ADDR[:PORT]", requires = "psk_file")]
         plain: Option<String>,
+        /// Only these commands may be sent (ranges, e.g. 0-22,48,74-84); others are
+        /// answered "access restricted" (16). Command 77 is checked with the command it
+        /// wraps.
+        #[arg(long, value_name = "LIST")]
+        allow_commands: Option<hart_ip_server::access::CommandAllowList>,
+        /// Also append every accepted write as a JSON line (time, session, peer,
+        /// identity, device, command) to FILE; the log on standard error has it anyway.
+        #[arg(long, value_name = "FILE")]
+        audit_file: Option<std::path::PathBuf>,
         /// Scan polling addresses 0..=N of each loop for the sub-device list (63: all).
         #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
         scan_to: u8,
@@ -821,6 +830,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             scan_to,
             psk_file,
             plain,
+            allow_commands,
+            audit_file,
             run_for,
         } => serve_hart_ip(
             hart_ip,
@@ -835,6 +846,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 scan_to: *scan_to,
                 psk_file: psk_file.clone(),
                 plain: plain.clone(),
+                allow_commands: allow_commands.clone(),
+                audit_file: audit_file.clone(),
             },
             *run_for,
         ),
@@ -850,6 +863,8 @@ struct ServeFlags {
     scan_to: u8,
     psk_file: Option<std::path::PathBuf>,
     plain: Option<String>,
+    allow_commands: Option<hart_ip_server::access::CommandAllowList>,
+    audit_file: Option<std::path::PathBuf>,
 }
 
 /// `ADDR[:PORT]` (port 5094 when none) as a socket address; `what` names the option.
@@ -886,6 +901,8 @@ fn serve_hart_ip(
         scan_to,
         psk_file,
         plain,
+        allow_commands,
+        audit_file,
     } = flags;
     let addr = socket_addr("--hart-ip", bind)?;
     let plain = plain.map(|p| socket_addr("--plain", &p)).transpose()?;
@@ -926,6 +943,8 @@ fn serve_hart_ip(
         scan_to: Some(scan_to),
         psk,
         plain,
+        allow_commands,
+        audit_file,
         ..hart_ip_server::Config::default()
     };
     if transparent && targets.len() > 1 {
