@@ -1156,6 +1156,12 @@ impl Device {
             }
             // No real-time clock in this device.
             R::ReadRealTimeClock(_) => err(rc::NOT_IMPLEMENTED),
+            // I/O-system commands: a field device has none, unless its profile adds them.
+            R::ReadIoSystemCapabilities(_)
+            | R::PollSubDevice(_)
+            | R::ReadSubDeviceIdentitySummary(_)
+            | R::ReadSubDeviceBurstMap(_)
+            | R::MapSubDeviceToBurstMessage(_) => self.custom(request.command(), raw, master, now),
             R::ReadCommunicationStatistics(_) => ok(encode(&cmd::CommunicationStatistics {
                 stx_count: self.stx_count,
                 ack_count: self.ack_count,

@@ -533,10 +533,18 @@ impl IoSystem {
     /// Command 74: read I/O system capabilities.
     async fn capabilities(&self) -> (u8, Vec<u8>) {
         let n = self.subs.lock().await.len() as u16 + 1;
-        let mut d = vec![1, self.loops.len() as u8, 63];
-        d.extend(n.to_be_bytes());
-        d.extend([1, 1, UNKNOWN_RETRIES.max(KNOWN_RETRIES)]); // delayed responses, master mode primary, retries
-        (rc::SUCCESS, d)
+        (
+            rc::SUCCESS,
+            encode(&cmd::IoSystemCapabilities {
+                io_cards: 1,
+                channels_per_card: self.loops.len() as u8,
+                sub_devices_per_channel: 63,
+                devices_detected: n,
+                delayed_responses: 1,
+                master_mode: 1, // primary
+                retry_count: KNOWN_RETRIES,
+            }),
+        )
     }
 
     /// Command 75: poll sub-device (card, channel, polling address): command 0 in a
@@ -572,68 +580,85 @@ impl IoSystem {
     /// Command 84: read sub-device identity summary (index). Index 0 is the I/O system
     /// itself (card and channel 251, "none"); its sub-devices are 1..=N.
     async fn sub_device_summary(&self, data: &[u8]) -> (u8, Vec<u8>) {
-        let Some(ix) = data.get(..2).map(|b| u16::from_be_bytes([b[0], b[1]])) else {
+        let Ok(cmd::SubDeviceIndex { index }) = cmd::SubDeviceIndex::decode(&mut Reader::new(data))
+        else {
             return (rc::TOO_FEW_DATA_BYTES, vec![]);
         };
-        let mut d = ix.to_be_bytes().to_vec();
-        if ix == 0 {
+        let summary = if index == 0 {
             let st = self.state();
-            d.extend([NONE, NONE]);
-            d.extend(self.identity.manufacturer_id.to_be_bytes());
-            d.extend(self.identity.expanded_device_type.to_be_bytes());
-            d.extend(&self.identity.device_id.to_be_bytes()[1..]);
-            d.push(7);
-            d.extend(st.long_tag.0);
-            d.extend([1, 68]);
-            d.extend(self.identity.manufacturer_id.to_be_bytes());
-            return (rc::SUCCESS, d);
-        }
-        let subs = self.subs.lock().await;
-        let Some(s) = subs.get(usize::from(ix) - 1) else {
-            return (rc::INVALID_SELECTION, vec![]);
+            cmd::SubDeviceSummary {
+                index,
+                io_card: NONE,
+                channel: NONE,
+                manufacturer_id: self.identity.manufacturer_id,
+                expanded_device_type: self.identity.expanded_device_type,
+                device_id: DeviceId::new(self.identity.device_id & 0xFF_FFFF).unwrap_or_default(),
+                universal_revision: 7,
+                long_tag: st.long_tag,
+                device_revision: Some(1),
+                device_profile: Some(DeviceProfile(68)),
+                private_label_distributor: Some(self.identity.manufacturer_id),
+            }
+        } else {
+            let subs = self.subs.lock().await;
+            let Some(s) = subs.get(usize::from(index) - 1) else {
+                return (rc::INVALID_SELECTION, vec![]);
+            };
+            let id = &s.info.identity;
+            cmd::SubDeviceSummary {
+                index,
+                io_card: 0,
+                channel: s.channel,
+                manufacturer_id: s.info.manufacturer_id(),
+                expanded_device_type: id.expanded_device_type,
+                device_id: id.device_id,
+                universal_revision: id.universal_revision,
+                long_tag: Latin1String::new(s.info.long_tag.as_deref().unwrap_or(""))
+                    .unwrap_or_default(),
+                device_revision: Some(id.device_revision),
+                device_profile: Some(id.device_profile.unwrap_or(DeviceProfile(1))),
+                private_label_distributor: Some(id.private_label_distributor.unwrap_or(0)),
+            }
         };
-        let id = &s.info.identity;
-        d.extend([0, s.channel]);
-        d.extend(s.info.manufacturer_id().to_be_bytes());
-        d.extend(id.expanded_device_type.to_be_bytes());
-        d.extend(id.device_id.0);
-        d.push(id.universal_revision);
-        d.extend(
-            Latin1String::<32>::new(s.info.long_tag.as_deref().unwrap_or(""))
-                .unwrap_or_default()
-                .0,
-        );
-        d.push(id.device_revision);
-        d.push(id.device_profile.map_or(1, |p| p.0));
-        d.extend(id.private_label_distributor.unwrap_or(0).to_be_bytes());
-        (rc::SUCCESS, d)
+        (rc::SUCCESS, encode(&summary))
     }
 
     /// Commands 101 (read sub-device to burst message map: burst message number) and
     /// 102 (map sub-device to burst message: burst message number, sub-device index
     /// u16). Both answer with the burst message number and the sub-device index.
     async fn burst_map(&self, command: u16, data: &[u8]) -> (u8, Vec<u8>) {
-        let need = if command == 101 { 1 } else { 3 };
-        if data.len() < need {
-            return (rc::TOO_FEW_DATA_BYTES, vec![]);
-        }
-        let msg = usize::from(data[0]);
-        if msg >= BURST_MESSAGES {
-            return (INVALID_BURST_MESSAGE, vec![]);
-        }
-        if command == 102 {
-            let ix = u16::from_be_bytes([data[1], data[2]]);
-            if usize::from(ix) > self.subs.lock().await.len() {
-                return (INVALID_SUB_DEVICE_INDEX, vec![]);
+        let msg = if command == 101 {
+            match cmd::BurstMessageNumber::decode(&mut Reader::new(data)) {
+                Ok(r) => r.burst_message,
+                Err(_) => return (rc::TOO_FEW_DATA_BYTES, vec![]),
             }
-            let mut st = self.state();
-            st.burst_map[msg] = ix;
-            Self::configuration_changed(&mut st);
-        }
-        let ix = self.state().burst_map[msg];
-        let mut d = vec![data[0]];
-        d.extend(ix.to_be_bytes());
-        (rc::SUCCESS, d)
+        } else {
+            match cmd::SubDeviceBurstMap::decode(&mut Reader::new(data)) {
+                Ok(r) => {
+                    if usize::from(r.burst_message) >= BURST_MESSAGES {
+                        return (INVALID_BURST_MESSAGE, vec![]);
+                    }
+                    if usize::from(r.sub_device_index) > self.subs.lock().await.len() {
+                        return (INVALID_SUB_DEVICE_INDEX, vec![]);
+                    }
+                    let mut st = self.state();
+                    st.burst_map[usize::from(r.burst_message)] = r.sub_device_index;
+                    Self::configuration_changed(&mut st);
+                    r.burst_message
+                }
+                Err(_) => return (rc::TOO_FEW_DATA_BYTES, vec![]),
+            }
+        };
+        let Some(&index) = self.state().burst_map.get(usize::from(msg)) else {
+            return (INVALID_BURST_MESSAGE, vec![]);
+        };
+        (
+            rc::SUCCESS,
+            encode(&cmd::SubDeviceBurstMap {
+                burst_message: msg,
+                sub_device_index: index,
+            }),
+        )
     }
 
     /// The sub-device a burst message publishes (commands 101/102); `None` for the

@@ -254,22 +254,45 @@ async fn bind_pair(
     security: Option<Arc<Security>>,
     tasks: &mut Vec<tokio::task::JoinHandle<()>>,
 ) -> std::io::Result<(Option<SocketAddr>, Option<SocketAddr>)> {
+    // With port 0 the UDP port the kernel picks may be taken for TCP: pick again.
+    let mut attempts = 0;
+    let (udp, tcp) = loop {
+        attempts += 1;
+        let udp = match config.udp {
+            true => Some(UdpSocket::bind(bind).await?),
+            false => None,
+        };
+        let tcp_bind = match &udp {
+            Some(u) if bind.port() == 0 => u.local_addr()?,
+            _ => bind,
+        };
+        let tcp = match config.tcp {
+            true => match TcpListener::bind(tcp_bind).await {
+                Ok(l) => Some(l),
+                Err(e)
+                    if e.kind() == std::io::ErrorKind::AddrInUse
+                        && bind.port() == 0
+                        && attempts < 20 =>
+                {
+                    continue
+                }
+                Err(e) => return Err(e),
+            },
+            false => None,
+        };
+        break (udp, tcp);
+    };
     let mut udp_addr = None;
     let mut tcp_addr = None;
-    if config.udp {
-        let sock = Arc::new(UdpSocket::bind(bind).await?);
+    if let Some(sock) = udp {
+        let sock = Arc::new(sock);
         udp_addr = Some(sock.local_addr()?);
         tasks.push(match security.clone() {
             None => tokio::task::spawn_local(serve_udp(sock, shared.clone())),
             Some(sec) => tokio::task::spawn_local(dtls::serve_dtls(sock, shared.clone(), sec)),
         });
     }
-    if config.tcp {
-        let bind = match udp_addr {
-            Some(a) if bind.port() == 0 => a,
-            _ => bind,
-        };
-        let listener = TcpListener::bind(bind).await?;
+    if let Some(listener) = tcp {
         tcp_addr = Some(listener.local_addr()?);
         tasks.push(tokio::task::spawn_local(serve_tcp(
             listener,

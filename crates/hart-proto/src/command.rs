@@ -680,6 +680,95 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// Command 74 reply: what an I/O system (a multiplexer, a HART-IP gateway) has.
+    pub struct IoSystemCapabilities {
+        /// I/O cards.
+        pub io_cards: u8,
+        /// Channels per card.
+        pub channels_per_card: u8,
+        /// Sub-devices per channel.
+        pub sub_devices_per_channel: u8,
+        /// Devices detected, the I/O system itself included.
+        pub devices_detected: u16,
+        /// Delayed responses the I/O system can hold at once.
+        pub delayed_responses: u8,
+        /// Master mode on its channels: 0 secondary, 1 primary.
+        pub master_mode: u8,
+        /// Retries on its channels.
+        pub retry_count: u8,
+    }
+}
+
+wire_struct! {
+    /// Command 75 request (poll sub-device); the reply is the sub-device's command 0
+    /// data ([`Identity`]).
+    pub struct PollSubDevice {
+        /// I/O card.
+        pub io_card: u8,
+        /// Channel.
+        pub channel: u8,
+        /// Polling address on that channel.
+        pub polling_address: u8,
+    }
+}
+
+wire_struct! {
+    /// Command 84 request: which sub-device (0 is the I/O system itself).
+    pub struct SubDeviceIndex {
+        /// Sub-device index.
+        pub index: u16,
+    }
+}
+
+wire_struct! {
+    /// Command 84 reply: read sub-device identity summary. Bytes 44-47 were added by a
+    /// later revision of the command.
+    pub struct SubDeviceSummary {
+        /// Sub-device index.
+        pub index: u16,
+        /// I/O card (251 "none" for the I/O system itself).
+        pub io_card: u8,
+        /// Channel (251 "none" for the I/O system itself).
+        pub channel: u8,
+        /// Manufacturer ID.
+        pub manufacturer_id: u16,
+        /// Expanded device type.
+        pub expanded_device_type: u16,
+        /// Device ID.
+        pub device_id: DeviceId,
+        /// HART universal revision.
+        pub universal_revision: u8,
+        /// Long tag.
+        pub long_tag: Latin1String<32>,
+        /// Device revision.
+        pub device_revision: Option<u8>,
+        /// Device profile.
+        pub device_profile: Option<DeviceProfile>,
+        /// Private label distributor.
+        pub private_label_distributor: Option<u16>,
+    }
+}
+
+wire_struct! {
+    /// Command 101 request: the burst message whose sub-device to read.
+    pub struct BurstMessageNumber {
+        /// Burst message number.
+        pub burst_message: u8,
+    }
+}
+
+wire_struct! {
+    /// Commands 101 (reply) and 102 (request and reply): which sub-device a burst
+    /// message of an I/O system publishes.
+    pub struct SubDeviceBurstMap {
+        /// Burst message number.
+        pub burst_message: u8,
+        /// Sub-device index (0: the I/O system itself).
+        pub sub_device_index: u16,
+    }
+}
+
+wire_struct! {
     /// Command 105 request (HART 7: the message number; legacy: nothing).
     pub struct BurstMessageSelect {
         /// Burst message number.
@@ -1013,9 +1102,14 @@ commands! {
     53  WriteDeviceVariableUnits CommonPractice write "Write Device Variable Units" : VariableUnits => VariableUnits;
     54  ReadDeviceVariableInformation CommonPractice read "Read Device Variable Information" : VariableCode => VariableInformation;
     59  WriteResponsePreambles CommonPractice write "Write Number of Response Preambles" : ResponsePreambles => ResponsePreambles;
+    74  ReadIoSystemCapabilities CommonPractice read "Read I/O System Capabilities" : Empty => IoSystemCapabilities;
+    75  PollSubDevice CommonPractice read "Poll Sub-Device" : PollSubDevice => Identity;
     79  WriteDeviceVariable CommonPractice write "Write Device Variable" : WriteDeviceVariable => WriteDeviceVariable;
+    84  ReadSubDeviceIdentitySummary CommonPractice read "Read Sub-Device Identity Summary" : SubDeviceIndex => SubDeviceSummary;
     90  ReadRealTimeClock CommonPractice read "Read Real-Time Clock" : Empty => RealTimeClock;
     95  ReadCommunicationStatistics CommonPractice read "Read Device Communications Statistics" : Empty => CommunicationStatistics;
+    101 ReadSubDeviceBurstMap CommonPractice read "Read Sub-Device to Burst Message Map" : BurstMessageNumber => SubDeviceBurstMap;
+    102 MapSubDeviceToBurstMessage CommonPractice write "Map Sub-Device to Burst Message" : SubDeviceBurstMap => SubDeviceBurstMap;
     103 WriteBurstPeriod Burst write "Write Burst Period" : BurstPeriod => BurstPeriod;
     104 WriteBurstTrigger Burst write "Write Burst Trigger" : BurstTrigger => BurstTrigger;
     105 ReadBurstConfiguration Burst read "Read Burst Mode Configuration" : BurstMessageSelect => BurstConfiguration;
