@@ -112,11 +112,49 @@ const NO_SUB_DEVICE_FOUND: u8 = 9;
 const INVALID_BURST_MESSAGE: u8 = rc::INVALID_SELECTION;
 /// Command 102: no sub-device with that index.
 const INVALID_SUB_DEVICE_INDEX: u8 = 9;
+/// Commands 103-109 to the I/O system: no such burst message.
+const INVALID_BURST_MESSAGE_NUMBER: u8 = 9;
+/// Command 103: the update periods were raised (response code 8, a warning).
+const UPDATE_TIMES_ADJUSTED: u8 = 8;
 /// Command 84: I/O card and channel given for index 0, the I/O system itself ("none").
 const NONE: u8 = 251;
 
 /// Burst messages the I/O system offers for commands 101 and 102.
 pub const BURST_MESSAGES: usize = 3;
+
+/// One burst message of the I/O system: what it publishes, how often, and whether it
+/// runs. With command 102 it publishes a sub-device's reply to `command`.
+#[derive(Debug, Clone, Copy)]
+struct GatewayBurst {
+    /// Burst mode control code: 0 off, 1 (token-passing) or 4 (HART-IP) on.
+    control: u8,
+    /// The command published (1, 2, 3, 9, 33 or 48).
+    command: u16,
+    /// Device variable codes for commands 9 and 33 (250: unused).
+    slots: [u8; 8],
+    /// Update period, 1/32 ms.
+    period: u32,
+    /// Maximum update period, 1/32 ms.
+    max_period: u32,
+}
+
+impl Default for GatewayBurst {
+    fn default() -> Self {
+        GatewayBurst {
+            control: 0,
+            command: 1,
+            slots: [0, 1, 2, 3, 250, 250, 250, 250],
+            period: 32_000,
+            max_period: 60 * 32_000,
+        }
+    }
+}
+
+/// Commands a burst message of the I/O system may publish.
+pub const BURSTABLE: &[u16] = &[1, 2, 3, 9, 33, 48];
+
+/// Shortest update period, 1/32 ms: 50 ms, the fastest HART-IP burst period.
+const MIN_PERIOD: u32 = 1_600;
 
 /// What hosts can change in the I/O system, and its status bits.
 struct Local {
@@ -134,6 +172,8 @@ struct Local {
     /// Commands 101/102: the sub-device index each burst message publishes (0: the
     /// I/O system itself).
     burst_map: [u16; BURST_MESSAGES],
+    /// The I/O system's burst messages (commands 103, 105, 107, 108, 109).
+    bursts: [GatewayBurst; BURST_MESSAGES],
     /// The sub-device list as the last command 48 reported it; a different list sets
     /// "sub-device list changed" (standardized status 2, bit 0) until command 48 reads
     /// it.
@@ -170,7 +210,7 @@ fn master_index(m: MasterKind) -> usize {
 /// The commands [`IoSystem::local`] answers (for documentation and tests).
 pub const LOCAL_COMMANDS: &[u16] = &[
     0, 1, 2, 3, 7, 8, 9, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 38, 48, 74, 75, 77, 84,
-    101, 102,
+    101, 102, 103, 105, 107, 108, 109,
 ];
 
 impl IoSystem {
@@ -192,6 +232,7 @@ impl IoSystem {
             changed: [false; 2],
             cold: [true; 2],
             burst_map: [0; BURST_MESSAGES],
+            bursts: [GatewayBurst::default(); BURST_MESSAGES],
             reported: vec![],
         };
         IoSystem {
@@ -364,6 +405,7 @@ impl IoSystem {
             77 => self.send_to_sub_device(data).await,
             84 => self.sub_device_summary(data).await,
             101 | 102 => self.burst_map(command, data).await,
+            103 | 105 | 107 | 108 | 109 => self.burst_config(command, data),
             48 => {
                 // Device-specific status 0-5, extended status, operating mode,
                 // standardized status 0 and 1, analog channel saturated, standardized
@@ -667,6 +709,181 @@ impl IoSystem {
         let ix = *self.state().burst_map.get(msg)?;
         let ix = usize::from(ix).checked_sub(1)?;
         self.subs.lock().await.get(ix).cloned()
+    }
+
+    /// The I/O system's burst messages: 103 (period), 105 (read), 107 (device
+    /// variables for 9 and 33), 108 (command), 109 (on/off). Message numbers 0-2.
+    fn burst_config(&self, command: u16, data: &[u8]) -> (u8, Vec<u8>) {
+        use hart_proto::types::{BurstModeControl, CommandNumber, HartTime};
+        let mut st = self.state();
+        let pick = |m: Option<u8>| usize::from(m.unwrap_or(0));
+        let bad_msg = (INVALID_BURST_MESSAGE_NUMBER, vec![]);
+        let short = (rc::TOO_FEW_DATA_BYTES, vec![]);
+        let mut code = rc::SUCCESS;
+        let msg = match command {
+            103 => {
+                let Ok(r) = cmd::BurstPeriod::decode(&mut Reader::new(data)) else {
+                    return short;
+                };
+                let m = usize::from(r.burst_message);
+                let Some(b) = st.bursts.get_mut(m) else {
+                    return bad_msg;
+                };
+                b.period = r.update_period.0.max(MIN_PERIOD);
+                b.max_period = r.max_update_period.0.max(b.period);
+                if (b.period, b.max_period) != (r.update_period.0, r.max_update_period.0) {
+                    code = UPDATE_TIMES_ADJUSTED;
+                }
+                let reply = cmd::BurstPeriod {
+                    burst_message: r.burst_message,
+                    update_period: HartTime(b.period),
+                    max_update_period: HartTime(b.max_period),
+                };
+                Self::configuration_changed(&mut st);
+                return (code, encode(&reply));
+            }
+            105 => match cmd::BurstMessageSelect::decode(&mut Reader::new(data)) {
+                Ok(r) => pick(r.burst_message),
+                Err(_) => return short,
+            },
+            107 => {
+                let Ok(r) = cmd::BurstVariables::decode(&mut Reader::new(data)) else {
+                    return short;
+                };
+                let m = pick(r.burst_message);
+                let Some(b) = st.bursts.get_mut(m) else {
+                    return bad_msg;
+                };
+                b.slots = [250; 8];
+                for (slot, code) in b.slots.iter_mut().zip(r.slots.as_slice()) {
+                    *slot = code.0;
+                }
+                Self::configuration_changed(&mut st);
+                return (rc::SUCCESS, encode(&r));
+            }
+            108 => {
+                let Ok(r) = cmd::BurstCommand::decode(&mut Reader::new(data)) else {
+                    return short;
+                };
+                let m = pick(r.burst_message);
+                let Some(b) = st.bursts.get_mut(m) else {
+                    return bad_msg;
+                };
+                if !BURSTABLE.contains(&r.command_number) {
+                    return (rc::INVALID_SELECTION, vec![]);
+                }
+                b.command = r.command_number;
+                Self::configuration_changed(&mut st);
+                return (rc::SUCCESS, encode(&r));
+            }
+            109 => {
+                let Ok(r) = cmd::BurstModeControlRequest::decode(&mut Reader::new(data)) else {
+                    return short;
+                };
+                let m = pick(r.burst_message);
+                let Some(b) = st.bursts.get_mut(m) else {
+                    return bad_msg;
+                };
+                // 0 off, 1 on (token-passing), 4 on (HART-IP); no TDMA (2, 3).
+                if !matches!(r.control.0, 0 | 1 | 4) {
+                    return (rc::INVALID_SELECTION, vec![]);
+                }
+                b.control = r.control.0;
+                Self::configuration_changed(&mut st);
+                return (rc::SUCCESS, encode(&r));
+            }
+            _ => return (rc::NOT_IMPLEMENTED, vec![]),
+        };
+        let Some(b) = st.bursts.get(msg) else {
+            return bad_msg;
+        };
+        let mut slots = List::default();
+        for &c in &b.slots {
+            let _ = slots.push(DeviceVariableCode(c));
+        }
+        (
+            rc::SUCCESS,
+            encode(&cmd::BurstConfiguration {
+                control: BurstModeControl(b.control),
+                command_expansion: 31,
+                slots,
+                burst_message: Some(msg as u8),
+                max_burst_messages: Some(BURST_MESSAGES as u8),
+                command_number: Some(CommandNumber(b.command)),
+                update_period: Some(HartTime(b.period)),
+                max_update_period: Some(HartTime(b.max_period)),
+                trigger_mode: Some(hart_proto::types::TriggerMode(0)), // continuous
+                trigger_classification: Some(Classification(0)),
+                trigger_units: Some(UnitCode(250)),
+                trigger_level: Some(hart_nan()),
+            }),
+        )
+    }
+
+    /// Runs the I/O system's burst messages until the server stops: each message that
+    /// is on sends its command to the sub-device it is mapped to (command 102; index 0,
+    /// the I/O system itself, answers from its own data) once a period, and publishes
+    /// the reply as a burst (BACK) frame from that device's address to the sessions
+    /// subscribed to it.
+    pub async fn publish_bursts(&self, out: &tokio::sync::broadcast::Sender<Vec<u8>>) {
+        let mut due = [std::time::Instant::now(); BURST_MESSAGES];
+        loop {
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            for (m, due) in due.iter_mut().enumerate() {
+                let (b, index) = {
+                    let st = self.state();
+                    (st.bursts[m], st.burst_map[m])
+                };
+                let now = std::time::Instant::now();
+                if !matches!(b.control, 1 | 4) || now < *due {
+                    continue;
+                }
+                *due = now + std::time::Duration::from_micros(u64::from(b.period) * 1000 / 32);
+                let data: Vec<u8> = match b.command {
+                    9 | 33 => b.slots.iter().copied().take_while(|&c| c != 250).collect(),
+                    _ => vec![],
+                };
+                if let Some(frame) = self.burst_frame(index, b.command, &data).await {
+                    let _ = out.send(frame);
+                }
+            }
+        }
+    }
+
+    /// The burst frame of one burst message: the reply to `command` of sub-device
+    /// `index` (0: the I/O system) turned into a BACK frame with the burst bit set.
+    async fn burst_frame(&self, index: u16, command: u16, data: &[u8]) -> Option<Vec<u8>> {
+        let (address, code, status, reply) = if index == 0 {
+            let (code, status, d) = self.local(MasterKind::Primary, command, data).await;
+            (Address::long(self.unique_id()), code, status, d)
+        } else {
+            let sub = self
+                .subs
+                .lock()
+                .await
+                .get(usize::from(index) - 1)
+                .cloned()?;
+            let address = Address::long(sub.info.unique_id());
+            let pdu = pdu_of(&hart_proto::frame::FrameSpec::request(
+                address, command, data,
+            ));
+            let reply = self
+                .forward(usize::from(sub.channel), pdu, KNOWN_RETRIES)
+                .await?;
+            let f = Frame::parse_pdu(&reply).ok()?;
+            (
+                address,
+                f.response_code.unwrap_or(0),
+                f.device_status.unwrap_or(0),
+                f.data.to_vec(),
+            )
+        };
+        let frame = pdu_of(&hart_proto::frame::FrameSpec {
+            frame_type: hart_proto::frame::FrameType::Back,
+            status: Some((code, status)),
+            ..hart_proto::frame::FrameSpec::request(address.with_burst(true), command, &reply)
+        });
+        (!frame.is_empty()).then_some(frame)
     }
 
     /// Command 77: I/O card, channel, transmit preamble count, then the embedded frame

@@ -216,6 +216,11 @@ async fn start_with(
         audit: Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
+    // The I/O system's own burst messages (commands 102-109).
+    let publisher = shared.clone();
+    tasks.push(tokio::task::spawn_local(async move {
+        publisher.io.publish_bursts(&publisher.bursts).await
+    }));
     let security = match &config.psk {
         Some(keys) => {
             let err = |e: String| std::io::Error::other(e);

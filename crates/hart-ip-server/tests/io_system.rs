@@ -335,3 +335,58 @@ fn allow_list_read_only_and_audit_file() {
         let _ = std::fs::remove_file(&audit);
     });
 }
+
+/// Commands 102 and 103-109: a burst message of the I/O system mapped to a sub-device
+/// publishes that device's command 1 reply as a burst frame from its address.
+#[test]
+fn io_system_publishes_a_mapped_sub_device() {
+    run(async {
+        let server = server(&[plant("pub", &[("pressure", 1)])], false).await;
+        let s = HartIpSession::connect(&server.udp_addr.unwrap().to_string(), false, 60_000)
+            .await
+            .unwrap();
+        let gw = Address::long(gateway());
+        scanned(&s, 1).await;
+        // Message 1: sub-device 1, command 1, every 0.1 s (raised from 0.01 s: RC 8).
+        assert_eq!(ask(&s, gw, 102, &[1, 0, 1]).await.0, 0);
+        assert_eq!(ask(&s, gw, 108, &[0, 1, 1]).await.0, 0);
+        let (rc, _, period) = ask(&s, gw, 103, &[1, 0, 0, 1, 64, 0, 0, 1, 64]).await;
+        assert_eq!(
+            (rc, &period[1..5]),
+            (8, &[0, 0, 0x06, 0x40][..]),
+            "50 ms at least"
+        );
+        assert_eq!(
+            ask(&s, gw, 103, &[1, 0, 0, 0x0C, 0x80, 0, 0, 0x0C, 0x80])
+                .await
+                .0,
+            0
+        );
+        assert_eq!(ask(&s, gw, 109, &[2, 1]).await.0, 2, "no TDMA");
+        assert_eq!(ask(&s, gw, 109, &[1, 1]).await.0, 0);
+        assert_eq!(ask(&s, gw, 109, &[1, 7]).await.0, 9, "no burst message 7");
+        let (rc, _, conf) = ask(&s, gw, 105, &[1]).await;
+        assert_eq!((rc, conf[0], conf[10], conf[12], conf[13]), (0, 1, 1, 0, 1));
+        // Burst frames of the pressure transmitter arrive as publish messages.
+        let mut seen = 0;
+        for _ in 0..50 {
+            let Ok(Some(p)) =
+                tokio::time::timeout(Duration::from_millis(200), s.next_publish()).await
+            else {
+                continue;
+            };
+            let f = Frame::parse_pdu(&p).unwrap();
+            if f.command == 1 && f.address.burst() {
+                assert_eq!(f.frame_type(), hart_proto::frame::FrameType::Back);
+                assert_eq!(f.data[0], 12, "kPa");
+                seen += 1;
+                if seen == 3 {
+                    break;
+                }
+            }
+        }
+        assert_eq!(seen, 3, "publish messages of the mapped sub-device");
+        s.close().await;
+        server.stop();
+    });
+}
