@@ -10,7 +10,7 @@ use hart_link::master::RetryPolicy;
 use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::sync::{broadcast, mpsc, Mutex};
 
-use crate::io_system::{LoopRequest, SubDevice};
+use crate::io_system::{LoopOutcome, LoopRequest, SubDevice};
 use crate::pdu;
 
 pub(crate) async fn memory_backend(
@@ -67,7 +67,9 @@ pub(crate) async fn memory_backend(
                     ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
                 }))
             });
-            let _ = r.reply.send(reply);
+            let _ = r
+                .reply
+                .send(reply.map_or(LoopOutcome::NoReply, LoopOutcome::Reply));
         }
         // Burst messages that are due.
         for d in &mut devices {
@@ -146,15 +148,23 @@ pub(crate) async fn backend(
         let scan_due = next_scan.is_some() && idle >= scan_wait;
         match (req, next_scan) {
             (Some(r), _) => {
+                // Given up by its requester (answered "busy"), or its session ended:
+                // the line is not spent on it.
+                if !r.start() {
+                    continue;
+                }
                 client.set_policy(RetryPolicy {
                     retries: r.retries,
                     ..RetryPolicy::default()
                 });
-                let reply = client.forward(&r.pdu).await.ok();
-                if let Some(reply) = &reply {
-                    learn(&subs, channel, &r.pdu, reply).await;
-                }
-                let _ = r.reply.send(reply);
+                let outcome = match client.forward(&r.pdu).await {
+                    Ok(reply) => {
+                        learn(&subs, channel, &r.pdu, &reply).await;
+                        LoopOutcome::Reply(reply)
+                    }
+                    Err(_) => LoopOutcome::NoReply,
+                };
+                let _ = r.reply.send(outcome);
                 quiet_since = Some(Instant::now());
             }
             (None, Some(poll)) if scan_due => {

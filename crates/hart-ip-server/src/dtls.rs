@@ -18,14 +18,11 @@ use tokio::sync::mpsc;
 
 use crate::session::Session;
 use crate::stream::{stream_session, HANDSHAKE_TIMEOUT};
-use crate::{AbortOnDrop, Security, Shared};
+use crate::{AbortOnDrop, Counters, PeerTable, Peers, Security, Shared};
 
 /// Datagrams queued for one peer's task before further ones are dropped (DTLS
 /// repeats what is lost).
 const PEER_QUEUE: usize = 64;
-
-/// Peers with a DTLS association (or a handshake in progress), by address.
-type Peers = Rc<RefCell<HashMap<SocketAddr, (mpsc::Sender<Vec<u8>>, AbortOnDrop)>>>;
 
 /// Logs refusals of non-DTLS datagrams at most once a second (a flood must not flood
 /// the log), with the number left out meanwhile.
@@ -89,7 +86,7 @@ pub(crate) async fn serve_dtls(sock: Arc<UdpSocket>, shared: Arc<Shared>, sec: A
             continue;
         }
         if !dtls {
-            shared.stats.lock().await.malformed += 1;
+            Counters::count(&shared.stats.malformed);
             log.refuse(peer);
             continue;
         }
@@ -101,7 +98,7 @@ pub(crate) async fn serve_dtls(sock: Arc<UdpSocket>, shared: Arc<Shared>, sec: A
             rx,
             shared.clone(),
             sec.clone(),
-            peers.clone(),
+            Rc::downgrade(&peers),
         ));
         peers.borrow_mut().insert(peer, (tx, AbortOnDrop(task)));
     }
@@ -114,14 +111,18 @@ async fn dtls_peer(
     rx: mpsc::Receiver<Vec<u8>>,
     shared: Arc<Shared>,
     sec: Arc<Security>,
-    peers: Peers,
+    peers: std::rc::Weak<RefCell<PeerTable>>,
 ) {
     let local_port = sock.local_addr().map_or(0, |a| a.port());
     run_peer(sock, peer, rx, &shared, &sec, local_port).await;
     // This task's own handle goes with the entry: the abort it asks for finds the task
     // already finishing.
-    let entry = peers.borrow_mut().remove(&peer);
-    drop(entry);
+    // (The table holds the tasks, so a task holds the table weakly: when the server
+    // stops, table and tasks go together.)
+    if let Some(peers) = peers.upgrade() {
+        let entry = peers.borrow_mut().remove(&peer);
+        drop(entry);
+    }
 }
 
 async fn run_peer(
@@ -149,7 +150,7 @@ async fn run_peer(
         Ok(Ok(())) => {}
         Ok(Err(e)) => {
             let n = note.lock().map(|n| n.clone()).unwrap_or_default();
-            shared.stats.lock().await.sessions_refused += 1;
+            Counters::count(&shared.stats.sessions_refused);
             tracing::warn!(
                 "refused DTLS from {peer}: {}",
                 hart_ip_tls::refusal(&n, &e, Some(0x16))
@@ -157,7 +158,7 @@ async fn run_peer(
             return;
         }
         Err(_) => {
-            shared.stats.lock().await.sessions_refused += 1;
+            Counters::count(&shared.stats.sessions_refused);
             tracing::warn!(
                 "refused DTLS from {peer}: no complete handshake within {} s",
                 HANDSHAKE_TIMEOUT.as_secs()

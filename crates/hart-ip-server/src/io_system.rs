@@ -23,7 +23,7 @@ use hart_proto::types::{
 use hart_proto::wire::{List, Reader, Wire, Writer};
 use tokio::sync::{mpsc, oneshot, Mutex};
 
-/// A request for a loop: a PDU, and where to send the reply PDU.
+/// A request for a loop: a PDU, and where to send what became of it.
 pub struct LoopRequest {
     /// The frame (delimiter through check byte).
     pub pdu: Vec<u8>,
@@ -31,9 +31,59 @@ pub struct LoopRequest {
     /// server knows, one for an address where it found no device (so an absent
     /// device is reported after two slave time-outs, not four).
     pub retries: u8,
-    /// The reply frame, or `None` when the device did not answer.
-    pub reply: oneshot::Sender<Option<Vec<u8>>>,
+    /// Set when the loop takes the request ([`LoopRequest::start`]) or when its
+    /// requester stops waiting for that: whichever comes first wins, so a request is
+    /// either carried out or answered "busy", never both.
+    pub state: Arc<std::sync::atomic::AtomicU8>,
+    /// The outcome. A request whose receiver is gone (its session ended) is dropped
+    /// unsent.
+    pub reply: oneshot::Sender<LoopOutcome>,
 }
+
+/// [`LoopRequest::state`]: waiting in the queue.
+const QUEUED: u8 = 0;
+/// [`LoopRequest::state`]: taken by the loop.
+const STARTED: u8 = 1;
+/// [`LoopRequest::state`]: given up by its requester.
+const ABANDONED: u8 = 2;
+
+impl LoopRequest {
+    /// The loop takes the request; `false` if its requester has given up on it (or
+    /// gone), so the line is not spent on it.
+    pub fn start(&self) -> bool {
+        !self.reply.is_closed()
+            && self
+                .state
+                .compare_exchange(
+                    QUEUED,
+                    STARTED,
+                    std::sync::atomic::Ordering::AcqRel,
+                    std::sync::atomic::Ordering::Acquire,
+                )
+                .is_ok()
+    }
+}
+
+/// What became of a request for a loop.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LoopOutcome {
+    /// The device's reply frame.
+    Reply(Vec<u8>),
+    /// No reply after the loop's retries.
+    NoReply,
+    /// Not sent: the loop's queue was full, or the request waited there too long.
+    Busy,
+}
+
+/// Requests queued for a real (or simulated) 1200 bit/s loop at most; more are answered
+/// "busy" at once. A few seconds of line time: longer queues only serve clients that
+/// have given up.
+pub const LOOP_QUEUE: usize = 16;
+
+/// Longest a request waits in a loop's queue before it is answered "busy" unsent: with
+/// a transaction's own time (up to about 2 s with retries on an FSK loop) the answer
+/// still comes within the 5 s clients wait (hartkit's, hartip-py's).
+pub const MAX_QUEUE_WAIT: std::time::Duration = std::time::Duration::from_millis(2500);
 
 /// The I/O system's own identity (the fixed part; tag, descriptor, message and long
 /// tag can be written by hosts and start from these).
@@ -327,18 +377,43 @@ impl IoSystem {
     }
 
     /// Forwards a PDU to loop `channel` with `retries`.
-    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> Option<Vec<u8>> {
-        let (tx, rx) = oneshot::channel();
-        self.loops
-            .get(channel)?
-            .send(LoopRequest {
-                pdu,
-                retries,
-                reply: tx,
-            })
-            .await
-            .ok()?;
-        rx.await.ok().flatten()
+    /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
+    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
+        let (tx, mut rx) = oneshot::channel();
+        let Some(queue) = self.loops.get(channel) else {
+            return LoopOutcome::NoReply;
+        };
+        let state = Arc::new(std::sync::atomic::AtomicU8::new(QUEUED));
+        let request = LoopRequest {
+            pdu,
+            retries,
+            state: state.clone(),
+            reply: tx,
+        };
+        match queue.try_send(request) {
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => return LoopOutcome::Busy,
+            Err(mpsc::error::TrySendError::Closed(_)) => return LoopOutcome::NoReply,
+        }
+        match tokio::time::timeout(MAX_QUEUE_WAIT, &mut rx).await {
+            Ok(r) => r.unwrap_or(LoopOutcome::NoReply),
+            Err(_) => {
+                // Still queued: give it up ("busy"). Taken meanwhile: wait for it.
+                let gave_up = state
+                    .compare_exchange(
+                        QUEUED,
+                        ABANDONED,
+                        std::sync::atomic::Ordering::AcqRel,
+                        std::sync::atomic::Ordering::Acquire,
+                    )
+                    .is_ok();
+                if gave_up {
+                    LoopOutcome::Busy
+                } else {
+                    rx.await.unwrap_or(LoopOutcome::NoReply)
+                }
+            }
+        }
     }
 
     fn identity_reply(&self, state: &Local) -> Vec<u8> {
@@ -612,10 +687,13 @@ impl IoSystem {
         match self
             .forward(usize::from(channel), pdu, UNKNOWN_RETRIES)
             .await
-            .and_then(|r| Frame::parse_pdu(&r).ok().map(|f| f.data.to_vec()))
         {
-            Some(identity) => (rc::SUCCESS, identity),
-            None => (NO_SUB_DEVICE_FOUND, vec![]),
+            LoopOutcome::Reply(r) => match Frame::parse_pdu(&r) {
+                Ok(f) => (rc::SUCCESS, f.data.to_vec()),
+                Err(_) => (NO_SUB_DEVICE_FOUND, vec![]),
+            },
+            LoopOutcome::NoReply => (NO_SUB_DEVICE_FOUND, vec![]),
+            LoopOutcome::Busy => (rc::BUSY, vec![]),
         }
     }
 
@@ -867,9 +945,12 @@ impl IoSystem {
             let pdu = pdu_of(&hart_proto::frame::FrameSpec::request(
                 address, command, data,
             ));
-            let reply = self
+            let LoopOutcome::Reply(reply) = self
                 .forward(usize::from(sub.channel), pdu, KNOWN_RETRIES)
-                .await?;
+                .await
+            else {
+                return None;
+            };
             let f = Frame::parse_pdu(&reply).ok()?;
             (
                 address,
@@ -921,7 +1002,8 @@ impl IoSystem {
             UNKNOWN_RETRIES
         };
         match self.forward(usize::from(channel), pdu, retries).await {
-            Some(reply) => {
+            LoopOutcome::Busy => (rc::BUSY, vec![]),
+            LoopOutcome::Reply(reply) => {
                 let mut d = vec![card, channel];
                 d.extend_from_slice(&reply[..reply.len().saturating_sub(1)]);
                 if d.len() > 253 {
@@ -929,7 +1011,7 @@ impl IoSystem {
                 }
                 (rc::SUCCESS, d)
             }
-            None => (SUB_DEVICE_NOT_RESPONDING, vec![]),
+            LoopOutcome::NoReply => (SUB_DEVICE_NOT_RESPONDING, vec![]),
         }
     }
 }

@@ -10,6 +10,7 @@
 //! `hart_host::Client`, one transaction at a time, by a single backend task.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use hart_host::target::AnyTransport;
@@ -49,6 +50,9 @@ pub struct Config {
     pub tcp: bool,
     /// Most sessions at once (UDP and TCP together).
     pub max_sessions: usize,
+    /// Most sessions at once from one client address (IP), so one host cannot take
+    /// every session.
+    pub max_sessions_per_host: usize,
     /// Refuse every command that changes a device ("access restricted").
     pub read_only: bool,
     /// Scan each loop's polling addresses 0..=N at start and keep the list current
@@ -78,6 +82,7 @@ impl Default for Config {
             udp: true,
             tcp: true,
             max_sessions: 64,
+            max_sessions_per_host: 16,
             read_only: false,
             scan_to: Some(63),
             identity: GatewayIdentity::default(),
@@ -89,6 +94,11 @@ impl Default for Config {
         }
     }
 }
+
+/// A session whose client sent nothing after its session initiate is closed after this
+/// long (or its own inactivity timer, if shorter): initiates alone cannot hold the
+/// sessions for the full timer.
+pub const INITIATE_GRACE: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Shortest inactivity timer the server accepts, ms.
 pub const MIN_TIMER_MS: u32 = 1000;
@@ -106,6 +116,10 @@ pub struct Stats {
     pub published: u64,
     /// Malformed messages.
     pub malformed: u64,
+    /// Requests answered "busy" (response code 32) because a queue was full.
+    pub busy: u64,
+    /// Datagrams dropped (a session's queue full, or too long to be HART-IP).
+    pub dropped: u64,
 }
 
 /// The OpenSSL contexts of a secure server, built once.
@@ -115,14 +129,57 @@ pub(crate) struct Security {
     pub(crate) dtls: openssl::ssl::SslContext,
 }
 
+/// The [`Stats`] counters, each counted where it happens without a lock.
+#[derive(Default)]
+pub(crate) struct Counters {
+    pub(crate) sessions_opened: AtomicU64,
+    pub(crate) sessions_refused: AtomicU64,
+    pub(crate) forwarded: AtomicU64,
+    pub(crate) published: AtomicU64,
+    pub(crate) malformed: AtomicU64,
+    pub(crate) busy: AtomicU64,
+    pub(crate) dropped: AtomicU64,
+}
+
+impl Counters {
+    /// Adds one to `counter`.
+    pub(crate) fn count(counter: &AtomicU64) {
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn snapshot(&self) -> Stats {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        Stats {
+            sessions_opened: get(&self.sessions_opened),
+            sessions_refused: get(&self.sessions_refused),
+            forwarded: get(&self.forwarded),
+            published: get(&self.published),
+            malformed: get(&self.malformed),
+            busy: get(&self.busy),
+            dropped: get(&self.dropped),
+        }
+    }
+}
+
+/// What every session task shares. The locks here are never held across an `.await`
+/// (they guard a few field updates), so they are plain `std` mutexes.
 pub(crate) struct Shared {
     pub(crate) config: Config,
-    pub(crate) sessions: Mutex<usize>,
-    pub(crate) stats: Mutex<Stats>,
+    /// Sessions open now.
+    pub(crate) sessions: std::sync::Mutex<usize>,
+    /// Sessions open now, by client address (for `max_sessions_per_host`).
+    pub(crate) per_host: std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
+    pub(crate) stats: Counters,
     pub(crate) io: IoSystem,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
-    pub(crate) audit: Mutex<AuditLog>,
+    pub(crate) audit: std::sync::Mutex<AuditLog>,
     pub(crate) power_up: u64,
+}
+
+/// Locks a `std` mutex of the server; a panic that poisoned it left consistent data
+/// (every critical section is a few assignments), so the lock is taken anyway.
+pub(crate) fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// A running server.
@@ -151,12 +208,12 @@ impl Server {
 
     /// Counters so far.
     pub async fn stats(&self) -> Stats {
-        *self.shared.stats.lock().await
+        self.shared.stats.snapshot()
     }
 
     /// Sessions open now (UDP and TCP).
     pub async fn active_sessions(&self) -> usize {
-        *self.shared.sessions.lock().await
+        *lock(&self.shared.sessions)
     }
 }
 
@@ -168,7 +225,7 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
     let mut senders = vec![];
     let mut receivers = vec![];
     for _ in 0..loops.len() {
-        let (tx, rx) = mpsc::channel::<LoopRequest>(256);
+        let (tx, rx) = mpsc::channel::<LoopRequest>(io_system::LOOP_QUEUE);
         senders.push(tx);
         receivers.push(rx);
     }
@@ -209,11 +266,12 @@ async fn start_with(
     let io = IoSystem::new(config.identity.clone(), senders, subs, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
-        sessions: Mutex::new(0),
-        stats: Mutex::new(Stats::default()),
+        sessions: std::sync::Mutex::new(0),
+        per_host: Default::default(),
+        stats: Counters::default(),
         io,
         bursts: bursts.clone(),
-        audit: Mutex::new(AuditLog::default()),
+        audit: std::sync::Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
     // The I/O system's own burst messages (commands 102-109).
@@ -362,6 +420,14 @@ pub(crate) fn local_frame(f: &Frame<'_>, code: u8, status: u8, data: &[u8]) -> V
         ..FrameSpec::request(f.address, f.command, data)
     })
 }
+
+/// Per-peer tasks of a datagram socket (UDP sessions, DTLS associations) by client
+/// address: the queue that feeds each, and the task. The tasks hold the table weakly.
+pub(crate) type PeerTable =
+    std::collections::HashMap<SocketAddr, (mpsc::Sender<Vec<u8>>, AbortOnDrop)>;
+
+/// The table, shared by a socket's receive loop.
+pub(crate) type Peers = std::rc::Rc<std::cell::RefCell<PeerTable>>;
 
 /// Aborts a task when dropped (children of a server task end with it).
 pub(crate) struct AbortOnDrop(pub(crate) tokio::task::JoinHandle<()>);

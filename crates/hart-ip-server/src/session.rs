@@ -7,9 +7,9 @@ use hart_ip::{status, Body, Header, MessageId, MessageType};
 use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
-use crate::io_system::Route;
+use crate::io_system::{LoopOutcome, Route};
 use crate::subscriptions::{subscription_command, Subscriptions};
-use crate::{local_frame, message, unix_now, Shared, MIN_TIMER_MS};
+use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
 
 /// What to do with one received message of a session.
 pub(crate) enum Action {
@@ -39,8 +39,12 @@ pub(crate) async fn forwarded(
     seq: u16,
 ) -> Vec<u8> {
     let body = match shared.io.forward(channel, pdu.clone(), retries).await {
-        Some(reply) => reply,
-        None => not_responding(&pdu),
+        LoopOutcome::Reply(reply) => reply,
+        LoopOutcome::NoReply => not_responding(&pdu),
+        LoopOutcome::Busy => {
+            Counters::count(&shared.stats.busy);
+            busy(&pdu)
+        }
     };
     message(
         version,
@@ -64,6 +68,16 @@ pub(crate) fn not_responding(request: &[u8]) -> Vec<u8> {
     }
 }
 
+/// The answer to a request the server did not send because its loop's queue was full
+/// (or it waited there too long): an ACK from the requested address with response
+/// code 32 "busy", which hosts repeat after a pause.
+pub(crate) fn busy(request: &[u8]) -> Vec<u8> {
+    match Frame::parse_pdu(request) {
+        Ok(f) => local_frame(&f, hart_proto::tables::rc::BUSY, 0, &[]),
+        Err(_) => vec![],
+    }
+}
+
 /// Session state shared by UDP and TCP.
 pub(crate) struct Session {
     pub(crate) open: bool,
@@ -81,6 +95,8 @@ pub(crate) struct Session {
     pub(crate) version: u8,
     /// The PSK identity of a secure session and what it may do.
     pub(crate) secure: Option<(String, hart_ip_tls::Rights)>,
+    /// Messages the client sent since its session initiate.
+    pub(crate) after_initiate: u64,
 }
 
 impl Session {
@@ -96,7 +112,24 @@ impl Session {
             subs: None,
             version: 1,
             secure: None,
+            after_initiate: 0,
         }
+    }
+
+    /// How long the session may stay silent: its inactivity timer, but only
+    /// [`crate::INITIATE_GRACE`] before the first message after the initiate (and
+    /// before the initiate itself).
+    pub(crate) fn silence_allowed(&self) -> Duration {
+        if self.open && self.after_initiate > 0 {
+            self.timer
+        } else {
+            self.timer.min(crate::INITIATE_GRACE)
+        }
+    }
+
+    /// Whether the session has been silent longer than it may.
+    pub(crate) fn expired(&self) -> bool {
+        self.last_rx.elapsed() > self.silence_allowed()
     }
 
     /// A session inside TLS/DTLS, authenticated with PSK `identity`.
@@ -168,8 +201,11 @@ fn audit(shared: &Shared, s: &Session, device: String, command: u16) {
 
 pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
     s.last_rx = Instant::now();
+    if s.open && h.message_id != MessageId::SessionInitiate {
+        s.after_initiate += 1;
+    }
     if h.message_type != MessageType::Request || h.reserved != 0 {
-        shared.stats.lock().await.malformed += 1;
+        Counters::count(&shared.stats.malformed);
         return Action::Close;
     }
     let version = s.version;
@@ -186,26 +222,39 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
     match h.message_id {
         MessageId::SessionInitiate => {
             if body.len() < 5 {
-                shared.stats.lock().await.sessions_refused += 1;
+                Counters::count(&shared.stats.sessions_refused);
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             }
             let master = body[0];
             if master > 1 {
-                shared.stats.lock().await.sessions_refused += 1;
+                Counters::count(&shared.stats.sessions_refused);
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
             let asked = u32::from_be_bytes([body[1], body[2], body[3], body[4]]);
             if !s.open {
-                let mut n = shared.sessions.lock().await;
+                let mut n = lock(&shared.sessions);
                 if *n >= shared.config.max_sessions {
-                    shared.stats.lock().await.sessions_refused += 1;
+                    Counters::count(&shared.stats.sessions_refused);
                     return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
                 }
+                let mut hosts = lock(&shared.per_host);
+                let from_host = hosts.entry(s.peer.ip()).or_default();
+                if *from_host >= shared.config.max_sessions_per_host {
+                    Counters::count(&shared.stats.sessions_refused);
+                    tracing::debug!(
+                        "refused a session from {}: {} sessions from that address already (max_sessions_per_host)",
+                        s.peer,
+                        from_host
+                    );
+                    return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
+                }
+                *from_host += 1;
+                drop(hosts);
                 *n += 1;
                 s.open = true;
-                shared.stats.lock().await.sessions_opened += 1;
+                Counters::count(&shared.stats.sessions_opened);
                 // A plain session is an insecure session (0x0010).
-                s.audit = Some(shared.audit.lock().await.push(AuditRecord {
+                s.audit = Some(lock(&shared.audit).push(AuditRecord {
                     client: s.peer,
                     server_port: s.local_port,
                     connected: unix_now(),
@@ -246,7 +295,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
         MessageId::KeepAlive => Action::Reply(reply(status::SUCCESS, &[])),
         MessageId::TokenPassingPdu => {
             if let Some(i) = s.audit {
-                if let Some(r) = shared.audit.lock().await.get_mut(i) {
+                if let Some(r) = lock(&shared.audit).get_mut(i) {
                     r.requests += 1;
                     r.responses += 1;
                     if Frame::parse_pdu(body).is_ok_and(|f| writes(&f)) && !s.read_only(shared) {
@@ -255,7 +304,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 }
             }
             let Ok(f) = Frame::parse_pdu(body) else {
-                shared.stats.lock().await.malformed += 1;
+                Counters::count(&shared.stats.malformed);
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             };
             if f.frame_type() != FrameType::Stx {
@@ -292,7 +341,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                     ))
                 }
                 Route::Loop { channel, retries } => {
-                    shared.stats.lock().await.forwarded += 1;
+                    Counters::count(&shared.stats.forwarded);
                     Action::Forward {
                         channel,
                         retries,
@@ -343,7 +392,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 Ok(Body::AuditLogRequest { start, count }) => (start, count),
                 _ => return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[])),
             };
-            let audit = shared.audit.lock().await;
+            let audit = lock(&shared.audit);
             let records: Vec<&AuditRecord> = audit
                 .records
                 .iter()
@@ -361,7 +410,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             Action::Reply(reply(status::SUCCESS, &out))
         }
         MessageId::Other(_) => {
-            shared.stats.lock().await.malformed += 1;
+            Counters::count(&shared.stats.malformed);
             Action::Reply(message(
                 s.version,
                 MessageType::Nak,
@@ -380,12 +429,19 @@ pub(crate) async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
     if s.open {
         s.open = false;
         if let Some(r) = s.audit {
-            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+            if let Some(rec) = lock(&shared.audit).get_mut(r) {
                 rec.disconnected = unix_now();
                 rec.status |= why;
             }
         }
-        let mut n = shared.sessions.lock().await;
+        let mut n = lock(&shared.sessions);
         *n = n.saturating_sub(1);
+        let mut hosts = lock(&shared.per_host);
+        if let Some(c) = hosts.get_mut(&s.peer.ip()) {
+            *c = c.saturating_sub(1);
+            if *c == 0 {
+                hosts.remove(&s.peer.ip());
+            }
+        }
     }
 }

@@ -12,7 +12,14 @@ use tokio::sync::Mutex;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
 use crate::subscriptions::subscribed;
-use crate::{message, AbortOnDrop, Shared};
+use crate::{message, AbortOnDrop, Counters, Shared};
+
+/// Requests of one TCP session waiting for loops at once; more are answered "busy".
+pub(crate) const MAX_IN_FLIGHT: usize = 8;
+
+/// Connections accepted beyond the session limit, for handshakes and initiates in
+/// progress.
+const PENDING_CONNECTIONS: usize = 16;
 
 /// Longest a TLS or DTLS handshake may take before the peer is dropped.
 pub(crate) const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
@@ -32,6 +39,13 @@ pub(crate) async fn serve_tcp(
         };
         let _ = stream.set_nodelay(true);
         sessions.retain(|s: &AbortOnDrop| !s.0.is_finished());
+        // Connections beyond the session limit (and a few in their handshake or
+        // initiate) are closed at once: they could only be refused.
+        if sessions.len() >= shared.config.max_sessions + PENDING_CONNECTIONS {
+            Counters::count(&shared.stats.sessions_refused);
+            drop(stream);
+            continue;
+        }
         let shared = shared.clone();
         let task = match tls.clone() {
             None => tokio::task::spawn_local(async move {
@@ -75,12 +89,12 @@ async fn tls_session(
         Ok(Err(e)) => {
             let n = note.lock().map(|n| n.clone()).unwrap_or_default();
             let why = hart_ip_tls::refusal(&n, &e, first_byte);
-            shared.stats.lock().await.sessions_refused += 1;
+            Counters::count(&shared.stats.sessions_refused);
             tracing::warn!("refused TLS from {peer}: {why}");
             return;
         }
         Err(_) => {
-            shared.stats.lock().await.sessions_refused += 1;
+            Counters::count(&shared.stats.sessions_refused);
             tracing::warn!(
                 "refused TLS from {peer}: no complete handshake within {} s",
                 HANDSHAKE_TIMEOUT.as_secs()
@@ -156,6 +170,23 @@ where
                             // replies' writers end with the session.
                             let (shared, wr, version) = (shared.clone(), wr.clone(), s.version);
                             in_flight.retain(|t: &AbortOnDrop| !t.0.is_finished());
+                            if in_flight.len() >= MAX_IN_FLIGHT {
+                                // Enough of this session's requests are waiting already.
+                                Counters::count(&shared.stats.busy);
+                                let r = message(
+                                    version,
+                                    MessageType::Response,
+                                    MessageId::TokenPassingPdu,
+                                    0,
+                                    seq,
+                                    &crate::session::busy(&pdu),
+                                );
+                                if wr.lock().await.write_all(&r).await.is_err() {
+                                    close_session(&shared, &mut s, 0x0004).await;
+                                    return;
+                                }
+                                continue;
+                            }
                             in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
                                 let r =
                                     forwarded(&shared, version, channel, retries, pdu, seq).await;
@@ -171,13 +202,13 @@ where
                 }
                 Err(_) => {
                     // A stream that cannot be split any more: this session ends.
-                    shared.stats.lock().await.malformed += 1;
+                    Counters::count(&shared.stats.malformed);
                     close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
             }
         }
-        let timer = s.timer;
+        let timer = s.silence_allowed();
         tokio::select! {
             r = tokio::time::timeout(timer, rd.read(&mut tmp)) => match r {
                 Ok(Ok(n)) if n > 0 => buf.extend_from_slice(&tmp[..n]),
@@ -208,7 +239,7 @@ where
                     close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
-                shared.stats.lock().await.published += 1;
+                Counters::count(&shared.stats.published);
             },
         }
     }

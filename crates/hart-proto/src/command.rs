@@ -679,6 +679,10 @@ wire_struct! {
     }
 }
 
+/// Commands of I/O systems (multiplexers, HART-IP gateways) about their sub-devices;
+/// field devices do not have them.
+pub const IO_SYSTEM_COMMANDS: &[u16] = &[74, 75, 77, 84, 101, 102];
+
 wire_struct! {
     /// Command 74 reply: what an I/O system (a multiplexer, a HART-IP gateway) has.
     pub struct IoSystemCapabilities {

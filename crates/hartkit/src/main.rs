@@ -121,6 +121,9 @@ enum Top {
         /// Most sessions at once.
         #[arg(long, default_value_t = 64)]
         max_sessions: usize,
+        /// Most sessions at once from one client address.
+        #[arg(long, default_value_t = 16)]
+        max_sessions_per_host: usize,
         /// Let a loop device at polling address 0 answer there (one loop only); by
         /// default the server itself, a HART I/O system, answers at polling address 0
         /// and reaches that device by its unique ID.
@@ -826,6 +829,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             sim,
             read_only,
             max_sessions,
+            max_sessions_per_host,
             transparent,
             scan_to,
             psk_file,
@@ -842,6 +846,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             ServeFlags {
                 read_only: *read_only,
                 max_sessions: *max_sessions,
+                max_sessions_per_host: *max_sessions_per_host,
                 transparent: *transparent,
                 scan_to: *scan_to,
                 psk_file: psk_file.clone(),
@@ -859,6 +864,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
 struct ServeFlags {
     read_only: bool,
     max_sessions: usize,
+    max_sessions_per_host: usize,
     transparent: bool,
     scan_to: u8,
     psk_file: Option<std::path::PathBuf>,
@@ -897,6 +903,7 @@ fn serve_hart_ip(
     let ServeFlags {
         read_only,
         max_sessions,
+        max_sessions_per_host,
         transparent,
         scan_to,
         psk_file,
@@ -938,6 +945,7 @@ fn serve_hart_ip(
         udp: udp || !tcp,
         tcp: tcp || !udp,
         max_sessions,
+        max_sessions_per_host,
         read_only,
         transparent,
         scan_to: Some(scan_to),
