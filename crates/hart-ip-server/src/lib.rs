@@ -10,6 +10,7 @@
 //! `hart_host::Client`, one transaction at a time, by a single backend task.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use hart_host::target::AnyTransport;
@@ -74,6 +75,9 @@ impl Default for Config {
     }
 }
 
+/// Receive buffer the server asks for its UDP socket, bytes.
+pub const UDP_RECEIVE_BUFFER: usize = 4 << 20;
+
 /// Shortest inactivity timer the server accepts, ms.
 pub const MIN_TIMER_MS: u32 = 1000;
 
@@ -92,14 +96,52 @@ pub struct Stats {
     pub malformed: u64,
 }
 
+/// The [`Stats`] counters, each counted where it happens without a lock.
+#[derive(Default)]
+pub(crate) struct Counters {
+    pub(crate) sessions_opened: AtomicU64,
+    pub(crate) sessions_refused: AtomicU64,
+    pub(crate) forwarded: AtomicU64,
+    pub(crate) published: AtomicU64,
+    pub(crate) malformed: AtomicU64,
+}
+
+impl Counters {
+    /// Adds one to `counter`.
+    pub(crate) fn count(counter: &AtomicU64) {
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn snapshot(&self) -> Stats {
+        let get = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        Stats {
+            sessions_opened: get(&self.sessions_opened),
+            sessions_refused: get(&self.sessions_refused),
+            forwarded: get(&self.forwarded),
+            published: get(&self.published),
+            malformed: get(&self.malformed),
+        }
+    }
+}
+
+/// What every session task shares. The locks here are never held across an `.await`
+/// (they guard a few field updates), so they are plain `std` mutexes: cheaper than
+/// tokio's on the path of every datagram.
 pub(crate) struct Shared {
     pub(crate) config: Config,
-    pub(crate) sessions: Mutex<usize>,
-    pub(crate) stats: Mutex<Stats>,
+    /// Sessions open now.
+    pub(crate) sessions: std::sync::Mutex<usize>,
+    pub(crate) stats: Counters,
     pub(crate) io: IoSystem,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
-    pub(crate) audit: Mutex<AuditLog>,
+    pub(crate) audit: std::sync::Mutex<AuditLog>,
     pub(crate) power_up: u64,
+}
+
+/// Locks a `std` mutex of the server; a panic that poisoned it left consistent counters
+/// (every critical section is a few assignments), so the lock is taken anyway.
+pub(crate) fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// A running server.
@@ -122,12 +164,12 @@ impl Server {
 
     /// Counters so far.
     pub async fn stats(&self) -> Stats {
-        *self.shared.stats.lock().await
+        self.shared.stats.snapshot()
     }
 
     /// Sessions open now (UDP and TCP).
     pub async fn active_sessions(&self) -> usize {
-        *self.shared.sessions.lock().await
+        *lock(&self.shared.sessions)
     }
 }
 
@@ -180,17 +222,22 @@ async fn start_with(
     let io = IoSystem::new(config.identity.clone(), senders, subs, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
-        sessions: Mutex::new(0),
-        stats: Mutex::new(Stats::default()),
+        sessions: std::sync::Mutex::new(0),
+        stats: Counters::default(),
         io,
         bursts: bursts.clone(),
-        audit: Mutex::new(AuditLog::default()),
+        audit: std::sync::Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
     let mut udp_addr = None;
     let mut tcp_addr = None;
     if config.udp {
-        let sock = Arc::new(UdpSocket::bind(config.bind).await?);
+        let sock = UdpSocket::bind(config.bind).await?;
+        // Room for a request from each of many sessions at once: with the default
+        // buffer (about 200 KiB) a burst of 1000 sessions' datagrams overflows it and
+        // the kernel drops the rest. The kernel caps this at net.core.rmem_max.
+        let _ = socket2::SockRef::from(&sock).set_recv_buffer_size(UDP_RECEIVE_BUFFER);
+        let sock = Arc::new(sock);
         udp_addr = Some(sock.local_addr()?);
         tasks.push(tokio::task::spawn_local(serve_udp(sock, shared.clone())));
     }

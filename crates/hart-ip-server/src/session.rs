@@ -9,7 +9,7 @@ use hart_proto::frame::{Frame, FrameType};
 use crate::audit::AuditRecord;
 use crate::io_system::Route;
 use crate::subscriptions::{subscription_command, Subscriptions};
-use crate::{local_frame, message, unix_now, Shared, MIN_TIMER_MS};
+use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
 
 /// What to do with one received message of a session.
 pub(crate) enum Action {
@@ -94,33 +94,33 @@ impl Session {
 pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
     s.last_rx = Instant::now();
     if h.message_type != MessageType::Request || h.reserved != 0 {
-        shared.stats.lock().await.malformed += 1;
+        Counters::count(&shared.stats.malformed);
         return Action::Close;
     }
     let reply = |st: u8, b: &[u8]| message(MessageType::Response, h.message_id, st, h.sequence, b);
     match h.message_id {
         MessageId::SessionInitiate => {
             if body.len() < 5 {
-                shared.stats.lock().await.sessions_refused += 1;
+                Counters::count(&shared.stats.sessions_refused);
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             }
             let master = body[0];
             if master > 1 {
-                shared.stats.lock().await.sessions_refused += 1;
+                Counters::count(&shared.stats.sessions_refused);
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
             let asked = u32::from_be_bytes([body[1], body[2], body[3], body[4]]);
             if !s.open {
-                let mut n = shared.sessions.lock().await;
+                let mut n = lock(&shared.sessions);
                 if *n >= shared.config.max_sessions {
-                    shared.stats.lock().await.sessions_refused += 1;
+                    Counters::count(&shared.stats.sessions_refused);
                     return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
                 }
                 *n += 1;
                 s.open = true;
-                shared.stats.lock().await.sessions_opened += 1;
+                Counters::count(&shared.stats.sessions_opened);
                 // Every HART-IP v1 session is an insecure session (0x0010).
-                s.audit = Some(shared.audit.lock().await.push(AuditRecord {
+                s.audit = Some(lock(&shared.audit).push(AuditRecord {
                     client: s.peer,
                     server_port: s.local_port,
                     connected: unix_now(),
@@ -147,11 +147,12 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
         MessageId::SessionClose => Action::ReplyAndClose(reply(status::SUCCESS, &[])),
         MessageId::KeepAlive => Action::Reply(reply(status::SUCCESS, &[])),
         MessageId::TokenPassingPdu => {
+            let parsed = Frame::parse_pdu(body);
             if let Some(i) = s.audit {
-                if let Some(r) = shared.audit.lock().await.get_mut(i) {
+                if let Some(r) = lock(&shared.audit).get_mut(i) {
                     r.requests += 1;
                     r.responses += 1;
-                    if Frame::parse_pdu(body).is_ok_and(|f| {
+                    if parsed.as_ref().is_ok_and(|f| {
                         hart_proto::command::info(f.command).is_some_and(|c| c.writes)
                     }) && !shared.config.read_only
                     {
@@ -159,8 +160,8 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                     }
                 }
             }
-            let Ok(f) = Frame::parse_pdu(body) else {
-                shared.stats.lock().await.malformed += 1;
+            let Ok(f) = parsed else {
+                Counters::count(&shared.stats.malformed);
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             };
             if f.frame_type() != FrameType::Stx {
@@ -192,7 +193,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                     ))
                 }
                 Route::Loop { channel, retries } => {
-                    shared.stats.lock().await.forwarded += 1;
+                    Counters::count(&shared.stats.forwarded);
                     Action::Forward {
                         channel,
                         retries,
@@ -235,7 +236,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 Ok(Body::AuditLogRequest { start, count }) => (start, count),
                 _ => return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[])),
             };
-            let audit = shared.audit.lock().await;
+            let audit = lock(&shared.audit);
             let records: Vec<&AuditRecord> = audit
                 .records
                 .iter()
@@ -253,7 +254,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             Action::Reply(reply(status::SUCCESS, &out))
         }
         MessageId::Other(_) => {
-            shared.stats.lock().await.malformed += 1;
+            Counters::count(&shared.stats.malformed);
             Action::Reply(message(
                 MessageType::Nak,
                 h.message_id,
@@ -271,12 +272,12 @@ pub(crate) async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
     if s.open {
         s.open = false;
         if let Some(r) = s.audit {
-            if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+            if let Some(rec) = lock(&shared.audit).get_mut(r) {
                 rec.disconnected = unix_now();
                 rec.status |= why;
             }
         }
-        let mut n = shared.sessions.lock().await;
+        let mut n = lock(&shared.sessions);
         *n = n.saturating_sub(1);
     }
 }

@@ -10,7 +10,7 @@ use tokio::sync::Mutex;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
 use crate::subscriptions::subscribed;
-use crate::{message, AbortOnDrop, Shared};
+use crate::{message, AbortOnDrop, Counters, Shared};
 
 pub(crate) async fn serve_tcp(listener: TcpListener, shared: Arc<Shared>) {
     // Sessions end with the server.
@@ -40,15 +40,15 @@ pub(crate) async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
     let mut buf: Vec<u8> = vec![];
     let mut bursts = shared.bursts.subscribe();
     let mut tmp = [0u8; 4096];
-    let publish_seq = Arc::new(Mutex::new(0u16));
+    let mut publish_seq = 0u16;
     loop {
         // Complete messages first.
         loop {
             match Message::parse(&buf) {
                 Ok((m, used)) => {
-                    let (h, body) = (m.header, m.body.to_vec());
+                    let action = handle(&shared, &mut s, m.header, m.body).await;
                     buf.drain(..used);
-                    match handle(&shared, &mut s, h, &body).await {
+                    match action {
                         Action::Reply(r) => {
                             if wr.lock().await.write_all(&r).await.is_err() {
                                 close_session(&shared, &mut s, 0x0004).await;
@@ -90,7 +90,7 @@ pub(crate) async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                 }
                 Err(_) => {
                     // A stream that cannot be split any more: this session ends.
-                    shared.stats.lock().await.malformed += 1;
+                    Counters::count(&shared.stats.malformed);
                     close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
@@ -113,14 +113,13 @@ pub(crate) async fn tcp_session(stream: TcpStream, shared: Arc<Shared>) {
                 if !subscribed(&s.subs, &b) {
                     continue;
                 }
-                let mut seq = publish_seq.lock().await;
-                *seq = seq.wrapping_add(1);
-                let m = message(MessageType::Publish, MessageId::TokenPassingPdu, 0, *seq, &b);
+                publish_seq = publish_seq.wrapping_add(1);
+                let m = message(MessageType::Publish, MessageId::TokenPassingPdu, 0, publish_seq, &b);
                 if wr.lock().await.write_all(&m).await.is_err() {
                     close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
-                shared.stats.lock().await.published += 1;
+                Counters::count(&shared.stats.published);
             },
         }
     }

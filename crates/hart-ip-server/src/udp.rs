@@ -11,21 +11,22 @@ use tokio::sync::Mutex;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
 use crate::subscriptions::subscribed;
-use crate::{message, AbortOnDrop, Shared};
+use crate::{lock, message, AbortOnDrop, Counters, Shared};
 
-/// UDP sessions by client address. Each session has its own lock, so datagrams from
-/// one client are handled one after another, in the order they arrived, while other
-/// clients' requests go on. Lock order: a session, then the table.
-pub(crate) type UdpSessions = Arc<Mutex<HashMap<SocketAddr, Arc<Mutex<Session>>>>>;
+/// UDP sessions by client address. Each session has its own (async) lock, so datagrams
+/// from one client are handled one after another, in the order they arrived, while
+/// other clients' requests go on. The table's lock is a `std` one, held only to look
+/// up, insert or remove, never across an `.await`.
+pub(crate) type UdpSessions = Arc<std::sync::Mutex<HashMap<SocketAddr, Arc<Mutex<Session>>>>>;
 
 /// Drops a closed session from the table unless another task still holds it (that task
 /// may reopen it, or the next sweep drops it).
-pub(crate) async fn forget_udp_session(
+pub(crate) fn forget_udp_session(
     sessions: &UdpSessions,
     peer: SocketAddr,
     cell: &Arc<Mutex<Session>>,
 ) {
-    let mut map = sessions.lock().await;
+    let mut map = lock(sessions);
     if map.get(&peer).is_some_and(|c| Arc::ptr_eq(c, cell)) && Arc::strong_count(cell) == 2 {
         map.remove(&peer);
     }
@@ -33,7 +34,7 @@ pub(crate) async fn forget_udp_session(
 
 pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
     let local_port = sock.local_addr().map_or(0, |a| a.port());
-    let sessions: UdpSessions = Arc::new(Mutex::new(HashMap::new()));
+    let sessions: UdpSessions = Arc::new(std::sync::Mutex::new(HashMap::new()));
     // Publish bursts and close idle sessions.
     let _publisher = {
         let (sock, shared, sessions) = (sock.clone(), shared.clone(), sessions.clone());
@@ -45,7 +46,7 @@ pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                     _ = tokio::time::sleep(Duration::from_millis(200)) => None,
                 };
                 let mut idle = vec![];
-                for (peer, cell) in sessions.lock().await.iter() {
+                for (peer, cell) in lock(&sessions).iter() {
                     // A session busy with a request is not idle.
                     if let Ok(s) = cell.try_lock() {
                         if !s.open || s.last_rx.elapsed() > s.timer {
@@ -73,9 +74,9 @@ pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                                 &b,
                             );
                             let _ = sock.send_to(&m, peer).await;
-                            shared.stats.lock().await.published += 1;
+                            Counters::count(&shared.stats.published);
                             if let Some(r) = s.audit {
-                                if let Some(rec) = shared.audit.lock().await.get_mut(r) {
+                                if let Some(rec) = lock(&shared.audit).get_mut(r) {
                                     rec.publishes += 1;
                                 }
                             }
@@ -90,7 +91,7 @@ pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
                         }
                         close_session(&shared, &mut s, 0x0008).await;
                     }
-                    forget_udp_session(&sessions, peer, &cell).await;
+                    forget_udp_session(&sessions, peer, &cell);
                 }
             }
         }))
@@ -114,9 +115,7 @@ pub(crate) async fn udp_datagram(
     local_port: u16,
     data: Vec<u8>,
 ) {
-    let cell = sessions
-        .lock()
-        .await
+    let cell = lock(&sessions)
         .entry(peer)
         .or_insert_with(|| Arc::new(Mutex::new(Session::new(peer, local_port))))
         .clone();
@@ -124,14 +123,14 @@ pub(crate) async fn udp_datagram(
     let mut rest = &data[..];
     while !rest.is_empty() {
         let (h, body, used) = match Message::parse(rest) {
-            Ok((m, used)) => (m.header, m.body.to_vec(), used),
+            Ok((m, used)) => (m.header, m.body, used),
             Err(_) => {
-                shared.stats.lock().await.malformed += 1;
+                Counters::count(&shared.stats.malformed);
                 break;
             }
         };
         rest = &rest[used..];
-        let action = handle(&shared, &mut s, h, &body).await;
+        let action = handle(&shared, &mut s, h, body).await;
         let why = match action {
             Action::Reply(r) => {
                 let _ = sock.send_to(&r, peer).await;
@@ -163,14 +162,10 @@ pub(crate) async fn udp_datagram(
     let open = s.open;
     if open {
         // Back in the table if a sweep dropped it while this datagram waited.
-        sessions
-            .lock()
-            .await
-            .entry(peer)
-            .or_insert_with(|| cell.clone());
+        lock(&sessions).entry(peer).or_insert_with(|| cell.clone());
     }
     drop(s);
     if !open {
-        forget_udp_session(&sessions, peer, &cell).await;
+        forget_udp_session(&sessions, peer, &cell);
     }
 }
