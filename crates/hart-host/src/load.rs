@@ -47,6 +47,8 @@ pub struct LoadOptions {
     pub poll: u8,
     /// How long a request waits for its response before it counts as a time-out.
     pub timeout: Duration,
+    /// Worker threads of the runtime [`run_blocking`] builds (0: one per core).
+    pub threads: usize,
 }
 
 impl Default for LoadOptions {
@@ -60,6 +62,7 @@ impl Default for LoadOptions {
             data: vec![],
             poll: 1,
             timeout: Duration::from_secs(2),
+            threads: 0,
         }
     }
 }
@@ -209,9 +212,13 @@ pub fn raise_open_file_limit(wanted: u64) -> u64 {
     }
 }
 
-/// Runs the load on a new multi-threaded runtime with one worker per core.
+/// Runs the load on a new multi-threaded runtime with [`LoadOptions::threads`] workers
+/// (one per core by default).
 pub fn run_blocking(opts: &LoadOptions) -> Result<LoadReport, LoadError> {
-    let workers = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let workers = match opts.threads {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
+    };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(workers)
         .enable_all()

@@ -196,6 +196,9 @@ struct IpBenchArgs {
     /// an error.
     #[arg(long, default_value_t = 2000)]
     timeout_ms: u64,
+    /// Worker threads of the load generator's runtime (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
     /// Print one JSON object instead of the summary.
     #[arg(long)]
     json: bool,
@@ -910,6 +913,7 @@ fn hart_ip_bench(a: &IpBenchArgs) -> Result<String, (String, u8)> {
         data,
         poll: a.poll,
         timeout: std::time::Duration::from_millis(a.timeout_ms),
+        threads: a.threads,
     };
     let report = hart_host::load::run_blocking(&opts).map_err(|e| {
         let code = e.exit_code();
