@@ -5,11 +5,12 @@
 //! `/dev/ttyUSB0`, `serial:PATH?baud=1200&rts=high-tx`, `rs485:PATH?baud=19200`,
 //! `sim`, `sim:PLANT.toml`, `sim?virtual`, and HART-IP `udp://HOST[:PORT]`,
 //! `tcp://HOST[:PORT]` ([`hartip`], which also has [`hartip::HartIpSession`] for several
-//! requests in flight).
+//! requests in flight), and [`load`], a load generator for HART-IP servers.
 
 pub mod client;
 pub mod error;
 pub mod hartip;
+pub mod load;
 pub mod target;
 pub mod transport;
 

@@ -614,9 +614,36 @@ impl Plant {
         toml::from_str(&text).map_err(|e| format!("plant file {}: {e}", path.display()))
     }
 
-    /// Builds the devices.
-    pub fn nodes(&self, profile: TimingProfile) -> Result<Vec<Node>, String> {
-        let mut nodes = vec![];
+    /// A plant of `profiles` (built-in names or profile files) at polling addresses 1,
+    /// 2, ... in the order given, none bursting: what `hartkit serve --sim PROFILES...`
+    /// puts behind the server. More than 63 profiles is an error (polling addresses end
+    /// at 63).
+    pub fn from_profiles(profiles: &[String]) -> Result<Self, String> {
+        if profiles.len() > 63 {
+            return Err(format!(
+                "{} profiles given; a loop has polling addresses 1-63 for them, so give at most 63",
+                profiles.len()
+            ));
+        }
+        Ok(Plant {
+            device: profiles
+                .iter()
+                .zip(1u8..)
+                .map(|(p, poll)| PlantDevice {
+                    profile: p.clone(),
+                    poll,
+                    burst: None,
+                })
+                .collect(),
+        })
+    }
+
+    /// Builds the devices, configured as they go on the line (polling address, device
+    /// ID offset by the polling address, loop current mode, burst message), without a
+    /// data-link slave: for hosts that answer them in memory (`hartkit serve --sim
+    /// --instant`). Fails naming the profile that cannot be loaded.
+    pub fn devices(&self) -> Result<Vec<Device>, String> {
+        let mut devices = vec![];
         for d in &self.device {
             let mut c = profiles::load(&d.profile)?;
             c.polling_address = d.poll & 0x3F;
@@ -629,9 +656,19 @@ impl Plant {
                 m.update_period = (b.period * 32_000.0) as u32;
                 m.max_update_period = m.update_period;
             }
-            nodes.push(Node::new(Device::new(c), profile, 0));
+            devices.push(Device::new(c));
         }
-        Ok(nodes)
+        Ok(devices)
+    }
+
+    /// Builds the devices ([`Plant::devices`]), each behind its data-link slave on a
+    /// line with `profile`.
+    pub fn nodes(&self, profile: TimingProfile) -> Result<Vec<Node>, String> {
+        Ok(self
+            .devices()?
+            .into_iter()
+            .map(|d| Node::new(d, profile, 0))
+            .collect())
     }
 }
 

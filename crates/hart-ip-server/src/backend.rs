@@ -13,8 +13,14 @@ use tokio::sync::{broadcast, mpsc, Mutex};
 use crate::io_system::{LoopOutcome, LoopRequest, SubDevice};
 use crate::pdu;
 
+/// The loop of [`crate::start_in_memory`]: requests answered by the devices at once,
+/// without line timing, one after another as on a loop; burst messages published when
+/// due. Like a loop's backend, it lists the devices a scan of polling addresses
+/// `0..=scan_to` would find (none for `None`) and learns the others from the identity
+/// replies that clients' requests bring back.
 pub(crate) async fn memory_backend(
     mut devices: Vec<hart_device::Device>,
+    scan_to: Option<u8>,
     subs: Arc<Mutex<Vec<SubDevice>>>,
     mut requests: mpsc::Receiver<LoopRequest>,
     bursts: broadcast::Sender<Vec<u8>>,
@@ -27,12 +33,14 @@ pub(crate) async fn memory_backend(
         let mut s = subs.lock().await;
         for d in &devices {
             let c = d.config();
-            let identity = d.identity();
+            if scan_to.is_none_or(|last| c.polling_address > last) {
+                continue;
+            }
             s.push(SubDevice {
                 channel: 0,
                 info: hart_host::DeviceInfo {
                     polling_address: Some(c.polling_address),
-                    identity,
+                    identity: d.identity(),
                     tag: Some(c.tag.clone()),
                     descriptor: Some(c.descriptor.clone()),
                     long_tag: Some(c.long_tag.clone()),
@@ -42,50 +50,75 @@ pub(crate) async fn memory_backend(
         }
     }
     loop {
-        let req = tokio::select! {
-            r = requests.recv() => match r { Some(r) => Some(r), None => return },
-            _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+        // A queued request is taken at once; only an idle loop arms the timer that
+        // wakes it for burst messages (a timer per request costs more than the answer).
+        let req = match requests.try_recv() {
+            Ok(r) => Some(r),
+            Err(mpsc::error::TryRecvError::Disconnected) => return,
+            Err(mpsc::error::TryRecvError::Empty) => tokio::select! {
+                r = requests.recv() => match r { Some(r) => Some(r), None => return },
+                _ = tokio::time::sleep(Duration::from_millis(20)) => None,
+            },
         };
         let t = now();
         if let Some(r) = req {
-            let reply = Frame::parse_pdu(&r.pdu).ok().and_then(|f| {
-                let d = devices.iter_mut().find(|d| {
-                    let c = d.config();
-                    match f.address {
-                        Address::Short(a) => a.polling_address == c.polling_address,
-                        Address::Long(a) => {
-                            a.id == d.unique_id()
-                                || (a.id.is_broadcast() && matches!(f.command, 11 | 21))
-                        }
-                    }
-                })?;
-                let (code, status, data) = d.handle(&f, t)?;
-                Some(pdu(&FrameSpec {
-                    frame_type: FrameType::Ack,
-                    extended: f.extended,
-                    status: Some((code, status)),
-                    ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
-                }))
-            });
+            if !r.start() {
+                continue;
+            }
+            let reply = answer(&mut devices, &r.pdu, t);
+            if let Some(reply) = &reply {
+                learn(&subs, 0, &r.pdu, reply).await;
+            }
             let _ = r
                 .reply
                 .send(reply.map_or(LoopOutcome::NoReply, LoopOutcome::Reply));
         }
-        // Burst messages that are due.
+        // Burst messages that are due; the master bit alternates as on a line.
         for d in &mut devices {
             if d.burst_mode() && d.burst_due(t).is_some_and(|due| due <= t) {
                 let mut reply = hart_link::slave::Reply::default();
+                let master = d.burst_master();
                 let command = d.burst(&mut reply, t);
                 let id = d.unique_id();
                 let _ = bursts.send(pdu(&FrameSpec {
                     frame_type: FrameType::Back,
                     status: Some((reply.response_code, reply.device_status)),
                     extended: command > 255,
-                    ..FrameSpec::request(Address::long(id).with_burst(true), command, reply.data())
+                    ..FrameSpec::request(
+                        Address::long(id).with_burst(true).with_master(master),
+                        command,
+                        reply.data(),
+                    )
                 }));
+                d.set_burst_master(master.other());
             }
         }
     }
+}
+
+/// The reply of the device a request frame addresses, as its data-link slave would
+/// accept it (polling address; unique ID; the broadcast address for commands 11 and 21,
+/// which only the device with that tag answers), or `None` when none answers.
+fn answer(devices: &mut [hart_device::Device], request: &[u8], t: u64) -> Option<Vec<u8>> {
+    use hart_proto::frame::Address;
+    let f = Frame::parse_pdu(request).ok()?;
+    devices
+        .iter_mut()
+        .filter(|d| match f.address {
+            Address::Short(a) => a.polling_address == d.config().polling_address,
+            Address::Long(a) => {
+                a.id == d.unique_id() || (a.id.is_broadcast() && matches!(f.command_byte, 11 | 21))
+            }
+        })
+        .find_map(|d| {
+            let (code, status, data) = d.handle(&f, t)?;
+            Some(pdu(&FrameSpec {
+                frame_type: FrameType::Ack,
+                extended: f.extended,
+                status: Some((code, status)),
+                ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
+            }))
+        })
 }
 
 /// After the first pass, one more address of the scan is visited whenever the loop has

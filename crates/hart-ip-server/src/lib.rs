@@ -367,17 +367,21 @@ async fn bind_pair(
 }
 
 /// Starts the server with field devices answered in memory, without a simulated line
-/// (for benchmarks and tests of the server itself): requests are answered by the
-/// device with that address at once; burst messages are published when due. Call it
-/// inside a `tokio::task::LocalSet`.
+/// (`hartkit serve --sim --instant`, benchmarks and tests of the server itself): one
+/// loop whose requests are answered by the device with that address at once; burst
+/// messages are published when due. The whole `config` applies as with [`start`]
+/// (read-only, transparent, session limit; `scan_to`: the devices at polling addresses
+/// up to it are listed as sub-devices from the start, the others once a client's
+/// command 0, 11 or 21 finds them). Call it inside a `tokio::task::LocalSet`.
 pub async fn start_in_memory(
     config: Config,
     devices: Vec<hart_device::Device>,
 ) -> std::io::Result<Server> {
     let (tx, rx) = mpsc::channel::<LoopRequest>(1024);
+    let scan_to = config.scan_to;
     let server = start_with(config, vec![tx], |bursts, subs| {
         vec![tokio::task::spawn_local(memory_backend(
-            devices, subs, rx, bursts,
+            devices, scan_to, subs, rx, bursts,
         ))]
     })
     .await?;

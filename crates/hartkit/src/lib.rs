@@ -6,6 +6,7 @@ pub mod annotate;
 pub mod demo;
 pub mod hex;
 pub mod host;
+pub mod ip_bench;
 pub mod json;
 pub mod modem;
 pub mod modem_bench;

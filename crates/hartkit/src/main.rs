@@ -149,10 +149,18 @@ enum Top {
         /// Scan polling addresses 0..=N of each loop for the sub-device list (63: all).
         #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
         scan_to: u8,
+        /// With --sim: the simulated devices answer at once, in memory, without the
+        /// loop's 1200 bit/s timing, so a load generator (hartkit hart-ip bench)
+        /// measures the server itself.
+        #[arg(long)]
+        instant: bool,
         /// Stop after this many seconds.
         #[arg(long)]
         run_for: Option<f64>,
     },
+    /// HART-IP tools: a load generator for HART-IP servers.
+    #[command(subcommand)]
+    HartIp(HartIpCmd),
     /// The software Bell 202 modem: frames to and from WAV files or raw samples.
     #[command(subcommand)]
     Modem(ModemCmd),
@@ -171,6 +179,49 @@ enum Top {
         #[arg(long, short = 'p', default_value = "sim")]
         port: String,
     },
+}
+
+#[derive(Subcommand)]
+enum HartIpCmd {
+    /// Load a HART-IP server: SESSIONS sessions, each sending a request (command 1 to
+    /// the device at --poll, in a long frame) after the previous response, for
+    /// --duration seconds; reports transactions/s, latency and errors. Runs in its own
+    /// process, so start the server separately (hartkit serve --hart-ip ADDR --sim
+    /// --instant --max-sessions 2000 measures the server without line timing).
+    Bench(IpBenchArgs),
+}
+
+#[derive(Args)]
+struct IpBenchArgs {
+    /// The server: udp://HOST[:PORT] or tcp://HOST[:PORT] (port 5094 by default).
+    #[arg(long, short = 'p', value_name = "TARGET")]
+    port: String,
+    /// Sessions at once, each with one request in flight.
+    #[arg(long, default_value_t = 1)]
+    sessions: usize,
+    /// Seconds of load.
+    #[arg(long, default_value_t = 10.0)]
+    duration: f64,
+    /// The command each request carries (0-65535).
+    #[arg(long, default_value_t = 1)]
+    command: u16,
+    /// Request data as hex.
+    #[arg(long, value_name = "HEX", default_value = "")]
+    data: String,
+    /// Polling address where command 0 finds the target device (0 is the server
+    /// itself, a HART I/O system, which answers without its loop).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=63))]
+    poll: u8,
+    /// Time-out of each request, ms: a response that does not come in time counts as
+    /// an error.
+    #[arg(long, default_value_t = 2000)]
+    timeout_ms: u64,
+    /// Worker threads of the load generator's runtime (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Print one JSON object instead of the summary.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -836,6 +887,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             plain,
             allow_commands,
             audit_file,
+            instant,
             run_for,
         } => serve_hart_ip(
             hart_ip,
@@ -853,9 +905,11 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 plain: plain.clone(),
                 allow_commands: allow_commands.clone(),
                 audit_file: audit_file.clone(),
+                instant: *instant,
             },
             *run_for,
         ),
+        Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         _ => return None,
     })
 }
@@ -871,6 +925,7 @@ struct ServeFlags {
     plain: Option<String>,
     allow_commands: Option<hart_ip_server::access::CommandAllowList>,
     audit_file: Option<std::path::PathBuf>,
+    instant: bool,
 }
 
 /// `ADDR[:PORT]` (port 5094 when none) as a socket address; `what` names the option.
@@ -889,6 +944,77 @@ fn socket_addr(what: &str, text: &str) -> Result<std::net::SocketAddr, (String, 
         .ok()
         .and_then(|mut a| a.next())
         .ok_or_else(|| (format!("{what} {text}: not an address"), 2))
+}
+
+/// The plant behind `hartkit serve --sim [PROFILES...]`: the profiles at polling
+/// addresses 1, 2, ..., or the demo plant when none are given.
+fn sim_plant(profiles: &[String]) -> Result<hart_host::transport::Plant, (String, u8)> {
+    use hart_host::transport::Plant;
+    if profiles.is_empty() {
+        Ok(Plant::demo())
+    } else {
+        Plant::from_profiles(profiles).map_err(|e| (format!("--sim: {e}"), 2))
+    }
+}
+
+/// `hartkit hart-ip bench`: the load generator of `hart_host::load`, on a
+/// multi-threaded runtime.
+fn hart_ip_bench(a: &IpBenchArgs) -> Result<String, (String, u8)> {
+    let (address, tcp) = match hart_host::target::parse(&a.port).map_err(|e| (e, 2))? {
+        hart_host::target::Target::HartIp {
+            address,
+            tcp,
+            secure: false,
+        } => (address, tcp),
+        _ => {
+            return Err((
+                format!(
+                    "--port {}: the load generator talks to HART-IP servers: give \
+                     udp://HOST[:PORT] or tcp://HOST[:PORT]",
+                    a.port
+                ),
+                2,
+            ))
+        }
+    };
+    if !(a.duration > 0.0 && a.duration <= 86_400.0) {
+        return Err((
+            format!(
+                "--duration {}: must be more than 0 and at most 86400 s",
+                a.duration
+            ),
+            2,
+        ));
+    }
+    if a.timeout_ms == 0 {
+        return Err(("--timeout-ms 0: give a time-out of at least 1 ms".into(), 2));
+    }
+    let data = if a.data.trim().is_empty() {
+        vec![]
+    } else {
+        hex::parse(&[&a.data]).map_err(|e| (format!("--data: {e}"), 2))?
+    };
+    let opts = hart_host::load::LoadOptions {
+        address,
+        tcp,
+        sessions: a.sessions,
+        duration: std::time::Duration::from_secs_f64(a.duration),
+        command: a.command,
+        data,
+        poll: a.poll,
+        timeout: std::time::Duration::from_millis(a.timeout_ms),
+        threads: a.threads,
+    };
+    let report = hart_host::load::run_blocking(&opts).map_err(|e| {
+        let code = e.exit_code();
+        (e.to_string(), code)
+    })?;
+    if a.json {
+        serde_json::to_string_pretty(&hartkit::ip_bench::report_json(&report))
+            .map_err(|e| (e.to_string(), 5))
+    } else {
+        Ok(hartkit::ip_bench::report_text(&report))
+    }
 }
 
 fn serve_hart_ip(
@@ -910,7 +1036,16 @@ fn serve_hart_ip(
         plain,
         allow_commands,
         audit_file,
+        instant,
     } = flags;
+    if instant && sim.is_none() {
+        return Err((
+            "--instant answers simulated devices in memory, so it needs --sim [PROFILES...]; \
+             a loop given with --port keeps its line timing"
+                .into(),
+            2,
+        ));
+    }
     let addr = socket_addr("--hart-ip", bind)?;
     let plain = plain.map(|p| socket_addr("--plain", &p)).transpose()?;
     let psk = psk_file
@@ -926,19 +1061,10 @@ fn serve_hart_ip(
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .try_init();
-    let targets: Vec<String> = match (ports, sim) {
-        (p, _) if !p.is_empty() => p.to_vec(),
-        (_, Some(profiles)) if !profiles.is_empty() => {
-            let mut plant = String::new();
-            for (i, p) in profiles.iter().enumerate() {
-                plant.push_str(&format!("[[device]]\nprofile = {p:?}\npoll = {}\n", i + 1));
-            }
-            let path =
-                std::env::temp_dir().join(format!("hartkit-plant-{}.toml", std::process::id()));
-            std::fs::write(&path, plant).map_err(|e| (e.to_string(), 5))?;
-            vec![format!("sim:{}", path.display())]
-        }
-        _ => vec!["sim".to_string()],
+    // Behind the server: the loops given with --port, or the simulated plant.
+    let (targets, plant) = match (ports, sim) {
+        (p, _) if !p.is_empty() => (p.to_vec(), None),
+        (_, profiles) => (vec![], Some(sim_plant(profiles.unwrap_or(&[]))?)),
     };
     let config = hart_ip_server::Config {
         bind: addr,
@@ -955,6 +1081,8 @@ fn serve_hart_ip(
         audit_file,
         ..hart_ip_server::Config::default()
     };
+    // Each session of a TCP server is a descriptor.
+    hart_host::load::raise_open_file_limit(max_sessions as u64 + 64);
     if transparent && targets.len() > 1 {
         return Err((
             "--transparent needs exactly one loop: with several, polling address 0 of each \
@@ -969,15 +1097,28 @@ fn serve_hart_ip(
         .map_err(|e| (e.to_string(), 5))?;
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async move {
-        let mut loops = vec![];
-        for t in &targets {
-            loops.push(hart_host::Client::new(
-                hart_host::target::open_async(t).await.map_err(|e| (e, 2))?,
-            ));
+        let server = match plant {
+            Some(plant) if instant => {
+                let devices = plant.devices().map_err(|e| (format!("--sim: {e}"), 2))?;
+                hart_ip_server::start_in_memory(config, devices).await
+            }
+            Some(plant) => {
+                let sim = hart_host::transport::SimTransport::new(&plant, false)
+                    .map_err(|e| (format!("--sim: {e}"), 2))?;
+                let line = hart_host::target::AnyTransport::Sim(Box::new(sim));
+                hart_ip_server::start(config, vec![hart_host::Client::new(line)]).await
+            }
+            None => {
+                let mut loops = vec![];
+                for t in &targets {
+                    loops.push(hart_host::Client::new(
+                        hart_host::target::open_async(t).await.map_err(|e| (e, 2))?,
+                    ));
+                }
+                hart_ip_server::start(config, loops).await
+            }
         }
-        let server = hart_ip_server::start(config, loops)
-            .await
-            .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
+        .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
         {
             use std::io::Write as _;
             let mut out = std::io::stdout();
