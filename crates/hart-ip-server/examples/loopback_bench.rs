@@ -82,6 +82,8 @@ async fn soak(seconds: f64) {
         bind: "127.0.0.1:0".parse().unwrap(),
         tcp: false,
         max_sessions: 100_000,
+        // Every client is on 127.0.0.1.
+        max_sessions_per_host: 100_000,
         scan_to: None,
         ..Config::default()
     };
@@ -209,7 +211,7 @@ fn main() {
         .unwrap();
     let local = tokio::task::LocalSet::new();
     local.block_on(&rt, async move {
-        let config = Config { bind: "127.0.0.1:0".parse().unwrap(), tcp: false, max_sessions: 100_000, scan_to: None, ..Config::default() };
+        let config = Config { bind: "127.0.0.1:0".parse().unwrap(), tcp: false, max_sessions: 100_000, max_sessions_per_host: 100_000, scan_to: None, ..Config::default() };
         // `line` puts the device on a simulated line (the full data link); the default
         // answers in memory.
         let server = if std::env::args().any(|a| a == "line") {
