@@ -141,6 +141,29 @@ async fn secure_socket(peer: SocketAddr, tcp: bool, psk: &hart_ip_tls::Psk) -> i
     }
 }
 
+/// Reads what a stream (TCP, TLS or DTLS) has within `wait` onto `buf`: `false` on
+/// time-out, an error when the server closed it.
+async fn read_more(
+    s: &mut (impl tokio::io::AsyncRead + Unpin),
+    buf: &mut Vec<u8>,
+    wait: Duration,
+    peer: SocketAddr,
+) -> io::Result<bool> {
+    let mut tmp = [0u8; 4096];
+    let Ok(r) = tokio::time::timeout(wait, s.read(&mut tmp)).await else {
+        return Ok(false);
+    };
+    let n = r?;
+    if n == 0 {
+        return Err(io::Error::new(
+            io::ErrorKind::ConnectionReset,
+            format!("HART-IP server {peer} closed the connection"),
+        ));
+    }
+    buf.extend_from_slice(&tmp[..n]);
+    Ok(true)
+}
+
 /// What a session initiate response means: the inactivity timer the server granted (at
 /// least 1 s), if it said, or the refusal, named. `again`: the session may still be
 /// open at the server, which some servers answer with "access restricted" (16).
@@ -301,30 +324,14 @@ impl HartIpTransport {
                     }
                 }
                 Socket::Secure(s, buf) => {
-                    let Ok(r) = tokio::time::timeout(deadline - now, s.read(&mut tmp)).await else {
+                    if !read_more(s.as_mut(), buf, deadline - now, self.peer).await? {
                         return Ok(None);
-                    };
-                    let n = r?;
-                    if n == 0 {
-                        return Err(io::Error::new(
-                            io::ErrorKind::ConnectionReset,
-                            format!("HART-IP server {} closed the secure connection", self.peer),
-                        ));
                     }
-                    buf.extend_from_slice(&tmp[..n]);
                 }
                 Socket::Tcp(s, buf) => {
-                    let Ok(r) = tokio::time::timeout(deadline - now, s.read(&mut tmp)).await else {
+                    if !read_more(s, buf, deadline - now, self.peer).await? {
                         return Ok(None);
-                    };
-                    let n = r?;
-                    if n == 0 {
-                        return Err(io::Error::new(
-                            io::ErrorKind::ConnectionReset,
-                            format!("HART-IP server {} closed the connection", self.peer),
-                        ));
                     }
-                    buf.extend_from_slice(&tmp[..n]);
                 }
             }
         }

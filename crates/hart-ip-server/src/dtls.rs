@@ -16,8 +16,7 @@ use std::time::{Duration, Instant};
 use tokio::net::UdpSocket;
 use tokio::sync::mpsc;
 
-use crate::session::Session;
-use crate::stream::{stream_session, HANDSHAKE_TIMEOUT};
+use crate::stream::secure_session;
 use crate::{AbortOnDrop, Counters, PeerTable, Peers, Security, Shared};
 
 /// Datagrams queued for one peer's task before further ones are dropped (DTLS
@@ -133,52 +132,6 @@ async fn run_peer(
     sec: &Arc<Security>,
     local_port: u16,
 ) {
-    let (ssl, note) = match hart_ip_tls::server_ssl(&sec.dtls, true) {
-        Ok(x) => x,
-        Err(e) => {
-            tracing::error!("DTLS from {peer}: {e}");
-            return;
-        }
-    };
     let io = hart_ip_tls::DatagramStream::shared(sock, peer, rx);
-    let Ok(mut stream) = hart_ip_tls::SslStream::new(ssl, io) else {
-        return;
-    };
-    let accepted =
-        tokio::time::timeout(HANDSHAKE_TIMEOUT, std::pin::Pin::new(&mut stream).accept()).await;
-    match accepted {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => {
-            let n = note.lock().map(|n| n.clone()).unwrap_or_default();
-            Counters::count(&shared.stats.sessions_refused);
-            tracing::warn!(
-                "refused DTLS from {peer}: {}",
-                hart_ip_tls::refusal(&n, &e, Some(0x16))
-            );
-            return;
-        }
-        Err(_) => {
-            Counters::count(&shared.stats.sessions_refused);
-            tracing::warn!(
-                "refused DTLS from {peer}: no complete handshake within {} s",
-                HANDSHAKE_TIMEOUT.as_secs()
-            );
-            return;
-        }
-    }
-    let identity = stream
-        .ssl()
-        .psk_identity()
-        .map(|i| String::from_utf8_lossy(i).into_owned())
-        // TLS 1.3 sessions keep no identity there: the one the key was found for.
-        .or_else(|| note.lock().ok().and_then(|n| n.identity.clone()))
-        .unwrap_or_default();
-    let rights = sec
-        .keys
-        .find(&identity)
-        .map(|k| k.rights)
-        .unwrap_or(hart_ip_tls::Rights::ReadOnly);
-    tracing::info!("DTLS session from {peer}, identity {identity:?} ({rights:?})");
-    let s = Session::secure(peer, local_port, identity, rights);
-    stream_session(stream, s, shared.clone()).await
+    secure_session(io, peer, local_port, Some(0x16), shared.clone(), sec, true).await
 }

@@ -127,6 +127,29 @@ impl Session {
         }
     }
 
+    /// The publish message carrying burst frame `burst` for this session's client, if
+    /// it is open and subscribed to that device (counted, and in its audit record).
+    pub(crate) fn publish(&mut self, shared: &Shared, burst: &[u8]) -> Option<Vec<u8>> {
+        if !self.open || !crate::subscriptions::subscribed(&self.subs, burst) {
+            return None;
+        }
+        self.publish_seq = self.publish_seq.wrapping_add(1);
+        Counters::count(&shared.stats.published);
+        if let Some(r) = self.audit {
+            if let Some(rec) = lock(&shared.audit).get_mut(r) {
+                rec.publishes += 1;
+            }
+        }
+        Some(message(
+            self.version,
+            MessageType::Publish,
+            MessageId::TokenPassingPdu,
+            0,
+            self.publish_seq,
+            burst,
+        ))
+    }
+
     /// Whether the session has been silent longer than it may.
     pub(crate) fn expired(&self) -> bool {
         self.last_rx.elapsed() > self.silence_allowed()

@@ -11,7 +11,6 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Mutex;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
-use crate::subscriptions::subscribed;
 use crate::{message, AbortOnDrop, Counters, Shared};
 
 /// Requests of one TCP session waiting for loops at once; more are answered "busy".
@@ -72,35 +71,53 @@ async fn tls_session(
         Ok(Ok(1)) => Some(first[0]),
         _ => None,
     };
-    let (ssl, note) = match hart_ip_tls::server_ssl(&tls.tls, false) {
+    secure_session(stream, peer, local_port, first_byte, shared, &tls, false).await
+}
+
+/// The server side of a TLS (over TCP) or DTLS (`dtls`, over one peer's datagrams)
+/// handshake with pre-shared keys on `io`, then one session inside it. A refusal is
+/// logged with its cause (`first_byte`, the first byte the peer sent, tells plain
+/// HART-IP from a failed handshake) and ends only this peer.
+pub(crate) async fn secure_session<S>(
+    io: S,
+    peer: SocketAddr,
+    local_port: u16,
+    first_byte: Option<u8>,
+    shared: Arc<Shared>,
+    sec: &crate::Security,
+    dtls: bool,
+) where
+    S: AsyncRead + AsyncWrite + Unpin + 'static,
+{
+    let what = if dtls { "DTLS" } else { "TLS" };
+    let ctx = if dtls { &sec.dtls } else { &sec.tls };
+    let (ssl, note) = match hart_ip_tls::server_ssl(ctx, dtls) {
         Ok(x) => x,
         Err(e) => {
-            tracing::error!("TLS from {peer}: {e}");
+            tracing::error!("{what} from {peer}: {e}");
             return;
         }
     };
-    let Ok(mut stream) = hart_ip_tls::SslStream::new(ssl, stream) else {
+    let Ok(mut stream) = hart_ip_tls::SslStream::new(ssl, io) else {
         return;
     };
     let accepted =
         tokio::time::timeout(HANDSHAKE_TIMEOUT, std::pin::Pin::new(&mut stream).accept()).await;
-    match accepted {
-        Ok(Ok(())) => {}
+    let refused = match accepted {
+        Ok(Ok(())) => None,
         Ok(Err(e)) => {
             let n = note.lock().map(|n| n.clone()).unwrap_or_default();
-            let why = hart_ip_tls::refusal(&n, &e, first_byte);
-            Counters::count(&shared.stats.sessions_refused);
-            tracing::warn!("refused TLS from {peer}: {why}");
-            return;
+            Some(hart_ip_tls::refusal(&n, &e, first_byte).to_string())
         }
-        Err(_) => {
-            Counters::count(&shared.stats.sessions_refused);
-            tracing::warn!(
-                "refused TLS from {peer}: no complete handshake within {} s",
-                HANDSHAKE_TIMEOUT.as_secs()
-            );
-            return;
-        }
+        Err(_) => Some(format!(
+            "no complete handshake within {} s",
+            HANDSHAKE_TIMEOUT.as_secs()
+        )),
+    };
+    if let Some(why) = refused {
+        Counters::count(&shared.stats.sessions_refused);
+        tracing::warn!("refused {what} from {peer}: {why}");
+        return;
     }
     let identity = stream
         .ssl()
@@ -109,12 +126,12 @@ async fn tls_session(
         // TLS 1.3 sessions keep no identity there: the one the key was found for.
         .or_else(|| note.lock().ok().and_then(|n| n.identity.clone()))
         .unwrap_or_default();
-    let rights = tls
+    let rights = sec
         .keys
         .find(&identity)
         .map(|k| k.rights)
         .unwrap_or(hart_ip_tls::Rights::ReadOnly);
-    tracing::info!("TLS session from {peer}, identity {identity:?} ({rights:?})");
+    tracing::info!("{what} session from {peer}, identity {identity:?} ({rights:?})");
     let s = Session::secure(peer, local_port, identity, rights);
     stream_session(stream, s, shared).await
 }
@@ -131,7 +148,6 @@ where
     let mut buf: Vec<u8> = vec![];
     let mut bursts = shared.bursts.subscribe();
     let mut tmp = [0u8; 4096];
-    let publish_seq = Arc::new(Mutex::new(0u16));
     loop {
         // Complete messages first.
         loop {
@@ -221,25 +237,11 @@ where
                     return;
                 }
             },
-            b = bursts.recv() => if let (Ok(b), true) = (b, s.open) {
-                if !subscribed(&s.subs, &b) {
-                    continue;
-                }
-                let mut seq = publish_seq.lock().await;
-                *seq = seq.wrapping_add(1);
-                let m = message(
-                    s.version,
-                    MessageType::Publish,
-                    MessageId::TokenPassingPdu,
-                    0,
-                    *seq,
-                    &b,
-                );
+            b = bursts.recv() => if let Some(m) = b.ok().and_then(|b| s.publish(&shared, &b)) {
                 if wr.lock().await.write_all(&m).await.is_err() {
                     close_session(&shared, &mut s, 0x0004).await;
                     return;
                 }
-                Counters::count(&shared.stats.published);
             },
         }
     }

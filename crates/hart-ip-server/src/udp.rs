@@ -27,7 +27,6 @@ use tokio::net::UdpSocket;
 use tokio::sync::mpsc;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
-use crate::subscriptions::subscribed;
 use crate::{lock, message, AbortOnDrop, Counters, PeerTable, Peers, Shared};
 
 /// Datagrams queued for one session's task; more are dropped until it catches up.
@@ -149,25 +148,8 @@ async fn udp_session(
                 }
             }
             b = bursts.recv() => {
-                if let (Ok(b), true) = (b, s.open) {
-                    if subscribed(&s.subs, &b) {
-                        s.publish_seq = s.publish_seq.wrapping_add(1);
-                        let m = message(
-                            s.version,
-                            MessageType::Publish,
-                            MessageId::TokenPassingPdu,
-                            0,
-                            s.publish_seq,
-                            &b,
-                        );
-                        let _ = sock.send_to(&m, peer).await;
-                        Counters::count(&shared.stats.published);
-                        if let Some(r) = s.audit {
-                            if let Some(rec) = lock(&shared.audit).get_mut(r) {
-                                rec.publishes += 1;
-                            }
-                        }
-                    }
+                if let Some(m) = b.ok().and_then(|b| s.publish(&shared, &b)) {
+                    let _ = sock.send_to(&m, peer).await;
                 }
             }
             _ = tokio::time::sleep(wait) => {

@@ -1,20 +1,9 @@
 //! The `hartkit frame` command line as a user runs it: output, JSON contract, exit codes.
 
-use std::process::Command;
-
 use serde_json::Value;
 
-fn hartkit(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::hartkit;
 
 fn decode_json(hex: &str) -> Value {
     let (code, out, err) = hartkit(&["frame", "decode", "--json", hex]);

@@ -37,17 +37,8 @@ fn serve(args: &[&str]) -> Served {
     Served { child, pty }
 }
 
-fn hartkit(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::hartkit;
 
 #[test]
 fn host_commands_over_a_pseudo_terminal() {

@@ -13,17 +13,8 @@ use std::time::Duration;
 
 const KEY: &str = "00112233445566778899aabbccddeeff";
 
-fn hartkit(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::hartkit;
 
 /// A secure server with a plain port beside it; its log (standard error) is read
 /// when it is stopped.

@@ -3,6 +3,19 @@
 
 use serde_json::Value;
 
+/// Runs the `hartkit` binary with `args`: exit status, standard output, standard error.
+pub fn hartkit(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// Compares `expected` against `actual`: every key of an expected object must be present
 /// with an equal value (extra keys in `actual` are fine); floats are compared as `f32`;
 /// the string "nan" or a NaN float expects `null` (non-finite floats are JSON null).
