@@ -133,5 +133,15 @@ async fn run_peer(
     local_port: u16,
 ) {
     let io = hart_ip_tls::DatagramStream::shared(sock, peer, rx);
-    secure_session(io, peer, local_port, Some(0x16), shared.clone(), sec, true).await
+    secure_session(
+        io,
+        peer,
+        local_port,
+        Some(0x16),
+        shared.clone(),
+        sec,
+        true,
+        None,
+    )
+    .await
 }

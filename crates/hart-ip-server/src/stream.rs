@@ -65,19 +65,88 @@ async fn tls_session(
     shared: Arc<Shared>,
     tls: Arc<crate::Security>,
 ) {
+    let mut stream = stream;
     let local_port = stream.local_addr().map_or(0, |a| a.port());
     let mut first = [0u8; 1];
     let first_byte = match tokio::time::timeout(HANDSHAKE_TIMEOUT, stream.peek(&mut first)).await {
         Ok(Ok(1)) => Some(first[0]),
         _ => None,
     };
-    secure_session(stream, peer, local_port, first_byte, shared, &tls, false).await
+    // HART-IP version 2 in the clear first: the session initiate of the STARTTLS order
+    // (HCF_SPEC-085 as hipserver and hartip-py implement it), then the handshake.
+    let opened = if first_byte == Some(2) {
+        match plaintext_initiate(&mut stream, peer, local_port, &shared).await {
+            Some(s) => Some(s),
+            None => return,
+        }
+    } else {
+        None
+    };
+    secure_session(
+        stream, peer, local_port, first_byte, shared, &tls, false, opened,
+    )
+    .await
+}
+
+/// The STARTTLS order: one session initiate of HART-IP version 2 in the clear, answered
+/// in the clear; the session it opens (its identity still unknown) goes on inside the
+/// TLS handshake that follows. `None` when it is no such initiate or the session is
+/// refused (limits); the connection then ends.
+async fn plaintext_initiate(
+    stream: &mut TcpStream,
+    peer: SocketAddr,
+    local_port: u16,
+    shared: &Arc<Shared>,
+) -> Option<Session> {
+    let mut header = [0u8; hart_ip::HEADER_LEN];
+    let read = async {
+        stream.read_exact(&mut header).await?;
+        let len = usize::from(u16::from_be_bytes([header[6], header[7]]));
+        let mut msg = header.to_vec();
+        msg.resize(len.clamp(hart_ip::HEADER_LEN, 64), 0);
+        stream.read_exact(&mut msg[hart_ip::HEADER_LEN..]).await?;
+        Ok::<_, std::io::Error>(msg)
+    };
+    let msg = match tokio::time::timeout(HANDSHAKE_TIMEOUT, read).await {
+        Ok(Ok(m)) => m,
+        _ => {
+            tracing::warn!("refused a session from {peer}: no complete session initiate");
+            return None;
+        }
+    };
+    let (m, _) = Message::parse(&msg).ok()?;
+    if m.header.message_id != MessageId::SessionInitiate
+        || m.header.message_type != MessageType::Request
+    {
+        Counters::count(&shared.stats.sessions_refused);
+        tracing::warn!(
+            "refused {peer}: plain HART-IP other than a version 2 session initiate on the TLS port"
+        );
+        return None;
+    }
+    // Rights and identity come with the handshake; read-only until then.
+    let mut s = Session::secure(
+        peer,
+        local_port,
+        String::new(),
+        hart_ip_tls::Rights::ReadOnly,
+    );
+    if let Action::Reply(r) = handle(shared, &mut s, m.header, m.body).await {
+        if stream.write_all(&r).await.is_err() {
+            close_session(shared, &mut s, 0x0004).await;
+            return None;
+        }
+    }
+    s.open.then_some(s)
 }
 
 /// The server side of a TLS (over TCP) or DTLS (`dtls`, over one peer's datagrams)
 /// handshake with pre-shared keys on `io`, then one session inside it. A refusal is
 /// logged with its cause (`first_byte`, the first byte the peer sent, tells plain
 /// HART-IP from a failed handshake) and ends only this peer.
+/// `opened`: the session a plaintext initiate opened before the handshake (STARTTLS
+/// order), which the handshake completes; without it the session starts inside.
+#[allow(clippy::too_many_arguments)]
 pub(crate) async fn secure_session<S>(
     io: S,
     peer: SocketAddr,
@@ -86,6 +155,7 @@ pub(crate) async fn secure_session<S>(
     shared: Arc<Shared>,
     sec: &crate::Security,
     dtls: bool,
+    opened: Option<Session>,
 ) where
     S: AsyncRead + AsyncWrite + Unpin + 'static,
 {
@@ -117,6 +187,9 @@ pub(crate) async fn secure_session<S>(
     if let Some(why) = refused {
         Counters::count(&shared.stats.sessions_refused);
         tracing::warn!("refused {what} from {peer}: {why}");
+        if let Some(mut s) = opened {
+            close_session(&shared, &mut s, 0x0002).await; // bad session initialization
+        }
         return;
     }
     let identity = stream
@@ -132,7 +205,13 @@ pub(crate) async fn secure_session<S>(
         .map(|k| k.rights)
         .unwrap_or(hart_ip_tls::Rights::ReadOnly);
     tracing::info!("{what} session from {peer}, identity {identity:?} ({rights:?})");
-    let s = Session::secure(peer, local_port, identity, rights);
+    let s = match opened {
+        Some(mut s) => {
+            s.secure = Some((identity, rights));
+            s
+        }
+        None => Session::secure(peer, local_port, identity, rights),
+    };
     stream_session(stream, s, shared).await
 }
 
