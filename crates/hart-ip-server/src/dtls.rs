@@ -19,6 +19,9 @@ use tokio::sync::mpsc;
 use crate::stream::secure_session;
 use crate::{AbortOnDrop, Counters, PeerTable, Peers, Security, Shared};
 
+/// Associations started beyond the session limit, for handshakes in progress.
+const PENDING_HANDSHAKES: usize = 16;
+
 /// Datagrams queued for one peer's task before further ones are dropped (DTLS
 /// repeats what is lost).
 const PEER_QUEUE: usize = 64;
@@ -87,6 +90,19 @@ pub(crate) async fn serve_dtls(sock: Arc<UdpSocket>, shared: Arc<Shared>, sec: A
         if !dtls {
             Counters::count(&shared.stats.malformed);
             log.refuse(peer);
+            continue;
+        }
+        // Bounded like UDP sessions: associations (handshakes included) up to the
+        // session limit and a few more, and per client address.
+        let (all, from_host) = {
+            let p = peers.borrow();
+            (p.len(), p.keys().filter(|a| a.ip() == peer.ip()).count())
+        };
+        if all >= shared.config.max_sessions + PENDING_HANDSHAKES
+            || from_host >= shared.config.max_sessions_per_host
+        {
+            Counters::count(&shared.stats.sessions_refused);
+            tracing::debug!("refused a DTLS handshake from {peer}: associations at their limit");
             continue;
         }
         let (tx, rx) = mpsc::channel(PEER_QUEUE);
