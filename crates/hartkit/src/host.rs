@@ -482,6 +482,7 @@ pub async fn write(
     target: &DeviceRef,
     what: &str,
     args: &[String],
+    as_json: bool,
 ) -> Result<String, Failure> {
     let d = c.resolve(target).await.map_err(fail)?;
     let need = |n: usize| -> Result<(), Failure> {
@@ -582,9 +583,22 @@ pub async fn write(
     let warn = check_rc(&r);
     // Confirm by reading back.
     let back = c.command(&d, confirm, &[]).await.map_err(fail)?;
-    let mut s = format!("command {command} accepted{warn}; read back with command {confirm}:\n");
     let pdu = back.pdu.clone();
     let frame = Frame::parse_pdu(&pdu).map_err(|e| usage(e.to_string()))?;
+    if as_json {
+        // The write's own reply and the read-back, each as `hartkit frame --json` shows
+        // a frame.
+        let written = Frame::parse_pdu(&r.pdu).map_err(|e| usage(e.to_string()))?;
+        return Ok(serde_json::to_string_pretty(&json!({
+            "command": command,
+            "response_code": r.response_code,
+            "reply": fj::frame(&written),
+            "read_back_command": confirm,
+            "read_back": fj::frame(&frame),
+        }))
+        .unwrap_or_default());
+    }
+    let mut s = format!("command {command} accepted{warn}; read back with command {confirm}:\n");
     s.push_str(&annotate::frame(&frame));
     Ok(s.trim_end().to_string())
 }

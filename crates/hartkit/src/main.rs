@@ -406,7 +406,7 @@ enum BurstCmd {
         #[arg(long, default_value = "continuous")]
         trigger: String,
         /// Trigger level (window, rising, falling).
-        #[arg(long, allow_hyphen_values = true)]
+        #[arg(long, allow_negative_numbers = true)]
         level: Option<f32>,
     },
     /// Enable a burst message.
@@ -809,7 +809,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
         } => host::block_on(async {
             let d = target(t)?;
             let mut c = host_client(h).await?;
-            host::write(&mut c, &d, what, values).await
+            host::write(&mut c, &d, what, values, h.json).await
         }),
         Top::Command {
             host: h,

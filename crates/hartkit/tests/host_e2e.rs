@@ -186,3 +186,37 @@ fn demo_runs_on_the_builtin_plant() {
     assert_eq!(polls, vec![1, 2, 3, 17]);
     assert!(last["line"]["transactions"].as_u64().unwrap() >= 4);
 }
+
+/// An option after the values is an option, never part of the value (`--json` here), and
+/// `write --json` prints JSON; negative numbers are still values.
+#[test]
+fn write_takes_options_after_its_values() {
+    let (code, out, err) = hartkit(&[
+        "write",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "message",
+        "HARTKIT INTEROP",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["command"], 17);
+    assert_eq!(v["read_back"]["decoded"]["message"], "HARTKIT INTEROP");
+    let (code, out, err) = hartkit(&[
+        "write",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "range",
+        "100",
+        "-10",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["command"], 35);
+}
