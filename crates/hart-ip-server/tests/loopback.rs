@@ -297,17 +297,30 @@ fn client_survives_a_server_restart() {
             assert!(c.command(&d, 1, &[]).await.is_ok());
             server.stop();
             tokio::time::sleep(Duration::from_millis(100)).await;
-            let again = start(
-                Config {
-                    bind: addr,
-                    udp: !tcp,
-                    tcp,
-                    ..config()
-                },
-                vec![Client::new(open("sim?virtual").unwrap())],
-            )
-            .await
-            .unwrap();
+            // The port may be busy a moment longer (the old sockets close as their
+            // tasks are dropped; another test may have drawn it): retry, as a
+            // restarted service would.
+            let mut again = None;
+            for _ in 0..40 {
+                match start(
+                    Config {
+                        bind: addr,
+                        udp: !tcp,
+                        tcp,
+                        ..config()
+                    },
+                    vec![Client::new(open("sim?virtual").unwrap())],
+                )
+                .await
+                {
+                    Ok(s) => {
+                        again = Some(s);
+                        break;
+                    }
+                    Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+                }
+            }
+            let again = again.expect("the port is free again within 2 s");
             assert!(
                 c.command(&d, 1, &[]).await.is_ok(),
                 "after the restart over {}",
