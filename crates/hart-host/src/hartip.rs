@@ -80,14 +80,19 @@ async fn open_socket(
         s.set_nodelay(true)?;
         Socket::Tcp(s, vec![])
     } else {
-        let local: SocketAddr = if peer.is_ipv4() {
-            "0.0.0.0:0".parse().unwrap()
-        } else {
-            "[::]:0".parse().unwrap()
-        };
+        let local = any_port(peer);
         Socket::Udp(UdpSocket::bind(local).await?)
     };
     Ok((socket, peer))
+}
+
+/// The wildcard address of `peer`'s family, port 0: where a UDP client binds.
+fn any_port(peer: SocketAddr) -> SocketAddr {
+    if peer.is_ipv4() {
+        SocketAddr::from(([0, 0, 0, 0], 0))
+    } else {
+        SocketAddr::from(([0u16; 8], 0))
+    }
 }
 
 /// A TLS (`tcp`) or DTLS connection to `peer` with `psk`, handshake done.
@@ -107,11 +112,7 @@ async fn secure_socket(peer: SocketAddr, tcp: bool, psk: &hart_ip_tls::Psk) -> i
         s.set_nodelay(true)?;
         Box::new(s)
     } else {
-        let local: SocketAddr = if peer.is_ipv4() {
-            "0.0.0.0:0".parse().unwrap()
-        } else {
-            "[::]:0".parse().unwrap()
-        };
+        let local = any_port(peer);
         let s = UdpSocket::bind(local).await?;
         s.connect(peer).await?;
         Box::new(hart_ip_tls::DatagramStream::connected(s, peer))

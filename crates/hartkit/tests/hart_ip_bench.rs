@@ -2,40 +2,12 @@
 //! user runs them: two processes on loopback. Only that the load gets through without
 //! errors is checked; how fast is a benchmark (docs/benchmarks.md), never a test.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::Value;
 
-/// A server on a free port; killed when dropped.
-struct Server(Child, u16);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn serve(extra: &[&str]) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(["serve", "--hart-ip", "127.0.0.1:0", "--run-for", "120"])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    let _ = BufReader::new(child.stdout.take().unwrap()).read_line(&mut line);
-    // "hart-ip: udp 127.0.0.1:PORT tcp 127.0.0.1:PORT", as without --instant.
-    assert!(line.starts_with("hart-ip: udp 127.0.0.1:"), "{line:?}");
-    let port = line
-        .split_whitespace()
-        .nth(2)
-        .and_then(|a| a.rsplit(':').next())
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("server did not start: {line:?}"));
-    Server(child, port)
-}
+mod common;
+use common::serve;
 
 fn bench(args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))

@@ -9,9 +9,8 @@
 //! `target/interop-venv`. Without it the test says so and passes, unless
 //! `HARTKIT_REQUIRE_INTEROP=1` (set by `.ci/run` once the install worked).
 
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 fn workspace() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -42,34 +41,8 @@ fn python() -> Option<PathBuf> {
     None
 }
 
-/// A server on a free port; killed when dropped.
-struct Server(Child, u16);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn serve(extra: &[&str]) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(["serve", "--hart-ip", "127.0.0.1:0", "--run-for", "300"])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    let _ = BufReader::new(child.stdout.take().unwrap()).read_line(&mut line);
-    // "hart-ip: udp 127.0.0.1:PORT tcp 127.0.0.1:PORT"
-    let port = line
-        .split_whitespace()
-        .find(|t| t.contains(':') && !t.ends_with(':'))
-        .and_then(|a| a.rsplit(':').next())
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("server did not start: {line:?}"));
-    Server(child, port)
-}
+mod common;
+use common::serve;
 
 fn run_client(py: &PathBuf, port: u16, transport: &str) -> Vec<serde_json::Value> {
     let out = Command::new(py)

@@ -3,6 +3,38 @@
 
 use serde_json::Value;
 
+/// `hartkit serve --hart-ip 127.0.0.1:0 ...` on a free port; killed when dropped. `.1`
+/// is the port (UDP and TCP), read from the first line the server prints.
+pub struct Server(pub std::process::Child, pub u16);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `hartkit serve --hart-ip 127.0.0.1:0` with `extra` arguments.
+pub fn serve(extra: &[&str]) -> Server {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["serve", "--hart-ip", "127.0.0.1:0", "--run-for", "300"])
+        .args(extra)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    let _ = std::io::BufReader::new(child.stdout.take().unwrap()).read_line(&mut line);
+    // "hart-ip: udp 127.0.0.1:PORT tcp 127.0.0.1:PORT" ("-" for a transport not served).
+    let port = line
+        .split_whitespace()
+        .find(|t| t.contains(':') && !t.ends_with(':'))
+        .and_then(|a| a.rsplit(':').next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("server did not start: {line:?}"));
+    Server(child, port)
+}
+
 /// Runs the `hartkit` binary with `args`: exit status, standard output, standard error.
 pub fn hartkit(args: &[&str]) -> (i32, String, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))
