@@ -69,21 +69,27 @@ async fn open_socket(
         return Ok((secure_socket(peer, tcp, psk).await?, peer));
     }
     let socket = if tcp {
-        let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
-            .await
-            .map_err(|_| {
-                io::Error::new(
-                    io::ErrorKind::TimedOut,
-                    format!("HART-IP server {peer}: TCP connect timed out"),
-                )
-            })??;
-        s.set_nodelay(true)?;
+        let s = connect_tcp(peer).await?;
         Socket::Tcp(s, vec![])
     } else {
         let local = any_port(peer);
         Socket::Udp(UdpSocket::bind(local).await?)
     };
     Ok((socket, peer))
+}
+
+/// A TCP connection to `peer` (5 s at most), without Nagle's delay.
+async fn connect_tcp(peer: SocketAddr) -> io::Result<TcpStream> {
+    let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
+        .await
+        .map_err(|_| {
+            io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!("HART-IP server {peer}: TCP connect timed out"),
+            )
+        })??;
+    s.set_nodelay(true)?;
+    Ok(s)
 }
 
 /// The wildcard address of `peer`'s family, port 0: where a UDP client binds.
@@ -101,15 +107,7 @@ async fn secure_socket(peer: SocketAddr, tcp: bool, psk: &hart_ip_tls::Psk) -> i
     let ctx = hart_ip_tls::client_context(psk, !tcp).map_err(io::Error::other)?;
     let ssl = hart_ip_tls::client_ssl(&ctx, !tcp).map_err(io::Error::other)?;
     let io: Box<dyn Stream> = if tcp {
-        let s = tokio::time::timeout(Duration::from_secs(5), TcpStream::connect(peer))
-            .await
-            .map_err(|_| {
-                io::Error::new(
-                    io::ErrorKind::TimedOut,
-                    format!("HART-IP server {peer}: TCP connect timed out"),
-                )
-            })??;
-        s.set_nodelay(true)?;
+        let s = connect_tcp(peer).await?;
         Box::new(s)
     } else {
         let local = any_port(peer);

@@ -257,12 +257,6 @@ fn master_index(m: MasterKind) -> usize {
     }
 }
 
-/// The commands [`IoSystem::local`] answers (for documentation and tests).
-pub const LOCAL_COMMANDS: &[u16] = &[
-    0, 1, 2, 3, 7, 8, 9, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 38, 48, 74, 75, 77, 84,
-    101, 102, 103, 105, 107, 108, 109,
-];
-
 impl IoSystem {
     /// An I/O system with `identity` in front of `loops`.
     pub fn new(
@@ -779,14 +773,6 @@ impl IoSystem {
                 sub_device_index: index,
             }),
         )
-    }
-
-    /// The sub-device a burst message publishes (commands 101/102); `None` for the
-    /// I/O system itself.
-    pub async fn burst_sub_device(&self, msg: usize) -> Option<SubDevice> {
-        let ix = *self.state().burst_map.get(msg)?;
-        let ix = usize::from(ix).checked_sub(1)?;
-        self.subs.lock().await.get(ix).cloned()
     }
 
     /// The I/O system's burst messages: 103 (period), 105 (read), 107 (device
