@@ -11,7 +11,6 @@
 
 use std::sync::Arc;
 
-use hart_host::DeviceInfo;
 use hart_proto::command::{self as cmd, Identity, LongTag, TagDescriptorDate};
 use hart_proto::frame::{checksum, Address, Frame, MasterKind, UniqueId};
 use hart_proto::tables::rc;
@@ -21,69 +20,9 @@ use hart_proto::types::{
     PackedString, Percent, Seconds, TransferFunction, UnitCode, WriteProtect, U24,
 };
 use hart_proto::wire::{List, Reader, Wire, Writer};
-use tokio::sync::{mpsc, oneshot, Mutex};
+use tokio::sync::Mutex;
 
-/// A request for a loop: a PDU, and where to send what became of it.
-pub struct LoopRequest {
-    /// The frame (delimiter through check byte).
-    pub pdu: Vec<u8>,
-    /// Retries on the loop after no reply: the loop's full count for a device the
-    /// server knows, one for an address where it found no device (so an absent
-    /// device is reported after two slave time-outs, not four).
-    pub retries: u8,
-    /// Set when the loop takes the request ([`LoopRequest::start`]) or when its
-    /// requester stops waiting for that: whichever comes first wins, so a request is
-    /// either carried out or answered "busy", never both.
-    pub state: Arc<std::sync::atomic::AtomicU8>,
-    /// The outcome. A request whose receiver is gone (its session ended) is dropped
-    /// unsent.
-    pub reply: oneshot::Sender<LoopOutcome>,
-}
-
-/// [`LoopRequest::state`]: waiting in the queue.
-const QUEUED: u8 = 0;
-/// [`LoopRequest::state`]: taken by the loop.
-const STARTED: u8 = 1;
-/// [`LoopRequest::state`]: given up by its requester.
-const ABANDONED: u8 = 2;
-
-impl LoopRequest {
-    /// The loop takes the request; `false` if its requester has given up on it (or
-    /// gone), so the line is not spent on it.
-    pub fn start(&self) -> bool {
-        !self.reply.is_closed()
-            && self
-                .state
-                .compare_exchange(
-                    QUEUED,
-                    STARTED,
-                    std::sync::atomic::Ordering::AcqRel,
-                    std::sync::atomic::Ordering::Acquire,
-                )
-                .is_ok()
-    }
-}
-
-/// What became of a request for a loop.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum LoopOutcome {
-    /// The device's reply frame.
-    Reply(Vec<u8>),
-    /// No reply after the loop's retries.
-    NoReply,
-    /// Not sent: the loop's queue was full, or the request waited there too long.
-    Busy,
-}
-
-/// Requests queued for a real (or simulated) 1200 bit/s loop at most; more are answered
-/// "busy" at once. A few seconds of line time: longer queues only serve clients that
-/// have given up.
-pub const LOOP_QUEUE: usize = 16;
-
-/// Longest a request waits in a loop's queue before it is answered "busy" unsent: with
-/// a transaction's own time (up to about 2 s with retries on an FSK loop) the answer
-/// still comes within the 5 s clients wait (hartkit's, hartip-py's).
-pub const MAX_QUEUE_WAIT: std::time::Duration = std::time::Duration::from_millis(2500);
+pub use hart_poller::{LoopOutcome, LoopRequest, SubDevice, LOOP_QUEUE, MAX_QUEUE_WAIT};
 
 /// The I/O system's own identity (the fixed part; tag, descriptor, message and long
 /// tag can be written by hosts and start from these).
@@ -117,15 +56,6 @@ impl Default for GatewayIdentity {
             message: "HARTKIT HART-IP I/O SYSTEM".into(),
         }
     }
-}
-
-/// A device found on a loop.
-#[derive(Debug, Clone)]
-pub struct SubDevice {
-    /// Channel (loop index).
-    pub channel: u8,
-    /// What the scan found.
-    pub info: DeviceInfo,
 }
 
 /// Where a token-passing request goes.
@@ -234,9 +164,9 @@ struct Local {
 pub struct IoSystem {
     /// The fixed identity.
     pub identity: GatewayIdentity,
-    /// One request queue per loop.
-    pub loops: Vec<mpsc::Sender<LoopRequest>>,
-    /// Devices found on the loops.
+    /// The engine that owns the loops.
+    pub engine: hart_poller::Engine,
+    /// Devices found on the loops (the engine's list).
     pub subs: Arc<Mutex<Vec<SubDevice>>>,
     /// A loop device at polling address 0 answers there instead of the I/O system
     /// (one loop only).
@@ -258,13 +188,9 @@ fn master_index(m: MasterKind) -> usize {
 }
 
 impl IoSystem {
-    /// An I/O system with `identity` in front of `loops`.
-    pub fn new(
-        identity: GatewayIdentity,
-        loops: Vec<mpsc::Sender<LoopRequest>>,
-        subs: Arc<Mutex<Vec<SubDevice>>>,
-        transparent: bool,
-    ) -> Self {
+    /// An I/O system with `identity` in front of the engine's loops.
+    pub fn new(identity: GatewayIdentity, engine: hart_poller::Engine, transparent: bool) -> Self {
+        let subs = engine.sub_devices().clone();
         let local = Local {
             tag: PackedString::new(&identity.tag).unwrap_or_default(),
             descriptor: PackedString::new(&identity.descriptor).unwrap_or_default(),
@@ -281,7 +207,7 @@ impl IoSystem {
         };
         IoSystem {
             identity,
-            loops,
+            engine,
             subs,
             transparent,
             local: std::sync::Mutex::new(local),
@@ -299,7 +225,7 @@ impl IoSystem {
 
     /// Where a request frame goes (the table in `docs/hart-ip.md`).
     pub async fn route(&self, f: &Frame<'_>) -> Route {
-        let single = self.loops.len() == 1;
+        let single = self.engine.loop_count() == 1;
         let subs = self.subs.lock().await;
         let on_loop = |channel: u8, known: bool| Route::Loop {
             channel: usize::from(channel),
@@ -370,44 +296,10 @@ impl IoSystem {
         }
     }
 
-    /// Forwards a PDU to loop `channel` with `retries`.
+    /// Forwards a PDU to loop `channel` with `retries`, between the engine's polls.
     /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
     pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
-        let (tx, mut rx) = oneshot::channel();
-        let Some(queue) = self.loops.get(channel) else {
-            return LoopOutcome::NoReply;
-        };
-        let state = Arc::new(std::sync::atomic::AtomicU8::new(QUEUED));
-        let request = LoopRequest {
-            pdu,
-            retries,
-            state: state.clone(),
-            reply: tx,
-        };
-        match queue.try_send(request) {
-            Ok(()) => {}
-            Err(mpsc::error::TrySendError::Full(_)) => return LoopOutcome::Busy,
-            Err(mpsc::error::TrySendError::Closed(_)) => return LoopOutcome::NoReply,
-        }
-        match tokio::time::timeout(MAX_QUEUE_WAIT, &mut rx).await {
-            Ok(r) => r.unwrap_or(LoopOutcome::NoReply),
-            Err(_) => {
-                // Still queued: give it up ("busy"). Taken meanwhile: wait for it.
-                let gave_up = state
-                    .compare_exchange(
-                        QUEUED,
-                        ABANDONED,
-                        std::sync::atomic::Ordering::AcqRel,
-                        std::sync::atomic::Ordering::Acquire,
-                    )
-                    .is_ok();
-                if gave_up {
-                    LoopOutcome::Busy
-                } else {
-                    rx.await.unwrap_or(LoopOutcome::NoReply)
-                }
-            }
-        }
+        self.engine.forward(channel, pdu, retries).await
     }
 
     fn identity_reply(&self, state: &Local) -> Vec<u8> {
@@ -648,7 +540,7 @@ impl IoSystem {
             rc::SUCCESS,
             encode(&cmd::IoSystemCapabilities {
                 io_cards: 1,
-                channels_per_card: self.loops.len() as u8,
+                channels_per_card: self.engine.loop_count() as u8,
                 sub_devices_per_channel: 63,
                 devices_detected: n,
                 delayed_responses: 1,
@@ -667,7 +559,7 @@ impl IoSystem {
         if card != 0 {
             return (rc::INVALID_IO_CARD, vec![]);
         }
-        if usize::from(channel) >= self.loops.len() {
+        if usize::from(channel) >= self.engine.loop_count() {
             return (rc::INVALID_CHANNEL, vec![]);
         }
         if poll > 63 {
@@ -964,7 +856,7 @@ impl IoSystem {
         if card != 0 {
             return (rc::INVALID_IO_CARD, vec![]);
         }
-        if usize::from(channel) >= self.loops.len() {
+        if usize::from(channel) >= self.engine.loop_count() {
             return (rc::INVALID_CHANNEL, vec![]);
         }
         let mut pdu = data[3..].to_vec();

@@ -18,11 +18,10 @@ use hart_host::Client;
 use hart_ip::{encode, MessageId, MessageType, HEADER_LEN};
 use hart_proto::frame::{Frame, FrameSpec, FrameType};
 use tokio::net::{TcpListener, UdpSocket};
-use tokio::sync::{broadcast, mpsc, Mutex};
+use tokio::sync::{broadcast, mpsc};
 
 pub mod access;
 mod audit;
-mod backend;
 mod dtls;
 pub mod io_system;
 mod session;
@@ -32,8 +31,6 @@ mod udp;
 
 use audit::AuditLog;
 pub use audit::{AuditRecord, AUDIT_RECORDS};
-use backend::{backend, memory_backend};
-use io_system::LoopRequest;
 pub use io_system::{GatewayIdentity, IoSystem, Route, SubDevice};
 use stream::serve_tcp;
 pub use subscriptions::subscription;
@@ -217,60 +214,49 @@ impl Server {
     }
 }
 
-/// Starts the server with `client` reaching the loop; returns once the sockets are
+/// The engine's loop settings for a server's `scan_to` (`None`: no scan).
+fn loop_settings(scan_to: Option<u8>) -> hart_poller::LoopSettings {
+    hart_poller::LoopSettings {
+        scan: scan_to.is_some(),
+        scan_to: scan_to.unwrap_or(0).min(63),
+        ..Default::default()
+    }
+}
+
+/// Starts the server with `loops` behind it (each a channel), on an engine of its own
+/// that scans them and carries requests without polling; returns once the sockets are
 /// bound. The server runs on local tasks: call it inside a `tokio::task::LocalSet`
 /// (the loop's client is not `Send`: serial ports and simulated plants stay on one
 /// thread).
 pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io::Result<Server> {
-    let mut senders = vec![];
-    let mut receivers = vec![];
-    for _ in 0..loops.len() {
-        let (tx, rx) = mpsc::channel::<LoopRequest>(io_system::LOOP_QUEUE);
-        senders.push(tx);
-        receivers.push(rx);
-    }
-    let scan_to = config.scan_to;
-    start_with(config, senders, move |bursts, subs| {
-        loops
-            .into_iter()
-            .zip(receivers)
-            .enumerate()
-            .map(|(channel, (client, rx))| {
-                tokio::task::spawn_local(backend(
-                    client,
-                    channel as u8,
-                    scan_to,
-                    subs.clone(),
-                    rx,
-                    bursts.clone(),
-                ))
-            })
-            .collect()
-    })
-    .await
+    let specs = loops
+        .into_iter()
+        .map(|c| hart_poller::LoopSpec {
+            settings: loop_settings(config.scan_to),
+            line: hart_poller::Line::client(c),
+        })
+        .collect();
+    let (engine, tasks) = hart_poller::Engine::start(hart_poller::EngineConfig::default(), specs);
+    start_with_engine(config, engine, tasks).await
 }
 
-/// Starts the sockets with loop request queues `senders`, whose consumers `spawn`
-/// starts.
-async fn start_with(
+/// Starts the server in front of a running `engine` (shared with other front ends);
+/// `tasks` (the engine's) end when the server is stopped. `config.scan_to` is the
+/// engine's business here. Call it inside a `tokio::task::LocalSet`.
+pub async fn start_with_engine(
     config: Config,
-    senders: Vec<mpsc::Sender<LoopRequest>>,
-    spawn: impl FnOnce(
-        broadcast::Sender<Vec<u8>>,
-        Arc<Mutex<Vec<SubDevice>>>,
-    ) -> Vec<tokio::task::JoinHandle<()>>,
+    engine: hart_poller::Engine,
+    mut tasks: Vec<tokio::task::JoinHandle<()>>,
 ) -> std::io::Result<Server> {
-    let (bursts, _) = broadcast::channel(64);
-    let subs = Arc::new(Mutex::new(vec![]));
-    let mut tasks = spawn(bursts.clone(), subs.clone());
-    let io = IoSystem::new(config.identity.clone(), senders, subs, config.transparent);
+    let bursts = engine.bursts().clone();
+    let io = IoSystem::new(config.identity.clone(), engine, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
         sessions: std::sync::Mutex::new(0),
         per_host: Default::default(),
         stats: Counters::default(),
         io,
-        bursts: bursts.clone(),
+        bursts,
         audit: std::sync::Mutex::new(AuditLog::default()),
         power_up: unix_now(),
     });
@@ -377,15 +363,16 @@ pub async fn start_in_memory(
     config: Config,
     devices: Vec<hart_device::Device>,
 ) -> std::io::Result<Server> {
-    let (tx, rx) = mpsc::channel::<LoopRequest>(1024);
-    let scan_to = config.scan_to;
-    let server = start_with(config, vec![tx], |bursts, subs| {
-        vec![tokio::task::spawn_local(memory_backend(
-            devices, scan_to, subs, rx, bursts,
-        ))]
-    })
-    .await?;
-    Ok(server)
+    let spec = hart_poller::LoopSpec {
+        settings: loop_settings(config.scan_to),
+        line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
+    };
+    let (engine, tasks) = hart_poller::Engine::start_with_queue(
+        hart_poller::EngineConfig::default(),
+        vec![spec],
+        1024,
+    );
+    start_with_engine(config, engine, tasks).await
 }
 
 /// A HART-IP message of protocol `version` (1 plain, 2 secure sessions).

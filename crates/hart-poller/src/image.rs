@@ -1,0 +1,525 @@
+//! The current image: what the engine last learned of every device, with a time stamp
+//! and a quality, read by the front ends (Modbus, OPC UA) without touching the loop.
+
+use std::sync::RwLock;
+use std::time::{Duration, Instant, SystemTime};
+
+use hart_host::DeviceInfo;
+use hart_proto::command::{
+    DeviceInformation, ReadDynamicVariablesResponse, ReadLoopCurrentResponse, SlotsWithTimestamp,
+};
+use hart_proto::frame::UniqueId;
+use hart_proto::tables::field_device_status as fds;
+use hart_proto::wire::{Reader, Wire};
+use tokio::sync::broadcast;
+
+/// How good a device's values are, as a SCADA reads it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Quality {
+    /// The last poll was answered and the device reports no malfunction.
+    Good,
+    /// The values are older than the device's stale limit: the loop has not polled it
+    /// in time (busy with other requests, or a slow loop for its poll period).
+    Stale,
+    /// The device did not answer its last poll (or has not been found yet).
+    NoReply,
+    /// The device answers but sets "device malfunction" in its status.
+    DeviceMalfunction,
+    /// The device's configuration changed since the engine last read it (range, units,
+    /// tag): the values are current, the engine is reading the new configuration.
+    ConfigurationChanged,
+}
+
+impl Quality {
+    /// The number front ends publish (Modbus register 13): 0 good, 1 stale, 2 no
+    /// reply, 3 device malfunction, 4 configuration changed.
+    pub fn code(self) -> u16 {
+        match self {
+            Quality::Good => 0,
+            Quality::Stale => 1,
+            Quality::NoReply => 2,
+            Quality::DeviceMalfunction => 3,
+            Quality::ConfigurationChanged => 4,
+        }
+    }
+
+    /// The name used in JSON and logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Good => "good",
+            Quality::Stale => "stale",
+            Quality::NoReply => "no reply",
+            Quality::DeviceMalfunction => "device malfunction",
+            Quality::ConfigurationChanged => "configuration changed",
+        }
+    }
+
+    /// Whether the values may be used (good, or good with a changed configuration).
+    pub fn usable(self) -> bool {
+        matches!(self, Quality::Good | Quality::ConfigurationChanged)
+    }
+}
+
+impl std::fmt::Display for Quality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A process value with its units (HART Common Table 2 code).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Variable {
+    /// The value (NaN when the device reports none).
+    pub value: f32,
+    /// Units code.
+    pub units: u8,
+    /// Device variable status (command 9 only).
+    pub status: Option<u8>,
+}
+
+/// The PV range and damping (command 15).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeInfo {
+    /// Units code of the range values.
+    pub units: u8,
+    /// Upper range value (20 mA).
+    pub upper: f32,
+    /// Lower range value (4 mA).
+    pub lower: f32,
+    /// PV damping, s.
+    pub damping: f32,
+    /// Write protect code (0 not protected, 1 protected, 250/251 none).
+    pub write_protect: u8,
+}
+
+/// The result of the last poll.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LastPoll {
+    /// Not polled yet.
+    Pending,
+    /// Answered.
+    Answered,
+    /// No reply after the retries.
+    NoReply,
+}
+
+/// What the engine knows of one device.
+#[derive(Debug, Clone)]
+pub struct DeviceImage {
+    /// Position in the device list: Modbus unit id 1 + position. Configured devices
+    /// come first in the order of the configuration, then devices found by the scan in
+    /// the order found. Positions never change while the engine runs.
+    pub position: usize,
+    /// Loop (channel) index.
+    pub channel: u8,
+    /// The loop's name.
+    pub loop_name: String,
+    /// A name given in the configuration (OPC UA browse name), if any.
+    pub name: Option<String>,
+    /// The polling address the configuration gives, or where the scan found it.
+    pub polling_address: Option<u8>,
+    /// Identity and tags; `None` for a configured device not found yet.
+    pub info: Option<DeviceInfo>,
+    /// PV, SV, TV, QV.
+    pub variables: [Option<Variable>; 4],
+    /// Loop current, mA.
+    pub loop_current: Option<f32>,
+    /// PV percent of range.
+    pub percent_range: Option<f32>,
+    /// Field device status byte of the last reply.
+    pub device_status: u8,
+    /// Extended device status (command 9 or 48).
+    pub extended_status: u8,
+    /// The last command 48 reply data (empty until read).
+    pub additional_status: Vec<u8>,
+    /// PV range and damping (command 15), when read.
+    pub range: Option<RangeInfo>,
+    /// The loop current the device holds in fixed current mode, when the gateway set
+    /// it (command 40) and the device reports "loop current fixed".
+    pub fixed_current: Option<f32>,
+    /// Wall-clock time of the values (source time stamp).
+    pub updated: Option<SystemTime>,
+    /// When the last good reply came.
+    pub last_good: Option<Instant>,
+    /// What the last poll gave.
+    pub last_poll: LastPoll,
+    /// The configuration-changed bit has been seen and not yet acted on.
+    pub config_changed_pending: bool,
+    /// Values older than this are stale.
+    pub stale_after: Duration,
+    /// Polls sent and polls unanswered.
+    pub polls: u64,
+    /// Polls without a reply.
+    pub failures: u64,
+}
+
+impl DeviceImage {
+    /// An empty image at `position`.
+    pub fn new(position: usize, channel: u8, loop_name: &str, stale_after: Duration) -> Self {
+        DeviceImage {
+            position,
+            channel,
+            loop_name: loop_name.to_string(),
+            name: None,
+            polling_address: None,
+            info: None,
+            variables: [None; 4],
+            loop_current: None,
+            percent_range: None,
+            device_status: 0,
+            extended_status: 0,
+            additional_status: vec![],
+            range: None,
+            fixed_current: None,
+            updated: None,
+            last_good: None,
+            last_poll: LastPoll::Pending,
+            config_changed_pending: false,
+            stale_after,
+            polls: 0,
+            failures: 0,
+        }
+    }
+
+    /// The device's unique ID, once identified.
+    pub fn unique_id(&self) -> Option<UniqueId> {
+        self.info.as_ref().map(|i| i.unique_id())
+    }
+
+    /// The quality at `now`.
+    pub fn quality(&self, now: Instant) -> Quality {
+        match self.last_poll {
+            LastPoll::Pending | LastPoll::NoReply => Quality::NoReply,
+            LastPoll::Answered => {
+                if self
+                    .last_good
+                    .is_none_or(|t| now.saturating_duration_since(t) > self.stale_after)
+                {
+                    Quality::Stale
+                } else if self.device_status & fds::DEVICE_MALFUNCTION != 0 {
+                    Quality::DeviceMalfunction
+                } else if self.config_changed_pending {
+                    Quality::ConfigurationChanged
+                } else {
+                    Quality::Good
+                }
+            }
+        }
+    }
+
+    /// Whole seconds since the last good reply; `None` before the first.
+    pub fn seconds_since_good(&self, now: Instant) -> Option<u32> {
+        self.last_good.map(|t| {
+            now.saturating_duration_since(t)
+                .as_secs()
+                .min(u64::from(u32::MAX - 1)) as u32
+        })
+    }
+
+    /// A name for the device: the configured name, the long tag, the tag, or the
+    /// polling address, whichever is known first.
+    pub fn display_name(&self) -> String {
+        let nonblank = |s: &Option<String>| {
+            s.as_deref()
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+                .map(str::to_string)
+        };
+        if let Some(n) = nonblank(&self.name) {
+            return n;
+        }
+        if let Some(info) = &self.info {
+            if let Some(t) = nonblank(&info.long_tag).or_else(|| nonblank(&info.tag)) {
+                return t;
+            }
+            return format!("device-{}", info.unique_id());
+        }
+        match self.polling_address {
+            Some(p) => format!("poll-{p}"),
+            None => format!("device-{}", self.position + 1),
+        }
+    }
+
+    /// Records a reply to a read command (1, 2, 3, 9, 15, 48, from a poll or a burst
+    /// message) received at `now`/`wall`. Returns whether the reply carried values
+    /// this image keeps.
+    pub fn apply_reply(
+        &mut self,
+        command: u16,
+        response_code: u8,
+        device_status: u8,
+        data: &[u8],
+        now: Instant,
+        wall: SystemTime,
+    ) -> bool {
+        use hart_proto::tables::{response_class, ResponseClass};
+        self.device_status = device_status;
+        if device_status & fds::LOOP_CURRENT_FIXED == 0 {
+            self.fixed_current = None;
+        }
+        if response_class(response_code) == ResponseClass::Error {
+            return false;
+        }
+        let mut r = Reader::new(data);
+        let kept = match command {
+            1 => match hart_proto::command::ReadPvResponse::decode(&mut r) {
+                Ok(v) => {
+                    self.variables[0] = Some(Variable {
+                        value: v.pv,
+                        units: v.pv_units.0,
+                        status: None,
+                    });
+                    true
+                }
+                Err(_) => false,
+            },
+            2 => match ReadLoopCurrentResponse::decode(&mut r) {
+                Ok(v) => {
+                    self.loop_current = Some(v.loop_current.0);
+                    self.percent_range = Some(v.percent_of_range.0);
+                    true
+                }
+                Err(_) => false,
+            },
+            3 => match ReadDynamicVariablesResponse::decode(&mut r) {
+                Ok(v) => {
+                    self.loop_current = Some(v.loop_current.0);
+                    for (i, slot) in self.variables.iter_mut().enumerate() {
+                        *slot = v.variables.as_slice().get(i).map(|u| Variable {
+                            value: u.value,
+                            units: u.units.0,
+                            status: None,
+                        });
+                    }
+                    true
+                }
+                Err(_) => false,
+            },
+            9 => self.apply_slots(data),
+            15 => match DeviceInformation::decode(&mut r) {
+                Ok(d) => {
+                    self.range = Some(RangeInfo {
+                        units: d.range_units.0,
+                        upper: d.upper_range_value,
+                        lower: d.lower_range_value,
+                        damping: d.damping.0,
+                        write_protect: d.write_protect.0,
+                    });
+                    true
+                }
+                Err(_) => false,
+            },
+            48 => {
+                self.additional_status = data.to_vec();
+                if let Some(&x) = data.get(6) {
+                    self.extended_status = x;
+                }
+                true
+            }
+            _ => false,
+        };
+        if kept && matches!(command, 1 | 2 | 3 | 9) {
+            self.updated = Some(wall);
+            self.last_good = Some(now);
+            self.last_poll = LastPoll::Answered;
+        }
+        kept
+    }
+
+    /// Command 9's reply: extended status, then slots. Slots 246-249 are PV..QV,
+    /// 244 percent of range, 245 loop current; device variables 0-3 fill PV..QV only
+    /// when asked for as such (the engine asks for 246-249).
+    fn apply_slots(&mut self, data: &[u8]) -> bool {
+        let Some((&ext, rest)) = data.split_first() else {
+            return false;
+        };
+        let Ok(s) = SlotsWithTimestamp::decode(&mut Reader::new(rest)) else {
+            return false;
+        };
+        self.extended_status = ext;
+        for slot in s.slots.as_slice() {
+            let var = Variable {
+                value: slot.value,
+                units: slot.units.0,
+                status: Some(slot.status.0),
+            };
+            match slot.code.0 {
+                244 => self.percent_range = Some(slot.value),
+                245 => self.loop_current = Some(slot.value),
+                c @ 246..=249 => self.variables[usize::from(c - 246)] = Some(var),
+                _ => {}
+            }
+        }
+        true
+    }
+
+    /// Records a poll without a reply.
+    pub fn no_reply(&mut self) {
+        self.last_poll = LastPoll::NoReply;
+        self.failures += 1;
+    }
+}
+
+/// Every device's image, shared by the engine (which writes) and the front ends (which
+/// read). Changes are announced on a broadcast channel by position.
+pub struct Image {
+    devices: RwLock<Vec<DeviceImage>>,
+    changes: broadcast::Sender<usize>,
+}
+
+impl Default for Image {
+    fn default() -> Self {
+        Image {
+            devices: RwLock::new(vec![]),
+            changes: broadcast::channel(1024).0,
+        }
+    }
+}
+
+impl Image {
+    fn read(&self) -> std::sync::RwLockReadGuard<'_, Vec<DeviceImage>> {
+        self.devices.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn write(&self) -> std::sync::RwLockWriteGuard<'_, Vec<DeviceImage>> {
+        self.devices.write().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Devices in the list.
+    pub fn len(&self) -> usize {
+        self.read().len()
+    }
+
+    /// Whether no device is listed yet.
+    pub fn is_empty(&self) -> bool {
+        self.read().is_empty()
+    }
+
+    /// A copy of every device's image, in position order.
+    pub fn snapshot(&self) -> Vec<DeviceImage> {
+        self.read().clone()
+    }
+
+    /// Calls `f` with the image at `position` without copying it.
+    pub fn with<R>(&self, position: usize, f: impl FnOnce(&DeviceImage) -> R) -> Option<R> {
+        self.read().get(position).map(f)
+    }
+
+    /// Receives the position of every device whose image changed.
+    pub fn subscribe(&self) -> broadcast::Receiver<usize> {
+        self.changes.subscribe()
+    }
+
+    /// Changes the image at `position` and announces it.
+    pub fn update<R>(&self, position: usize, f: impl FnOnce(&mut DeviceImage) -> R) -> Option<R> {
+        let r = self.write().get_mut(position).map(f);
+        if r.is_some() {
+            let _ = self.changes.send(position);
+        }
+        r
+    }
+
+    /// Adds a device at the end of the list; returns its position.
+    pub fn push(&self, mut device: DeviceImage) -> usize {
+        let mut d = self.write();
+        device.position = d.len();
+        let p = device.position;
+        d.push(device);
+        drop(d);
+        let _ = self.changes.send(p);
+        p
+    }
+
+    /// The position of the device with `id` on `channel`.
+    pub fn find(&self, channel: u8, id: UniqueId) -> Option<usize> {
+        self.read()
+            .iter()
+            .find(|d| d.channel == channel && d.unique_id() == Some(id))
+            .map(|d| d.position)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image() -> DeviceImage {
+        DeviceImage::new(0, 0, "loop1", Duration::from_secs(10))
+    }
+
+    /// A command 3 reply, field by field: 12.0 mA, PV 50.0 kPa (units 12), SV
+    /// 25.0 degC (units 32).
+    #[test]
+    fn command_3_fills_pv_sv_and_current() {
+        let data = [
+            0x41, 0x40, 0x00, 0x00, // loop current 12.0 mA
+            12, 0x42, 0x48, 0x00, 0x00, // PV kPa 50.0
+            32, 0x41, 0xC8, 0x00, 0x00, // SV degC 25.0
+        ];
+        let mut d = image();
+        let now = Instant::now();
+        assert!(d.apply_reply(3, 0, 0, &data, now, SystemTime::now()));
+        assert_eq!(d.loop_current, Some(12.0));
+        assert_eq!(d.variables[0].unwrap().value, 50.0);
+        assert_eq!(d.variables[0].unwrap().units, 12);
+        assert_eq!(d.variables[1].unwrap().units, 32);
+        assert!(d.variables[2].is_none());
+        assert_eq!(d.quality(now), Quality::Good);
+        assert_eq!(d.quality(now + Duration::from_secs(11)), Quality::Stale);
+    }
+
+    #[test]
+    fn malfunction_and_no_reply() {
+        let mut d = image();
+        let now = Instant::now();
+        assert_eq!(d.quality(now), Quality::NoReply);
+        let data = [0x41, 0x40, 0, 0, 12, 0x42, 0x48, 0, 0];
+        d.apply_reply(3, 0, fds::DEVICE_MALFUNCTION, &data, now, SystemTime::now());
+        assert_eq!(d.quality(now), Quality::DeviceMalfunction);
+        d.no_reply();
+        assert_eq!(d.quality(now), Quality::NoReply);
+        // An error reply (command not implemented) keeps the values it had.
+        assert!(!d.apply_reply(3, 64, 0, &[], now, SystemTime::now()));
+        assert_eq!(d.variables[0].unwrap().value, 50.0);
+    }
+
+    /// Command 9 with slots 246, 244, 245: the engine's request for PV, percent of
+    /// range and loop current.
+    #[test]
+    fn command_9_slots() {
+        let data = [
+            0x00, // extended status
+            246, 64, 12, 0x42, 0x48, 0x00, 0x00, 0xC0, // PV 50.0 kPa, good
+            244, 0, 57, 0x42, 0x48, 0x00, 0x00, 0xC0, // 50 %
+            245, 0, 39, 0x41, 0x40, 0x00, 0x00, 0xC0, // 12 mA
+            0, 0, 0, 0, // time stamp
+        ];
+        let mut d = image();
+        assert!(d.apply_reply(9, 0, 0, &data, Instant::now(), SystemTime::now()));
+        assert_eq!(d.variables[0].unwrap().status, Some(0xC0));
+        assert_eq!(d.percent_range, Some(50.0));
+        assert_eq!(d.loop_current, Some(12.0));
+    }
+
+    #[test]
+    fn display_names() {
+        let mut d = image();
+        d.polling_address = Some(3);
+        assert_eq!(d.display_name(), "poll-3");
+        d.name = Some("  ".into());
+        assert_eq!(d.display_name(), "poll-3");
+        d.name = Some("FT-101".into());
+        assert_eq!(d.display_name(), "FT-101");
+    }
+
+    proptest::proptest! {
+        /// Any reply data, for any command, never panics the image.
+        #[test]
+        fn any_reply_is_safe(command in 0u16..300, rc: u8, status: u8,
+                             data in proptest::collection::vec(proptest::num::u8::ANY, 0..64)) {
+            let mut d = image();
+            d.apply_reply(command, rc, status, &data, Instant::now(), SystemTime::now());
+            let _ = d.quality(Instant::now());
+        }
+    }
+}

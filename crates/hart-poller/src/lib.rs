@@ -1,0 +1,327 @@
+//! # hart-poller
+//!
+//! The polling engine of hartkit's gateway. It owns the HART loops (serial modems,
+//! RS-485 lines, HART-IP servers upstream, simulated plants): one task per loop finds
+//! the devices (a scan of polling addresses, command 0, and the sub-devices of I/O
+//! systems), polls each one's dynamic variables (command 3 or 9), its status (command
+//! 48 when it has more) and its configuration (command 15, tags), and listens for burst
+//! messages, into one current [`Image`] per device with a time stamp and a
+//! [`Quality`]. Front ends (HART-IP, Modbus, OPC UA) read the image without touching
+//! the loop, and hand the loop their requests ([`Engine::forward`]) and writes
+//! ([`Engine::write`], ahead of polls).
+//!
+//! The choices of what goes on the line next ([`schedule::Schedule`], the turn order
+//! in `task`) are plain code over time passed in; the tasks run on a
+//! `tokio::task::LocalSet` (serial ports and simulated plants stay on one thread).
+
+use std::sync::Arc;
+
+use hart_host::DeviceInfo;
+use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
+use tokio::sync::{broadcast, mpsc, watch, Mutex};
+
+pub mod config;
+pub mod image;
+pub mod line;
+pub mod request;
+pub mod schedule;
+mod task;
+
+pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
+pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
+pub use line::{Line, MemoryLoop};
+pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
+pub use task::{
+    FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
+};
+
+/// A device found on a loop, for routing requests to it.
+#[derive(Debug, Clone)]
+pub struct SubDevice {
+    /// Channel (loop index).
+    pub channel: u8,
+    /// What the scan found.
+    pub info: DeviceInfo,
+}
+
+/// What the engine's tasks and handles share.
+pub(crate) struct Shared {
+    pub(crate) config: EngineConfig,
+    pub(crate) loop_names: Vec<String>,
+    pub(crate) image: Arc<Image>,
+    pub(crate) subs: Arc<Mutex<Vec<SubDevice>>>,
+    pub(crate) bursts: broadcast::Sender<Vec<u8>>,
+    ready: watch::Sender<Vec<bool>>,
+}
+
+impl Shared {
+    /// Loop `channel` has identified its listed devices and scanned once.
+    pub(crate) fn loop_ready(&self, channel: u8) {
+        self.ready.send_modify(|r| {
+            if let Some(x) = r.get_mut(usize::from(channel)) {
+                *x = true;
+            }
+        });
+    }
+}
+
+/// A loop to start: its settings and its line.
+pub struct LoopSpec {
+    /// Settings (name, devices, scan).
+    pub settings: LoopSettings,
+    /// The line.
+    pub line: Line,
+}
+
+/// Why a write did not reach the device.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum WriteError {
+    /// No device at that position, or not identified yet.
+    UnknownDevice,
+    /// The device did not answer.
+    NoReply,
+    /// The loop was busy: its queue full, or the write waited too long.
+    Busy,
+    /// The reply was not a HART frame, or reported a communication error.
+    BadReply(String),
+}
+
+impl std::fmt::Display for WriteError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WriteError::UnknownDevice => f.write_str(
+                "no such device, or not identified yet: check the device list (hartkit serve --print-map)",
+            ),
+            WriteError::NoReply => f.write_str("the device did not answer; check that it is powered and on the loop"),
+            WriteError::Busy => f.write_str("the loop is busy; try again"),
+            WriteError::BadReply(e) => write!(f, "bad reply: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for WriteError {}
+
+/// A device's answer to a write.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WriteReply {
+    /// Response code.
+    pub response_code: u8,
+    /// Field device status.
+    pub device_status: u8,
+    /// Reply data.
+    pub data: Vec<u8>,
+}
+
+/// Writes queued per loop at most (SCADA writes are few; more are answered "busy").
+pub const WRITE_QUEUE: usize = 16;
+
+/// A running engine: handles to its loops and image. Cheap to clone.
+#[derive(Clone)]
+pub struct Engine {
+    shared: Arc<Shared>,
+    requests: Vec<mpsc::Sender<LoopRequest>>,
+    writes: Vec<mpsc::Sender<LoopRequest>>,
+    ready: watch::Receiver<Vec<bool>>,
+}
+
+impl Engine {
+    /// Starts one task per loop; call it inside a `tokio::task::LocalSet`. Devices
+    /// listed in the loops' settings take the first positions of the image, in order.
+    pub fn start(
+        config: EngineConfig,
+        loops: Vec<LoopSpec>,
+    ) -> (Engine, Vec<tokio::task::JoinHandle<()>>) {
+        Self::start_with_queue(config, loops, LOOP_QUEUE)
+    }
+
+    /// [`Engine::start`] with client request queues of `queue` (in-memory loops take
+    /// more: no line time to wait for).
+    pub fn start_with_queue(
+        config: EngineConfig,
+        loops: Vec<LoopSpec>,
+        queue: usize,
+    ) -> (Engine, Vec<tokio::task::JoinHandle<()>>) {
+        let loop_names: Vec<String> = loops
+            .iter()
+            .enumerate()
+            .map(|(i, l)| {
+                l.settings
+                    .name
+                    .clone()
+                    .unwrap_or_else(|| format!("loop{}", i + 1))
+            })
+            .collect();
+        let image = Arc::new(Image::default());
+        for (channel, l) in loops.iter().enumerate() {
+            for dev in &l.settings.device {
+                let (period, _) = config.device_settings(&l.settings, Some(dev));
+                let mut d = DeviceImage::new(
+                    0,
+                    channel as u8,
+                    &loop_names[channel],
+                    config.stale_limit(period),
+                );
+                d.name = dev.name.clone();
+                d.polling_address = Some(dev.poll);
+                image.push(d);
+            }
+        }
+        let (ready_tx, ready) = watch::channel(vec![false; loops.len()]);
+        let shared = Arc::new(Shared {
+            config,
+            loop_names,
+            image,
+            subs: Arc::new(Mutex::new(vec![])),
+            bursts: broadcast::channel(64).0,
+            ready: ready_tx,
+        });
+        let mut requests = vec![];
+        let mut writes = vec![];
+        let mut tasks = vec![];
+        for (channel, l) in loops.into_iter().enumerate() {
+            let (rtx, rrx) = mpsc::channel(queue.max(1));
+            let (wtx, wrx) = mpsc::channel(WRITE_QUEUE);
+            requests.push(rtx);
+            writes.push(wtx);
+            let t =
+                task::LoopTask::new(channel as u8, l.settings, l.line, shared.clone(), rrx, wrx);
+            tasks.push(tokio::task::spawn_local(t.run()));
+        }
+        (
+            Engine {
+                shared,
+                requests,
+                writes,
+                ready,
+            },
+            tasks,
+        )
+    }
+
+    /// The current image.
+    pub fn image(&self) -> &Arc<Image> {
+        &self.shared.image
+    }
+
+    /// Devices found on the loops, for routing (HART-IP).
+    pub fn sub_devices(&self) -> &Arc<Mutex<Vec<SubDevice>>> {
+        &self.shared.subs
+    }
+
+    /// Burst frames heard on any loop (PDUs).
+    pub fn bursts(&self) -> &broadcast::Sender<Vec<u8>> {
+        &self.shared.bursts
+    }
+
+    /// Loops, in channel order.
+    pub fn loop_count(&self) -> usize {
+        self.requests.len()
+    }
+
+    /// The name of loop `channel`.
+    pub fn loop_name(&self, channel: usize) -> Option<&str> {
+        self.shared.loop_names.get(channel).map(String::as_str)
+    }
+
+    /// The engine's settings.
+    pub fn config(&self) -> &EngineConfig {
+        &self.shared.config
+    }
+
+    /// Waits until every loop has identified its listed devices and scanned once.
+    pub async fn ready(&self) {
+        let mut rx = self.ready.clone();
+        let _ = rx.wait_for(|r| r.iter().all(|&x| x)).await;
+    }
+
+    /// Carries a client's request PDU to loop `channel` with `retries`, between polls.
+    /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
+    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
+        match self.requests.get(channel) {
+            Some(q) => request::submit(q, pdu, retries).await,
+            None => LoopOutcome::NoReply,
+        }
+    }
+
+    /// Sends `command` with `data` to the device at image `position`, ahead of every
+    /// poll and client request of its loop, and returns the device's answer (whatever
+    /// its response code: the caller judges it). After a write that changes the
+    /// configuration, the engine reads the device's configuration again.
+    pub async fn write(
+        &self,
+        position: usize,
+        command: u16,
+        data: &[u8],
+    ) -> Result<WriteReply, WriteError> {
+        let (channel, id) = self
+            .shared
+            .image
+            .with(position, |d| (d.channel, d.unique_id()))
+            .ok_or(WriteError::UnknownDevice)?;
+        let id = id.ok_or(WriteError::UnknownDevice)?;
+        let pdu = line::pdu(&FrameSpec {
+            extended: command > 255,
+            ..FrameSpec::request(
+                Address::long(id).with_master(MasterKind::Primary),
+                command,
+                data,
+            )
+        });
+        let queue = self
+            .writes
+            .get(usize::from(channel))
+            .ok_or(WriteError::UnknownDevice)?;
+        match request::submit(queue, pdu, POLL_RETRIES).await {
+            LoopOutcome::Busy => Err(WriteError::Busy),
+            LoopOutcome::NoReply => Err(WriteError::NoReply),
+            LoopOutcome::Reply(r) => {
+                let f = Frame::parse_pdu(&r).map_err(|e| WriteError::BadReply(e.to_string()))?;
+                if f.is_communication_error() {
+                    return Err(WriteError::BadReply(format!(
+                        "the device reports a communication error ({:#04x}); check the loop's wiring and noise",
+                        f.response_code.unwrap_or(0)
+                    )));
+                }
+                Ok(WriteReply {
+                    response_code: f.response_code.unwrap_or(0),
+                    device_status: f.device_status.unwrap_or(0),
+                    data: f.data.to_vec(),
+                })
+            }
+        }
+    }
+
+    /// The request queues, one per loop (for servers that submit PDUs themselves).
+    pub fn request_queues(&self) -> &[mpsc::Sender<LoopRequest>] {
+        &self.requests
+    }
+}
+
+/// Adds a sub-device to the routing list, or updates the one with the same unique ID.
+pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
+    let mut subs = subs.lock().await;
+    // A different device now answering at a polling address replaces the one seen
+    // there before.
+    if let Some(p) = sub.info.polling_address {
+        subs.retain(|s| {
+            s.channel != sub.channel
+                || s.info.polling_address != Some(p)
+                || s.info.unique_id() == sub.info.unique_id()
+        });
+    }
+    match subs
+        .iter_mut()
+        .find(|s| s.info.unique_id() == sub.info.unique_id())
+    {
+        Some(s) => {
+            let old = std::mem::replace(s, sub);
+            // Keep what the new sighting did not learn.
+            s.info.polling_address = s.info.polling_address.or(old.info.polling_address);
+            s.info.tag = s.info.tag.take().or(old.info.tag);
+            s.info.descriptor = s.info.descriptor.take().or(old.info.descriptor);
+            s.info.long_tag = s.info.long_tag.take().or(old.info.long_tag);
+            s.info.io_channel = s.info.io_channel.or(old.info.io_channel);
+        }
+        None => subs.push(sub),
+    }
+}

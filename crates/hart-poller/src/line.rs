@@ -1,0 +1,155 @@
+//! What a loop task talks to: a real line through `hart_host::Client` (serial modem,
+//! RS-485, HART-IP upstream, simulated plant), or devices answered in memory.
+
+use std::time::{Duration, Instant};
+
+use hart_host::target::AnyTransport;
+use hart_host::Client;
+use hart_link::master::RetryPolicy;
+use hart_proto::frame::{Address, Frame, FrameSpec, FrameType};
+
+/// A loop's line.
+pub enum Line {
+    /// A line reached through a master client.
+    Client(Box<Client<AnyTransport>>),
+    /// Field devices answered at once, in memory, without line timing (benchmarks).
+    Memory(MemoryLoop),
+}
+
+/// Devices answered in memory; burst messages are published when due.
+pub struct MemoryLoop {
+    devices: Vec<hart_device::Device>,
+    start: Instant,
+}
+
+impl MemoryLoop {
+    /// A loop of `devices`.
+    pub fn new(devices: Vec<hart_device::Device>) -> Self {
+        MemoryLoop {
+            devices,
+            start: Instant::now(),
+        }
+    }
+
+    fn now(&self) -> u64 {
+        self.start.elapsed().as_micros() as u64
+    }
+}
+
+impl Line {
+    /// A line through `client`.
+    pub fn client(client: Client<AnyTransport>) -> Self {
+        Line::Client(Box::new(client))
+    }
+
+    /// Sends `pdu` with `retries` after no reply; the reply's PDU, or `None`.
+    pub async fn transact(&mut self, pdu: &[u8], retries: u8) -> Option<Vec<u8>> {
+        match self {
+            Line::Client(c) => {
+                c.set_policy(RetryPolicy {
+                    retries,
+                    ..RetryPolicy::default()
+                });
+                c.forward(pdu).await.ok()
+            }
+            Line::Memory(m) => {
+                let t = m.now();
+                answer(&mut m.devices, pdu, t)
+            }
+        }
+    }
+
+    /// Whether requests are answered in memory (no line time to share).
+    pub fn is_memory(&self) -> bool {
+        matches!(self, Line::Memory(_))
+    }
+
+    /// Nothing else to do: listen to the line for a moment (burst frames).
+    pub async fn idle(&mut self) {
+        if let Line::Client(c) = self {
+            let _ = c.listen(20_000).await;
+        }
+    }
+
+    /// Burst frames heard (or, in memory, due) since the last call.
+    pub fn take_bursts(&mut self) -> Vec<Vec<u8>> {
+        match self {
+            Line::Client(c) => c.take_bursts(),
+            Line::Memory(m) => {
+                use hart_link::slave::Handler;
+                let t = m.now();
+                let mut out = vec![];
+                for d in &mut m.devices {
+                    if d.burst_mode() && d.burst_due(t).is_some_and(|due| due <= t) {
+                        let mut reply = hart_link::slave::Reply::default();
+                        let master = d.burst_master();
+                        let command = d.burst(&mut reply, t);
+                        let id = d.unique_id();
+                        out.push(pdu(&FrameSpec {
+                            frame_type: FrameType::Back,
+                            status: Some((reply.response_code, reply.device_status)),
+                            extended: command > 255,
+                            ..FrameSpec::request(
+                                Address::long(id).with_burst(true).with_master(master),
+                                command,
+                                reply.data(),
+                            )
+                        }));
+                        d.set_burst_master(master.other());
+                    }
+                }
+                out
+            }
+        }
+    }
+
+    /// The sub-devices of the I/O system `io` on this line (commands 74 and 84), but
+    /// those in `skip`; none in memory.
+    pub async fn sub_devices(
+        &mut self,
+        io: hart_proto::frame::UniqueId,
+        skip: &[hart_proto::frame::UniqueId],
+    ) -> Vec<hart_host::DeviceInfo> {
+        match self {
+            Line::Client(c) => {
+                c.set_policy(RetryPolicy::default());
+                c.sub_devices(io, skip).await
+            }
+            Line::Memory(_) => vec![],
+        }
+    }
+
+    /// How long to wait for requests before [`Line::idle`].
+    pub fn idle_wait(&self) -> Duration {
+        Duration::from_millis(20)
+    }
+}
+
+/// The PDU of `spec` (no preambles); empty if it cannot be encoded.
+pub fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
+    hart_proto::frame::FrameBuf::encode(spec).map_or_else(|_| vec![], |b| b.as_slice().to_vec())
+}
+
+/// The reply of the device a request frame addresses, as its data-link slave would
+/// accept it (polling address; unique ID; the broadcast address for commands 11 and 21,
+/// which only the device with that tag answers), or `None` when none answers.
+fn answer(devices: &mut [hart_device::Device], request: &[u8], t: u64) -> Option<Vec<u8>> {
+    let f = Frame::parse_pdu(request).ok()?;
+    devices
+        .iter_mut()
+        .filter(|d| match f.address {
+            Address::Short(a) => a.polling_address == d.config().polling_address,
+            Address::Long(a) => {
+                a.id == d.unique_id() || (a.id.is_broadcast() && matches!(f.command_byte, 11 | 21))
+            }
+        })
+        .find_map(|d| {
+            let (code, status, data) = d.handle(&f, t)?;
+            Some(pdu(&FrameSpec {
+                frame_type: FrameType::Ack,
+                extended: f.extended,
+                status: Some((code, status)),
+                ..FrameSpec::request(f.address.with_burst(d.burst_mode()), f.command, &data)
+            }))
+        })
+}

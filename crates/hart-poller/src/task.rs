@@ -1,0 +1,681 @@
+//! The one task that owns a loop: client requests and writes in turn, the scan that
+//! finds the devices, and the polls that keep the image current.
+//!
+//! Each turn takes, in this order: a write (SCADA front ends); a client request
+//! (HART-IP), unless [`FAIR_SHARE`] of them in a row have kept an overdue poll
+//! waiting; a scan step when due; the poll of the device due longest. With nothing to
+//! do it listens to the line for burst frames.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use hart_host::DeviceInfo;
+use hart_proto::command::{Identity, LongTag, TagDescriptorDate};
+use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind, UniqueId};
+use hart_proto::tables::field_device_status as fds;
+use hart_proto::wire::{Reader, Wire};
+use tokio::sync::mpsc;
+
+use crate::config::{LoopSettings, ReadCommand};
+use crate::image::{DeviceImage, LastPoll};
+use crate::line::{pdu, Line};
+use crate::request::{LoopOutcome, LoopRequest};
+use crate::schedule::{Micros, Schedule};
+use crate::{Shared, SubDevice};
+
+/// After the first pass without polling, one more address of the scan is visited
+/// whenever the loop has had no request for this long, so the sub-device list stays
+/// current.
+pub const RESCAN_IDLE: Duration = Duration::from_secs(2);
+
+/// During the first pass the scan waits this long after a request before it takes the
+/// line again, so a client's next request (which follows its reply within
+/// milliseconds) does not queue behind a scan step.
+pub const SCAN_GRACE: Duration = Duration::from_millis(150);
+
+/// Rescan visits without a reply after which a known sub-device is dropped from the
+/// routing list (its image stays, "no reply").
+pub const MISSES_TO_FORGET: u8 = 2;
+
+/// Client requests carried in a row while a poll is overdue before one poll goes.
+pub const FAIR_SHARE: u32 = 4;
+
+/// Retries of a poll to a device that answered its last poll; one that did not gets
+/// one retry, so a dead device costs the line two slave time-outs per visit.
+pub const POLL_RETRIES: u8 = 3;
+
+/// A device that did not answer is polled again after this long at the soonest.
+pub const RETRY_DEAD_AFTER: Duration = Duration::from_secs(2);
+
+/// Commands whose success changes what command 15 or the tags report: the device's
+/// configuration is read again after one of them goes through the engine.
+const CONFIG_WRITES: &[u16] = &[6, 17, 18, 22, 34, 35, 36, 37, 40, 44, 45, 46, 47, 53, 79];
+
+/// Per device, what the task keeps besides the image.
+#[derive(Debug, Clone, Default)]
+struct Polled {
+    /// The device refused command 9: poll it with command 3.
+    no_command_9: bool,
+    /// Last seen state of the configuration-changed bit.
+    config_bit: bool,
+    /// Read command 15 (and tags) on the next poll.
+    refresh: bool,
+    /// Tags too.
+    refresh_tags: bool,
+}
+
+pub(crate) struct LoopTask {
+    pub(crate) channel: u8,
+    pub(crate) settings: LoopSettings,
+    pub(crate) line: Line,
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) requests: mpsc::Receiver<LoopRequest>,
+    pub(crate) writes: mpsc::Receiver<LoopRequest>,
+    schedule: Schedule,
+    polled: std::collections::HashMap<usize, Polled>,
+    scan_order: Vec<u8>,
+    next_scan: usize,
+    first_pass: bool,
+    misses: [u8; 64],
+    quiet_since: Option<Instant>,
+    last_scan: Option<Instant>,
+    in_a_row: u32,
+    scan_turn: bool,
+    epoch: Instant,
+}
+
+impl LoopTask {
+    pub(crate) fn new(
+        channel: u8,
+        settings: LoopSettings,
+        line: Line,
+        shared: Arc<Shared>,
+        requests: mpsc::Receiver<LoopRequest>,
+        writes: mpsc::Receiver<LoopRequest>,
+    ) -> Self {
+        let scan_order = settings.scan_order();
+        LoopTask {
+            channel,
+            settings,
+            line,
+            shared,
+            requests,
+            writes,
+            schedule: Schedule::new(RETRY_DEAD_AFTER.as_micros() as Micros),
+            polled: Default::default(),
+            scan_order,
+            next_scan: 0,
+            first_pass: true,
+            misses: [0; 64],
+            quiet_since: None,
+            last_scan: None,
+            in_a_row: 0,
+            scan_turn: true,
+            epoch: Instant::now(),
+        }
+    }
+
+    fn now(&self) -> Micros {
+        self.epoch.elapsed().as_micros() as Micros
+    }
+
+    fn polling(&self) -> bool {
+        self.shared.config.poll
+    }
+
+    /// Runs until every request queue is closed (the engine was dropped).
+    pub(crate) async fn run(mut self) {
+        // Configured devices are polled from the start (identified on their first turn).
+        if self.polling() {
+            let now = self.now();
+            for d in self.shared.image.snapshot() {
+                if d.channel == self.channel {
+                    let (period, _) = self.device_settings(d.polling_address);
+                    self.schedule.insert(d.position, micros(period), now);
+                }
+            }
+        }
+        if self.line.is_memory() {
+            // Answers in memory cost no line time: the whole first pass at once.
+            while self.first_pass && !self.scan_order.is_empty() {
+                self.scan_step().await;
+            }
+        }
+        if self.scan_order.is_empty() {
+            self.first_pass_done();
+        }
+        loop {
+            // A loop in virtual time never waits: let the other tasks run between steps.
+            tokio::task::yield_now().await;
+            if let Ok(r) = self.writes.try_recv() {
+                self.carry(r).await;
+                continue;
+            }
+            let t = self.now();
+            let poll_due = self.polling() && self.schedule.due(t).is_some();
+            if !(poll_due && self.in_a_row >= FAIR_SHARE) {
+                match self.requests.try_recv() {
+                    Ok(r) => {
+                        self.in_a_row += 1;
+                        self.carry(r).await;
+                        continue;
+                    }
+                    Err(mpsc::error::TryRecvError::Disconnected) => return,
+                    Err(mpsc::error::TryRecvError::Empty) => {}
+                }
+            }
+            self.in_a_row = 0;
+            let scan_wait = self.scan_wait();
+            let scan_due = scan_wait == Some(Duration::ZERO);
+            // In the first pass scan steps and polls take turns, so the devices found
+            // first are polled while the scan goes on.
+            if scan_due && (!poll_due || self.scan_turn || !self.first_pass) {
+                self.scan_turn = false;
+                self.scan_step().await;
+            } else if poll_due {
+                self.scan_turn = true;
+                if let Some(p) = self.schedule.due(t) {
+                    self.poll(p).await;
+                }
+            } else {
+                let mut wait = self.line.idle_wait();
+                if let Some(w) = scan_wait {
+                    wait = wait.min(w);
+                }
+                if self.polling() {
+                    if let Some(d) = self.schedule.next_due() {
+                        wait = wait.min(Duration::from_micros(d.saturating_sub(t)));
+                    }
+                }
+                tokio::select! {
+                    r = self.writes.recv() => if let Some(r) = r { self.carry(r).await },
+                    r = self.requests.recv() => match r {
+                        Some(r) => { self.in_a_row += 1; self.carry(r).await }
+                        None => return,
+                    },
+                    _ = tokio::time::sleep(wait) => {
+                        if !self.line.is_memory() && wait >= self.line.idle_wait() {
+                            self.line.idle().await;
+                        }
+                    }
+                }
+            }
+            self.bursts();
+        }
+    }
+
+    /// How long until the next scan step; `Some(0)` when due, `None` for no scan.
+    fn scan_wait(&self) -> Option<Duration> {
+        if self.scan_order.is_empty() {
+            return None;
+        }
+        let since = |t: Option<Instant>| t.map_or(Duration::MAX, |t| t.elapsed());
+        let idle = since(self.quiet_since);
+        if self.first_pass {
+            return Some(SCAN_GRACE.saturating_sub(idle));
+        }
+        let rescan = self.shared.config.defaults.rescan;
+        if self.polling() {
+            if rescan.is_zero() {
+                return None;
+            }
+            // With polls on the line, a rescan step every `rescan`, and not right
+            // after a client's request either.
+            let w = rescan
+                .saturating_sub(since(self.last_scan))
+                .max(RESCAN_IDLE.saturating_sub(idle).min(SCAN_GRACE));
+            return Some(w);
+        }
+        Some(RESCAN_IDLE.saturating_sub(idle))
+    }
+
+    fn first_pass_done(&mut self) {
+        if self.first_pass {
+            self.first_pass = false;
+        }
+        self.shared.loop_ready(self.channel);
+    }
+
+    /// Carries a client's request or a write.
+    async fn carry(&mut self, r: LoopRequest) {
+        // Given up by its requester (answered "busy"), or its session ended: the line
+        // is not spent on it.
+        if !r.start() {
+            return;
+        }
+        let outcome = match self.line.transact(&r.pdu, r.retries).await {
+            Some(reply) => {
+                self.learn(&r.pdu, &reply).await;
+                self.after_write(&r.pdu, &reply);
+                LoopOutcome::Reply(reply)
+            }
+            None => LoopOutcome::NoReply,
+        };
+        let _ = r.reply.send(outcome);
+        self.quiet_since = Some(Instant::now());
+    }
+
+    /// A write that went through: read the device's configuration again on its next
+    /// poll (at once), and keep the loop current it was fixed at.
+    fn after_write(&mut self, request: &[u8], reply: &[u8]) {
+        use hart_proto::tables::{response_class, ResponseClass};
+        let (Ok(req), Ok(rep)) = (Frame::parse_pdu(request), Frame::parse_pdu(reply)) else {
+            return;
+        };
+        if !CONFIG_WRITES.contains(&req.command)
+            || rep.is_communication_error()
+            || response_class(rep.response_code.unwrap_or(0xFF)) == ResponseClass::Error
+        {
+            return;
+        }
+        let Some(position) = self.position_of(&req.address) else {
+            return;
+        };
+        if req.command == 40 {
+            let current = rep
+                .data
+                .get(..4)
+                .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]));
+            self.shared.image.update(position, |d| {
+                d.fixed_current = current.filter(|c| *c != 0.0);
+            });
+        }
+        let p = self.polled.entry(position).or_default();
+        p.refresh = true;
+        p.refresh_tags |= matches!(req.command, 6 | 17 | 18 | 22);
+        let now = self.now();
+        self.schedule.hurry(position, now);
+    }
+
+    /// The image position of the device a request addresses on this loop.
+    fn position_of(&self, address: &Address) -> Option<usize> {
+        match address {
+            Address::Long(a) => self.shared.image.find(self.channel, a.id),
+            Address::Short(a) => self.shared.image.snapshot().iter().find_map(|d| {
+                (d.channel == self.channel
+                    && d.polling_address == Some(a.polling_address)
+                    && d.info.is_some())
+                .then_some(d.position)
+            }),
+        }
+    }
+
+    /// One address of the scan: identify it, list what answers, forget what stopped
+    /// answering.
+    async fn scan_step(&mut self) {
+        let Some(&poll) = self.scan_order.get(self.next_scan) else {
+            return;
+        };
+        match self.identify(poll).await {
+            Some(info) => {
+                self.misses[usize::from(poll)] = 0;
+                let io = info.is_io_system().then(|| info.unique_id());
+                self.register(info).await;
+                if let Some(io) = io {
+                    self.io_system(io).await;
+                }
+            }
+            None => {
+                let m = &mut self.misses[usize::from(poll)];
+                *m = m.saturating_add(1);
+                if *m >= MISSES_TO_FORGET {
+                    let channel = self.channel;
+                    self.shared
+                        .subs
+                        .lock()
+                        .await
+                        .retain(|s| s.channel != channel || s.info.polling_address != Some(poll));
+                }
+            }
+        }
+        self.next_scan += 1;
+        if self.next_scan >= self.scan_order.len() {
+            self.next_scan = 0;
+            self.first_pass_done();
+        }
+        self.last_scan = Some(Instant::now());
+        if !self.first_pass && !self.polling() {
+            self.quiet_since = Some(Instant::now());
+        }
+    }
+
+    /// The sub-devices of an I/O system found on this loop (a HART-IP gateway or
+    /// multiplexer upstream): listed and polled by their unique IDs through it.
+    async fn io_system(&mut self, io: UniqueId) {
+        let known: Vec<UniqueId> = self
+            .shared
+            .image
+            .snapshot()
+            .iter()
+            .filter(|d| d.channel == self.channel)
+            .filter_map(|d| d.unique_id())
+            .collect();
+        for info in self.line.sub_devices(io, &known).await {
+            self.register(info).await;
+        }
+    }
+
+    /// Identifies the device at `poll` (one retry only: an empty address must not hold
+    /// the line, and the requests queued behind it, for four slave time-outs), then
+    /// reads its tag and descriptor (command 13) and, from HART 6 on, its long tag
+    /// (command 20).
+    async fn identify(&mut self, poll: u8) -> Option<DeviceInfo> {
+        let request = pdu(&FrameSpec::request(Address::short(poll), 0, &[]));
+        let reply = self.line.transact(&request, 1).await?;
+        let f = Frame::parse_pdu(&reply).ok()?;
+        if f.is_communication_error() || f.response_code != Some(0) {
+            return None;
+        }
+        let identity = Identity::decode(&mut Reader::new(f.data)).ok()?;
+        let mut info = DeviceInfo {
+            polling_address: Some(poll),
+            identity,
+            tag: None,
+            descriptor: None,
+            long_tag: None,
+            io_channel: None,
+        };
+        self.read_tags(&mut info).await;
+        Some(info)
+    }
+
+    async fn read_tags(&mut self, info: &mut DeviceInfo) {
+        if let Some((0, _, data)) = self.command(info, 13, &[], POLL_RETRIES).await {
+            if let Ok(t) = TagDescriptorDate::decode(&mut Reader::new(&data)) {
+                info.tag = Some(t.tag.to_string().trim_end().to_string());
+                info.descriptor = Some(t.descriptor.to_string().trim_end().to_string());
+            }
+        }
+        if info.revision() >= 6 {
+            if let Some((0, _, data)) = self.command(info, 20, &[], POLL_RETRIES).await {
+                if let Ok(t) = LongTag::decode(&mut Reader::new(&data)) {
+                    info.long_tag = Some(t.long_tag.to_string().trim_end().to_string());
+                }
+            }
+        }
+    }
+
+    /// Sends `command` to a known device by its unique ID: (response code, device
+    /// status, data), or `None` for no reply or a communication error.
+    async fn command(
+        &mut self,
+        info: &DeviceInfo,
+        command: u16,
+        data: &[u8],
+        retries: u8,
+    ) -> Option<(u8, u8, Vec<u8>)> {
+        let request = pdu(&FrameSpec {
+            extended: command > 255,
+            ..FrameSpec::request(
+                Address::long(info.unique_id()).with_master(MasterKind::Primary),
+                command,
+                data,
+            )
+        });
+        let reply = self.line.transact(&request, retries).await?;
+        let f = Frame::parse_pdu(&reply).ok()?;
+        if f.is_communication_error() {
+            return None;
+        }
+        Some((f.response_code?, f.device_status?, f.data.to_vec()))
+    }
+
+    /// The poll period and read command of a device at `poll` on this loop.
+    fn device_settings(&self, poll: Option<u8>) -> (Duration, ReadCommand) {
+        let dev = poll.and_then(|p| self.settings.device.iter().find(|d| d.poll == p));
+        self.shared.config.device_settings(&self.settings, dev)
+    }
+
+    /// Lists a device found on this loop: in the routing list, and in the image (a
+    /// configured slot with its polling address, the entry with its unique ID, or a
+    /// new entry at the end), scheduled for polling.
+    async fn register(&mut self, info: DeviceInfo) {
+        crate::remember(
+            &self.shared.subs,
+            SubDevice {
+                channel: self.channel,
+                info: info.clone(),
+            },
+        )
+        .await;
+        let id = info.unique_id();
+        let image = &self.shared.image;
+        let position = image.find(self.channel, id).or_else(|| {
+            // A configured device not yet found, at this polling address.
+            image.snapshot().iter().find_map(|d| {
+                (d.channel == self.channel
+                    && d.info.is_none()
+                    && d.polling_address.is_some()
+                    && d.polling_address == info.polling_address)
+                    .then_some(d.position)
+            })
+        });
+        let (period, _) = self.device_settings(info.polling_address);
+        let position = match position {
+            Some(p) => {
+                image.update(p, |d| {
+                    let mut info = info;
+                    if let Some(old) = &d.info {
+                        info.polling_address = info.polling_address.or(old.polling_address);
+                        info.tag = info.tag.or(old.tag.clone());
+                        info.descriptor = info.descriptor.or(old.descriptor.clone());
+                        info.long_tag = info.long_tag.or(old.long_tag.clone());
+                    }
+                    d.polling_address = info.polling_address;
+                    d.info = Some(info);
+                });
+                p
+            }
+            None => {
+                let mut d = DeviceImage::new(
+                    0,
+                    self.channel,
+                    &self.shared.loop_names[usize::from(self.channel)],
+                    self.shared.config.stale_limit(period),
+                );
+                d.polling_address = info.polling_address;
+                d.info = Some(info);
+                let p = image.push(d);
+                tracing::info!(
+                    "{}: device {} found ({})",
+                    self.shared.loop_names[usize::from(self.channel)],
+                    p + 1,
+                    image.with(p, |d| d.display_name()).unwrap_or_default()
+                );
+                p
+            }
+        };
+        if self.polling() && !self.schedule.contains(position) {
+            let now = self.now();
+            self.schedule.insert(position, micros(period), now);
+        }
+    }
+
+    /// Learns devices from the identity replies (commands 0, 11 and 21) that clients'
+    /// requests bring back, so devices connected after the scan are routed too.
+    async fn learn(&mut self, request: &[u8], reply: &[u8]) {
+        let (Ok(req), Ok(rep)) = (Frame::parse_pdu(request), Frame::parse_pdu(reply)) else {
+            return;
+        };
+        if !matches!(rep.command, 0 | 11 | 21) || rep.response_code.unwrap_or(0xFF) != 0 {
+            return;
+        }
+        let Ok(identity) = Identity::decode(&mut Reader::new(rep.data)) else {
+            return;
+        };
+        let polling_address = match req.address {
+            Address::Short(a) => Some(a.polling_address),
+            Address::Long(_) => None,
+        };
+        let info = DeviceInfo {
+            polling_address,
+            identity,
+            tag: None,
+            descriptor: None,
+            long_tag: None,
+            io_channel: None,
+        };
+        self.register(info).await;
+    }
+
+    /// Polls the device at `position`: its read command (3 or 9), then command 48 when
+    /// it has more status, and its configuration (command 15, tags) when it is new,
+    /// changed, or was just written.
+    async fn poll(&mut self, position: usize) {
+        let Some(img) = self.shared.image.with(position, |d| d.clone()) else {
+            return;
+        };
+        let now = self.now();
+        let Some(info) = img.info.clone() else {
+            // A configured device not found yet: identify it at its polling address.
+            let found = match img.polling_address {
+                Some(p) => self.identify(p).await,
+                None => None,
+            };
+            match found {
+                Some(info) => {
+                    self.register(info).await;
+                    self.schedule.hurry(position, now);
+                }
+                None => {
+                    self.shared.image.update(position, |d| d.no_reply());
+                    self.schedule.polled(position, self.now(), false);
+                }
+            }
+            return;
+        };
+        let (_, read) = self.device_settings(img.polling_address);
+        let state = self.polled.get(&position).cloned().unwrap_or_default();
+        let use_9 = read == ReadCommand::Variables && info.revision() >= 6 && !state.no_command_9;
+        let (command, data): (u16, Vec<u8>) = if use_9 {
+            // PV..QV, percent of range, loop current: 6 slots (HART 7 allows 8, HART 6
+            // only 4: there PV..QV).
+            if info.revision() >= 7 {
+                (9, vec![246, 247, 248, 249, 244, 245])
+            } else {
+                (9, vec![246, 247, 248, 249])
+            }
+        } else {
+            (3, vec![])
+        };
+        let retries = if img.last_poll == LastPoll::NoReply {
+            1
+        } else {
+            POLL_RETRIES
+        };
+        let reply = self.command(&info, command, &data, retries).await;
+        let wall = SystemTime::now();
+        let instant = Instant::now();
+        let Some((rc, status, data)) = reply else {
+            if img.last_poll != LastPoll::NoReply {
+                tracing::warn!(
+                    "{}: device {} ({}) stopped answering",
+                    img.loop_name,
+                    position + 1,
+                    img.display_name()
+                );
+            }
+            self.shared.image.update(position, |d| {
+                d.polls += 1;
+                d.no_reply()
+            });
+            self.schedule.polled(position, self.now(), false);
+            return;
+        };
+        if command == 9
+            && hart_proto::tables::response_class(rc) == hart_proto::tables::ResponseClass::Error
+        {
+            // Not implemented, or slots it does not know: command 3 from now on.
+            self.polled.entry(position).or_default().no_command_9 = true;
+            self.schedule.hurry(position, self.now());
+            return;
+        }
+        if img.last_poll == LastPoll::NoReply {
+            tracing::info!(
+                "{}: device {} ({}) answers again",
+                img.loop_name,
+                position + 1,
+                img.display_name()
+            );
+        }
+        // Configuration changed: shown for one period, then read again.
+        let bit = status & fds::CONFIGURATION_CHANGED != 0;
+        let first = img.range.is_none();
+        let mut st = self.polled.get(&position).cloned().unwrap_or_default();
+        let newly_changed = bit && !st.config_bit && !first;
+        let reread = st.refresh || first || (img.config_changed_pending && !newly_changed);
+        st.config_bit = bit;
+        let tags = st.refresh_tags || img.config_changed_pending;
+        self.shared.image.update(position, |d| {
+            d.polls += 1;
+            d.apply_reply(command, rc, status, &data, instant, wall);
+            if newly_changed {
+                d.config_changed_pending = true;
+            }
+        });
+        if status & fds::MORE_STATUS_AVAILABLE != 0 {
+            if let Some((rc, status, data)) = self.command(&info, 48, &[], POLL_RETRIES).await {
+                self.shared.image.update(position, |d| {
+                    d.apply_reply(48, rc, status, &data, Instant::now(), SystemTime::now())
+                });
+            }
+        }
+        if reread {
+            if let Some((rc, status, data)) = self.command(&info, 15, &[], POLL_RETRIES).await {
+                self.shared.image.update(position, |d| {
+                    d.apply_reply(15, rc, status, &data, Instant::now(), SystemTime::now());
+                });
+            }
+            if tags {
+                let mut fresh = info.clone();
+                self.read_tags(&mut fresh).await;
+                self.shared.image.update(position, |d| {
+                    if let Some(i) = &mut d.info {
+                        i.tag = fresh.tag.or(i.tag.take());
+                        i.descriptor = fresh.descriptor.or(i.descriptor.take());
+                        i.long_tag = fresh.long_tag.or(i.long_tag.take());
+                    }
+                });
+            }
+            if !newly_changed {
+                self.shared
+                    .image
+                    .update(position, |d| d.config_changed_pending = false);
+            }
+            st.refresh = false;
+            st.refresh_tags = false;
+        }
+        self.polled.insert(position, st);
+        self.schedule.polled(position, self.now(), true);
+    }
+
+    /// Burst frames heard: to the subscribers (HART-IP), and into the image.
+    fn bursts(&mut self) {
+        for b in self.line.take_bursts() {
+            if let Ok(f) = Frame::parse_pdu(&b) {
+                if let (Some(p), Some(rc), Some(status)) = (
+                    self.position_of(&f.address),
+                    f.response_code,
+                    f.device_status,
+                ) {
+                    let (command, data) = (f.command, f.data.to_vec());
+                    self.shared.image.update(p, |d| {
+                        d.apply_reply(
+                            command,
+                            rc,
+                            status,
+                            &data,
+                            Instant::now(),
+                            SystemTime::now(),
+                        )
+                    });
+                }
+            }
+            let _ = self.shared.bursts.send(b);
+        }
+    }
+}
+
+fn micros(d: Duration) -> Micros {
+    d.as_micros().min(u128::from(u64::MAX)) as Micros
+}
