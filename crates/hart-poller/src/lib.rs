@@ -29,7 +29,7 @@ mod task;
 
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
-pub use line::{Line, MemoryLoop};
+pub use line::{Faults, Line, MemoryLoop};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,

@@ -20,6 +20,32 @@ pub enum Line {
 pub struct MemoryLoop {
     devices: Vec<hart_device::Device>,
     start: Instant,
+    faults: Faults,
+}
+
+/// Fault hooks of a [`MemoryLoop`], for tests: devices taken off the loop (by polling
+/// address) answer nothing until put back.
+#[derive(Clone, Default)]
+pub struct Faults(std::sync::Arc<std::sync::Mutex<std::collections::HashSet<u8>>>);
+
+impl Faults {
+    /// Takes the device at polling address `poll` off the loop (`false`) or puts it
+    /// back (`true`).
+    pub fn set_connected(&self, poll: u8, connected: bool) {
+        let mut off = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if connected {
+            off.remove(&poll);
+        } else {
+            off.insert(poll);
+        }
+    }
+
+    fn is_off(&self, poll: u8) -> bool {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains(&poll)
+    }
 }
 
 impl MemoryLoop {
@@ -28,7 +54,13 @@ impl MemoryLoop {
         MemoryLoop {
             devices,
             start: Instant::now(),
+            faults: Faults::default(),
         }
+    }
+
+    /// The loop's fault hooks.
+    pub fn faults(&self) -> Faults {
+        self.faults.clone()
     }
 
     fn now(&self) -> u64 {
@@ -54,7 +86,7 @@ impl Line {
             }
             Line::Memory(m) => {
                 let t = m.now();
-                answer(&mut m.devices, pdu, t)
+                answer(&mut m.devices, &m.faults, pdu, t)
             }
         }
     }
@@ -133,10 +165,16 @@ pub fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
 /// The reply of the device a request frame addresses, as its data-link slave would
 /// accept it (polling address; unique ID; the broadcast address for commands 11 and 21,
 /// which only the device with that tag answers), or `None` when none answers.
-fn answer(devices: &mut [hart_device::Device], request: &[u8], t: u64) -> Option<Vec<u8>> {
+fn answer(
+    devices: &mut [hart_device::Device],
+    faults: &Faults,
+    request: &[u8],
+    t: u64,
+) -> Option<Vec<u8>> {
     let f = Frame::parse_pdu(request).ok()?;
     devices
         .iter_mut()
+        .filter(|d| !faults.is_off(d.config().polling_address))
         .filter(|d| match f.address {
             Address::Short(a) => a.polling_address == d.config().polling_address,
             Address::Long(a) => {

@@ -4,6 +4,7 @@
 
 pub mod annotate;
 pub mod demo;
+pub mod gateway;
 pub mod hex;
 pub mod host;
 pub mod ip_bench;

@@ -90,74 +90,10 @@ enum Top {
         #[arg(long)]
         duration: Option<f64>,
     },
-    /// A HART-IP server (gateway) in front of a loop: a serial or RS-485 line, or a
-    /// simulated plant.
-    Serve {
-        /// Address to listen on, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).
-        #[arg(long, value_name = "ADDR[:PORT]")]
-        hart_ip: String,
-        /// Serve UDP (with --tcp: only the ones given; default both).
-        #[arg(long)]
-        udp: bool,
-        /// Serve TCP.
-        #[arg(long)]
-        tcp: bool,
-        /// A loop behind the server (any host --port target); repeat for several
-        /// loops (the server then acts as a multiplexer: each loop is a channel).
-        #[arg(
-            long = "port",
-            short = 'p',
-            value_name = "TARGET",
-            conflicts_with = "sim"
-        )]
-        ports: Vec<String>,
-        /// A simulated plant behind the server: these profiles at polling addresses
-        /// 1, 2, ... (none: the demo plant).
-        #[arg(long, num_args = 0.., value_name = "PROFILE")]
-        sim: Option<Vec<String>>,
-        /// Refuse every command that changes a device ("access restricted").
-        #[arg(long)]
-        read_only: bool,
-        /// Most sessions at once.
-        #[arg(long, default_value_t = 64)]
-        max_sessions: usize,
-        /// Most sessions at once from one client address.
-        #[arg(long, default_value_t = 16)]
-        max_sessions_per_host: usize,
-        /// Let a loop device at polling address 0 answer there (one loop only); by
-        /// default the server itself, a HART I/O system, answers at polling address 0
-        /// and reaches that device by its unique ID.
-        #[arg(long)]
-        transparent: bool,
-        /// HART-IP version 2 security: serve TLS (TCP) and DTLS (UDP) with the
-        /// pre-shared keys in FILE (lines IDENTITY:HEXKEY, optionally :read-only) at
-        /// --hart-ip; plain HART-IP only where --plain asks for it.
-        #[arg(long, value_name = "FILE")]
-        psk_file: Option<std::path::PathBuf>,
-        /// With --psk-file, also serve plain HART-IP (version 1) at this address.
-        #[arg(long, value_name = "ADDR[:PORT]", requires = "psk_file")]
-        plain: Option<String>,
-        /// Only these commands may be sent (ranges, e.g. 0-22,48,74-84); others are
-        /// answered "access restricted" (16). Command 77 is checked with the command it
-        /// wraps.
-        #[arg(long, value_name = "LIST")]
-        allow_commands: Option<hart_ip_server::access::CommandAllowList>,
-        /// Also append every accepted write as a JSON line (time, session, peer,
-        /// identity, device, command) to FILE; the log on standard error has it anyway.
-        #[arg(long, value_name = "FILE")]
-        audit_file: Option<std::path::PathBuf>,
-        /// Scan polling addresses 0..=N of each loop for the sub-device list (63: all).
-        #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
-        scan_to: u8,
-        /// With --sim: the simulated devices answer at once, in memory, without the
-        /// loop's 1200 bit/s timing, so a load generator (hartkit hart-ip bench)
-        /// measures the server itself.
-        #[arg(long)]
-        instant: bool,
-        /// Stop after this many seconds.
-        #[arg(long)]
-        run_for: Option<f64>,
-    },
+    /// The gateway: a polling engine in front of HART loops (serial or RS-485 lines,
+    /// HART-IP servers, simulated plants), with HART-IP, Modbus TCP and Modbus RTU
+    /// front ends. With no front end it shows the polled devices on the terminal.
+    Serve(Box<ServeCli>),
     /// HART-IP tools: a load generator for HART-IP servers.
     #[command(subcommand)]
     HartIp(HartIpCmd),
@@ -872,89 +808,10 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             json,
             port,
         } => hartkit::demo::run(port, *duration, *json).map(|_| String::new()),
-        Top::Serve {
-            hart_ip,
-            udp,
-            tcp,
-            ports,
-            sim,
-            read_only,
-            max_sessions,
-            max_sessions_per_host,
-            transparent,
-            scan_to,
-            psk_file,
-            plain,
-            allow_commands,
-            audit_file,
-            instant,
-            run_for,
-        } => serve_hart_ip(
-            hart_ip,
-            *udp,
-            *tcp,
-            ports,
-            sim.as_deref(),
-            ServeFlags {
-                read_only: *read_only,
-                max_sessions: *max_sessions,
-                max_sessions_per_host: *max_sessions_per_host,
-                transparent: *transparent,
-                scan_to: *scan_to,
-                psk_file: psk_file.clone(),
-                plain: plain.clone(),
-                allow_commands: allow_commands.clone(),
-                audit_file: audit_file.clone(),
-                instant: *instant,
-            },
-            *run_for,
-        ),
+        Top::Serve(a) => hartkit::gateway::run(a.options()),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         _ => return None,
     })
-}
-
-/// The server settings of `hartkit serve` besides its addresses and loops.
-struct ServeFlags {
-    read_only: bool,
-    max_sessions: usize,
-    max_sessions_per_host: usize,
-    transparent: bool,
-    scan_to: u8,
-    psk_file: Option<std::path::PathBuf>,
-    plain: Option<String>,
-    allow_commands: Option<hart_ip_server::access::CommandAllowList>,
-    audit_file: Option<std::path::PathBuf>,
-    instant: bool,
-}
-
-/// `ADDR[:PORT]` (port 5094 when none) as a socket address; `what` names the option.
-fn socket_addr(what: &str, text: &str) -> Result<std::net::SocketAddr, (String, u8)> {
-    use std::net::ToSocketAddrs;
-    let with_port = if text
-        .rsplit_once(':')
-        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
-    {
-        text.to_string()
-    } else {
-        format!("{text}:{}", hart_ip::PORT)
-    };
-    with_port
-        .to_socket_addrs()
-        .ok()
-        .and_then(|mut a| a.next())
-        .ok_or_else(|| (format!("{what} {text}: not an address"), 2))
-}
-
-/// The plant behind `hartkit serve --sim [PROFILES...]`: the profiles at polling
-/// addresses 1, 2, ..., or the demo plant when none are given.
-fn sim_plant(profiles: &[String]) -> Result<hart_host::transport::Plant, (String, u8)> {
-    use hart_host::transport::Plant;
-    if profiles.is_empty() {
-        Ok(Plant::demo())
-    } else {
-        Plant::from_profiles(profiles).map_err(|e| (format!("--sim: {e}"), 2))
-    }
 }
 
 /// `hartkit hart-ip bench`: the load generator of `hart_host::load`, on a
@@ -1015,145 +872,6 @@ fn hart_ip_bench(a: &IpBenchArgs) -> Result<String, (String, u8)> {
     } else {
         Ok(hartkit::ip_bench::report_text(&report))
     }
-}
-
-fn serve_hart_ip(
-    bind: &str,
-    udp: bool,
-    tcp: bool,
-    ports: &[String],
-    sim: Option<&[String]>,
-    flags: ServeFlags,
-    run_for: Option<f64>,
-) -> Result<String, (String, u8)> {
-    let ServeFlags {
-        read_only,
-        max_sessions,
-        max_sessions_per_host,
-        transparent,
-        scan_to,
-        psk_file,
-        plain,
-        allow_commands,
-        audit_file,
-        instant,
-    } = flags;
-    if instant && sim.is_none() {
-        return Err((
-            "--instant answers simulated devices in memory, so it needs --sim [PROFILES...]; \
-             a loop given with --port keeps its line timing"
-                .into(),
-            2,
-        ));
-    }
-    let addr = socket_addr("--hart-ip", bind)?;
-    let plain = plain.map(|p| socket_addr("--plain", &p)).transpose()?;
-    let psk = psk_file
-        .map(|p| hart_ip_tls::PskTable::load(&p).map(std::sync::Arc::new))
-        .transpose()
-        .map_err(|e| (format!("--psk-file: {e}"), 2))?;
-    // Refusals and secure sessions are logged on standard error.
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_target(false)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("HARTKIT_LOG")
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .try_init();
-    // Behind the server: the loops given with --port, or the simulated plant.
-    let (targets, plant) = match (ports, sim) {
-        (p, _) if !p.is_empty() => (p.to_vec(), None),
-        (_, profiles) => (vec![], Some(sim_plant(profiles.unwrap_or(&[]))?)),
-    };
-    let config = hart_ip_server::Config {
-        bind: addr,
-        udp: udp || !tcp,
-        tcp: tcp || !udp,
-        max_sessions,
-        max_sessions_per_host,
-        read_only,
-        transparent,
-        scan_to: Some(scan_to),
-        psk,
-        plain,
-        allow_commands,
-        audit_file,
-        ..hart_ip_server::Config::default()
-    };
-    // Each session of a TCP server is a descriptor.
-    hart_host::load::raise_open_file_limit(max_sessions as u64 + 64);
-    if transparent && targets.len() > 1 {
-        return Err((
-            "--transparent needs exactly one loop: with several, polling address 0 of each \
-             loop is reached by the device's unique ID"
-                .into(),
-            2,
-        ));
-    }
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| (e.to_string(), 5))?;
-    let local = tokio::task::LocalSet::new();
-    local.block_on(&rt, async move {
-        let server = match plant {
-            Some(plant) if instant => {
-                let devices = plant.devices().map_err(|e| (format!("--sim: {e}"), 2))?;
-                hart_ip_server::start_in_memory(config, devices).await
-            }
-            Some(plant) => {
-                let sim = hart_host::transport::SimTransport::new(&plant, false)
-                    .map_err(|e| (format!("--sim: {e}"), 2))?;
-                let line = hart_host::target::AnyTransport::Sim(Box::new(sim));
-                hart_ip_server::start(config, vec![hart_host::Client::new(line)]).await
-            }
-            None => {
-                let mut loops = vec![];
-                for t in &targets {
-                    loops.push(hart_host::Client::new(
-                        hart_host::target::open_async(t).await.map_err(|e| (e, 2))?,
-                    ));
-                }
-                hart_ip_server::start(config, loops).await
-            }
-        }
-        .map_err(|e| (format!("--hart-ip {bind}: {e}"), 5))?;
-        {
-            use std::io::Write as _;
-            let mut out = std::io::stdout();
-            let show =
-                |a: Option<std::net::SocketAddr>| a.map_or("-".to_string(), |a| a.to_string());
-            let _ = writeln!(
-                out,
-                "hart-ip: udp {} tcp {}{}{}",
-                show(server.udp_addr),
-                show(server.tcp_addr),
-                if server.secure {
-                    " (DTLS/TLS with pre-shared keys)"
-                } else {
-                    ""
-                },
-                if read_only { " (read only)" } else { "" }
-            );
-            if server.plain_udp_addr.is_some() || server.plain_tcp_addr.is_some() {
-                let _ = writeln!(
-                    out,
-                    "hart-ip plain: udp {} tcp {}",
-                    show(server.plain_udp_addr),
-                    show(server.plain_tcp_addr)
-                );
-            }
-            let _ = out.flush();
-        }
-        match run_for {
-            Some(s) => tokio::time::sleep(std::time::Duration::from_secs_f64(s)).await,
-            None => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-        Ok(String::new())
-    })
 }
 
 fn modem(cmd: &ModemCmd) -> Result<String, String> {
@@ -1271,6 +989,132 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("hartkit: error: {e}");
             ExitCode::from(2)
+        }
+    }
+}
+
+/// Options of `hartkit serve`.
+#[derive(Args)]
+struct ServeCli {
+    /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
+    /// [modbus_rtu]; see docs/gateway.md). Options given here add to it.
+    #[arg(long, value_name = "FILE")]
+    config: Option<std::path::PathBuf>,
+    /// Serve HART-IP here, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).
+    #[arg(long, value_name = "ADDR[:PORT]")]
+    hart_ip: Option<String>,
+    /// Serve HART-IP over UDP (with --tcp: only the ones given; default both).
+    #[arg(long)]
+    udp: bool,
+    /// Serve HART-IP over TCP.
+    #[arg(long)]
+    tcp: bool,
+    /// Serve Modbus TCP here (port 502 by default): each device is a unit, unit id 1 +
+    /// its position in the device list (--print-map shows it).
+    #[arg(long, value_name = "ADDR[:PORT]")]
+    modbus: Option<String>,
+    /// Be a Modbus RTU slave on this serial port (units as for --modbus).
+    #[arg(long, value_name = "PORT")]
+    modbus_rtu: Option<String>,
+    /// Baud rate of --modbus-rtu (default 19200).
+    #[arg(long, value_name = "BAUD")]
+    modbus_baud: Option<u32>,
+    /// Parity of --modbus-rtu: N, E (default) or O.
+    #[arg(long, value_name = "N|E|O")]
+    modbus_parity: Option<char>,
+    /// Order of the bytes of Modbus floats and 32-bit integers: abcd (high word first,
+    /// the default), cdab (low word first), badc, dcba.
+    #[arg(long, value_name = "ORDER")]
+    float_order: Option<hart_modbus::map::FloatOrder>,
+    /// Print the Modbus map (units and registers) once the devices are found, and exit.
+    #[arg(long)]
+    print_map: bool,
+    /// JSON output (--print-map, and the terminal view).
+    #[arg(long)]
+    json: bool,
+    /// Poll each device at most this often, seconds (default 1).
+    #[arg(long, value_name = "SECONDS")]
+    poll_period: Option<f64>,
+    /// A loop behind the gateway (any host --port target); repeat for several loops
+    /// (a multiplexer: each loop is a channel).
+    #[arg(long = "port", short = 'p', value_name = "TARGET")]
+    ports: Vec<String>,
+    /// A simulated plant behind the gateway: these profiles at polling addresses
+    /// 1, 2, ... (none: the demo plant).
+    #[arg(long, num_args = 0.., value_name = "PROFILE")]
+    sim: Option<Vec<String>>,
+    /// Refuse every command that changes a device (HART-IP: "access restricted";
+    /// Modbus: "illegal function").
+    #[arg(long)]
+    read_only: bool,
+    /// Most HART-IP sessions at once.
+    #[arg(long, default_value_t = 64)]
+    max_sessions: usize,
+    /// Most HART-IP sessions at once from one client address.
+    #[arg(long, default_value_t = 16)]
+    max_sessions_per_host: usize,
+    /// Let a loop device at polling address 0 answer there (one loop only); by
+    /// default the server itself, a HART I/O system, answers at polling address 0
+    /// and reaches that device by its unique ID.
+    #[arg(long)]
+    transparent: bool,
+    /// HART-IP version 2 security: serve TLS (TCP) and DTLS (UDP) with the
+    /// pre-shared keys in FILE (lines IDENTITY:HEXKEY, optionally :read-only) at
+    /// --hart-ip; plain HART-IP only where --plain asks for it.
+    #[arg(long, value_name = "FILE")]
+    psk_file: Option<std::path::PathBuf>,
+    /// With --psk-file, also serve plain HART-IP (version 1) at this address.
+    #[arg(long, value_name = "ADDR[:PORT]", requires = "psk_file")]
+    plain: Option<String>,
+    /// Only these commands may be sent over HART-IP (ranges, e.g. 0-22,48,74-84);
+    /// others are answered "access restricted" (16). Command 77 is checked with the
+    /// command it wraps.
+    #[arg(long, value_name = "LIST")]
+    allow_commands: Option<hart_ip_server::access::CommandAllowList>,
+    /// Also append every accepted HART-IP write as a JSON line (time, session, peer,
+    /// identity, device, command) to FILE; the log on standard error has it anyway.
+    #[arg(long, value_name = "FILE")]
+    audit_file: Option<std::path::PathBuf>,
+    /// Scan polling addresses 0..=N of each loop for devices (63: all).
+    #[arg(long, default_value_t = 63, value_parser = clap::value_parser!(u8).range(0..=63))]
+    scan_to: u8,
+    /// With --sim: the simulated devices answer at once, in memory, without the
+    /// loop's 1200 bit/s timing, so a load generator measures the gateway itself.
+    #[arg(long)]
+    instant: bool,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    run_for: Option<f64>,
+}
+
+impl ServeCli {
+    fn options(&self) -> hartkit::gateway::ServeOptions {
+        hartkit::gateway::ServeOptions {
+            config: self.config.clone(),
+            hart_ip: self.hart_ip.clone(),
+            udp: self.udp,
+            tcp: self.tcp,
+            ports: self.ports.clone(),
+            sim: self.sim.clone(),
+            instant: self.instant,
+            read_only: self.read_only,
+            max_sessions: self.max_sessions,
+            max_sessions_per_host: self.max_sessions_per_host,
+            transparent: self.transparent,
+            scan_to: self.scan_to,
+            psk_file: self.psk_file.clone(),
+            plain: self.plain.clone(),
+            allow_commands: self.allow_commands.clone(),
+            audit_file: self.audit_file.clone(),
+            modbus: self.modbus.clone(),
+            modbus_rtu: self.modbus_rtu.clone(),
+            modbus_baud: self.modbus_baud,
+            modbus_parity: self.modbus_parity,
+            float_order: self.float_order,
+            poll_period: self.poll_period,
+            print_map: self.print_map,
+            json: self.json,
+            run_for: self.run_for,
         }
     }
 }

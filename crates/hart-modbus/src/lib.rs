@@ -1,0 +1,569 @@
+//! # hart-modbus
+//!
+//! Modbus front ends of hartkit's gateway: a Modbus TCP server and a Modbus RTU slave
+//! on a serial port, both answering from the polling engine's image (reads never wait
+//! for the HART loop) and carrying writes to the devices as HART commands, ahead of
+//! the engine's polls.
+//!
+//! Each HART device is one Modbus unit: unit id 1 + its position in the engine's device
+//! list. What each register holds is the [`map::RegisterMap`] (the default one is in
+//! docs/gateway.md). Requests for a unit that is not in the list are answered
+//! "gateway path unavailable" (TCP) or not at all (RTU, where another slave may own
+//! that id); registers outside the map "illegal data address"; unsupported functions
+//! "illegal function"; a write the device refuses with the Modbus exception that
+//! matches its response code.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use hart_poller::{Engine, WriteError};
+use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+
+pub mod map;
+
+use map::{FloatOrder, RegisterMap, Table, Value};
+
+/// Settings of the Modbus front ends.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The register map of every unit.
+    pub map: RegisterMap,
+    /// Layout of floats and 32-bit integers.
+    pub float_order: FloatOrder,
+    /// Refuse writes ("illegal function").
+    pub read_only: bool,
+    /// Most TCP connections at once; more are closed at once.
+    pub max_connections: usize,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            map: RegisterMap::default(),
+            float_order: FloatOrder::default(),
+            read_only: false,
+            max_connections: 64,
+        }
+    }
+}
+
+/// Counters of a Modbus front end.
+#[derive(Debug, Default)]
+pub struct Stats {
+    /// Requests answered with data.
+    pub answered: AtomicU64,
+    /// Requests answered with an exception.
+    pub exceptions: AtomicU64,
+    /// Writes carried to a device.
+    pub writes: AtomicU64,
+    /// TCP connections refused (limit reached).
+    pub refused: AtomicU64,
+}
+
+/// What the Modbus service needs: the engine, the settings, counters.
+pub struct Gateway {
+    engine: Engine,
+    config: Config,
+    /// Counters.
+    pub stats: Stats,
+    connections: AtomicUsize,
+}
+
+/// The transport a request came by: TCP answers every unit id, RTU only its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Link {
+    Tcp,
+    Rtu,
+}
+
+impl Gateway {
+    /// A gateway answering from `engine`'s image.
+    pub fn new(engine: Engine, config: Config) -> Arc<Self> {
+        Arc::new(Gateway {
+            engine,
+            config,
+            stats: Stats::default(),
+            connections: AtomicUsize::new(0),
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// Answers one request for `unit`. `None`: no answer at all (RTU broadcasts and
+    /// other slaves' unit ids).
+    async fn call(
+        self: Arc<Self>,
+        unit: u8,
+        request: Request<'static>,
+        link: Link,
+    ) -> Result<Option<Response>, ExceptionCode> {
+        let r = self.answer(unit, request, link).await;
+        match &r {
+            Ok(Some(_)) => self.stats.answered.fetch_add(1, Ordering::Relaxed),
+            Err(_) => self.stats.exceptions.fetch_add(1, Ordering::Relaxed),
+            Ok(None) => 0,
+        };
+        r
+    }
+
+    async fn answer(
+        &self,
+        unit: u8,
+        request: Request<'static>,
+        link: Link,
+    ) -> Result<Option<Response>, ExceptionCode> {
+        let image = self.engine.image();
+        let broadcast = link == Link::Rtu && unit == 0;
+        let position = usize::from(unit).checked_sub(1);
+        let known = position.is_some_and(|p| p < image.len());
+        if !known && !broadcast {
+            return match link {
+                // Another slave on the bus may have this id.
+                Link::Rtu => Ok(None),
+                Link::Tcp => Err(ExceptionCode::GatewayPathUnavailable),
+            };
+        }
+        let order = self.config.float_order;
+        let read = |table: Table, start: u16, count: u16| {
+            let p = position.ok_or(ExceptionCode::IllegalFunction)?;
+            image
+                .with(p, |d| {
+                    self.config
+                        .map
+                        .read(table, start, count, d, Instant::now(), order)
+                })
+                .unwrap_or(Err(ExceptionCode::GatewayPathUnavailable))
+        };
+        let response = match request {
+            Request::ReadInputRegisters(start, count) if !broadcast => {
+                Response::ReadInputRegisters(read(Table::Input, start, count)?)
+            }
+            Request::ReadHoldingRegisters(start, count) if !broadcast => {
+                Response::ReadHoldingRegisters(read(Table::Holding, start, count)?)
+            }
+            Request::WriteSingleRegister(register, word) => {
+                let values = self.config.map.decode_write(register, &[word], order)?;
+                self.write_all(position, broadcast, values).await?;
+                Response::WriteSingleRegister(register, word)
+            }
+            Request::WriteMultipleRegisters(start, words) => {
+                let values = self.config.map.decode_write(start, &words, order)?;
+                self.write_all(position, broadcast, values).await?;
+                Response::WriteMultipleRegisters(start, words.len() as u16)
+            }
+            _ => return Err(ExceptionCode::IllegalFunction),
+        };
+        Ok((!broadcast).then_some(response))
+    }
+
+    /// Carries the values of one write request to the device at `position` (every
+    /// device for an RTU broadcast), as few HART commands as they need.
+    async fn write_all(
+        &self,
+        position: Option<usize>,
+        broadcast: bool,
+        values: Vec<(Value, f32)>,
+    ) -> Result<(), ExceptionCode> {
+        if self.config.read_only {
+            return Err(ExceptionCode::IllegalFunction);
+        }
+        let targets: Vec<usize> = match (broadcast, position) {
+            (true, _) => (0..self.engine.image().len()).collect(),
+            (false, Some(p)) => vec![p],
+            (false, None) => return Err(ExceptionCode::GatewayPathUnavailable),
+        };
+        let mut result = Ok(());
+        for p in targets {
+            for (command, data) in self.commands(p, &values)? {
+                self.stats.writes.fetch_add(1, Ordering::Relaxed);
+                let r = self.engine.write(p, command, &data).await;
+                let r = judge(command, r);
+                if let Err(e) = r {
+                    tracing::warn!(
+                        "modbus: write to unit {} (command {command}) refused: {e:?}",
+                        p + 1
+                    );
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        result
+    }
+
+    /// The HART commands that set `values` on the device at `position`.
+    fn commands(
+        &self,
+        position: usize,
+        values: &[(Value, f32)],
+    ) -> Result<Vec<(u16, Vec<u8>)>, ExceptionCode> {
+        let range = self
+            .engine
+            .image()
+            .with(position, |d| d.range)
+            .ok_or(ExceptionCode::GatewayPathUnavailable)?;
+        let mut out = vec![];
+        let (mut upper, mut lower, mut units) = (None, None, None);
+        for &(value, x) in values {
+            match value {
+                Value::UpperRange => upper = Some(x),
+                Value::LowerRange => lower = Some(x),
+                Value::RangeUnits => {
+                    if !(0.0..=255.0).contains(&x) {
+                        return Err(ExceptionCode::IllegalDataValue);
+                    }
+                    units = Some(x as u8)
+                }
+                Value::Damping => out.push((34, x.to_be_bytes().to_vec())),
+                Value::FixedCurrent => out.push((40, x.to_be_bytes().to_vec())),
+                _ => return Err(ExceptionCode::IllegalDataAddress),
+            }
+        }
+        if upper.is_some() || lower.is_some() || units.is_some() {
+            // Command 35 sets both range values: the one not written keeps its value.
+            let Some(r) = range else {
+                // The range was never read (the device has not answered command 15).
+                return Err(ExceptionCode::GatewayTargetDevice);
+            };
+            let mut data = vec![units.unwrap_or(r.units)];
+            data.extend_from_slice(&upper.unwrap_or(r.upper).to_be_bytes());
+            data.extend_from_slice(&lower.unwrap_or(r.lower).to_be_bytes());
+            out.insert(0, (35, data));
+        }
+        Ok(out)
+    }
+}
+
+/// The Modbus answer to a HART write's outcome.
+fn judge(
+    command: u16,
+    r: Result<hart_poller::WriteReply, WriteError>,
+) -> Result<(), ExceptionCode> {
+    use hart_proto::tables::{rc, response_class, ResponseClass};
+    let reply = match r {
+        Ok(reply) => reply,
+        Err(WriteError::UnknownDevice) => return Err(ExceptionCode::GatewayPathUnavailable),
+        Err(WriteError::NoReply) => return Err(ExceptionCode::GatewayTargetDevice),
+        Err(WriteError::Busy) => return Err(ExceptionCode::ServerDeviceBusy),
+        Err(WriteError::BadReply(_)) => return Err(ExceptionCode::ServerDeviceFailure),
+    };
+    let code = reply.response_code;
+    if response_class(code) != ResponseClass::Error {
+        return Ok(());
+    }
+    Err(match (command, code) {
+        // Values the device will not take: invalid selection, too large, too small,
+        // a units code it does not know, and command 35's range limits (9-13).
+        (_, rc::INVALID_SELECTION | rc::TOO_LARGE | rc::TOO_SMALL | rc::INVALID_UNITS_CODE)
+        | (35, 9..=13) => ExceptionCode::IllegalDataValue,
+        (_, rc::BUSY | rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT) => {
+            ExceptionCode::ServerDeviceBusy
+        }
+        (_, rc::NOT_IMPLEMENTED) => ExceptionCode::IllegalFunction,
+        // Write protected, access restricted, in multidrop mode (40), device-specific
+        // errors: the device will not do it now.
+        _ => ExceptionCode::ServerDeviceFailure,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reply(code: u8) -> Result<hart_poller::WriteReply, WriteError> {
+        Ok(hart_poller::WriteReply {
+            response_code: code,
+            device_status: 0,
+            data: vec![],
+        })
+    }
+
+    #[test]
+    fn hart_outcomes_become_modbus_exceptions() {
+        assert_eq!(judge(34, reply(0)), Ok(()));
+        // Warning "set to nearest possible value": done.
+        assert_eq!(judge(34, reply(8)), Ok(()));
+        assert_eq!(judge(34, reply(3)), Err(ExceptionCode::IllegalDataValue));
+        assert_eq!(judge(35, reply(11)), Err(ExceptionCode::IllegalDataValue));
+        // 11 for command 40 is "in multidrop mode": not the value's fault.
+        assert_eq!(
+            judge(40, reply(11)),
+            Err(ExceptionCode::ServerDeviceFailure)
+        );
+        assert_eq!(judge(34, reply(7)), Err(ExceptionCode::ServerDeviceFailure));
+        assert_eq!(judge(34, reply(32)), Err(ExceptionCode::ServerDeviceBusy));
+        assert_eq!(judge(40, reply(64)), Err(ExceptionCode::IllegalFunction));
+        assert_eq!(
+            judge(34, Err(WriteError::NoReply)),
+            Err(ExceptionCode::GatewayTargetDevice)
+        );
+        assert_eq!(
+            judge(34, Err(WriteError::UnknownDevice)),
+            Err(ExceptionCode::GatewayPathUnavailable)
+        );
+    }
+}
+
+/// The tokio-modbus service of one connection (TCP) or port (RTU).
+#[derive(Clone)]
+pub struct Service {
+    gateway: Arc<Gateway>,
+    link: Link,
+}
+
+impl tokio_modbus::server::Service for Service {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future =
+        Pin<Box<dyn Future<Output = Result<Option<Response>, ExceptionCode>> + Send + 'static>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        let gw = self.gateway.clone();
+        Box::pin(gw.call(req.slave, req.request, self.link))
+    }
+}
+
+/// A TCP stream counted against [`Config::max_connections`] until dropped.
+struct Counted {
+    stream: tokio::net::TcpStream,
+    gateway: Arc<Gateway>,
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        self.gateway.connections.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+impl tokio::io::AsyncRead for Counted {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl tokio::io::AsyncWrite for Counted {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write(cx, buf)
+    }
+    fn poll_flush(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+}
+
+/// Binds a Modbus TCP server at `addr`; returns the address bound and the task that
+/// serves it (spawn it, or await it). Each connection is served on its own task; a
+/// connection that sends a malformed frame is closed, the others go on.
+pub async fn bind_tcp(
+    gateway: Arc<Gateway>,
+    addr: SocketAddr,
+) -> std::io::Result<(SocketAddr, impl Future<Output = std::io::Result<()>>)> {
+    let listener = tokio::net::TcpListener::bind(addr).await?;
+    let local = listener.local_addr()?;
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    let serve = async move {
+        let on_connected = |stream: tokio::net::TcpStream, peer: SocketAddr| {
+            let gateway = gateway.clone();
+            async move {
+                let n = gateway.connections.fetch_add(1, Ordering::AcqRel);
+                let counted = Counted {
+                    stream,
+                    gateway: gateway.clone(),
+                };
+                if n >= gateway.config.max_connections {
+                    gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!(
+                        "modbus: connection from {peer} refused: {} connections open (the limit)",
+                        gateway.config.max_connections
+                    );
+                    return Ok(None);
+                }
+                let _ = counted.stream.set_nodelay(true);
+                let service = Service {
+                    gateway,
+                    link: Link::Tcp,
+                };
+                Ok(Some((service, counted)))
+            }
+        };
+        server
+            .serve(&on_connected, |e| {
+                tracing::debug!("modbus: connection closed: {e}");
+            })
+            .await
+    };
+    Ok((local, serve))
+}
+
+/// Serial settings of the RTU slave.
+#[derive(Debug, Clone)]
+pub struct RtuPort {
+    /// Device path (`/dev/ttyUSB0`).
+    pub path: String,
+    /// Baud rate.
+    pub baud: u32,
+    /// Parity: `'N'`, `'E'` or `'O'` (Modbus RTU's default is even).
+    pub parity: char,
+    /// Stop bits (1 or 2; Modbus asks 2 with no parity).
+    pub stop_bits: u8,
+}
+
+/// Opens `port` and serves Modbus RTU on it until the port fails.
+pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<()> {
+    use tokio_serial::{DataBits, Parity, SerialPortBuilderExt, StopBits};
+    let parity = match port.parity.to_ascii_uppercase() {
+        'N' => Parity::None,
+        'E' => Parity::Even,
+        'O' => Parity::Odd,
+        p => {
+            return Err(std::io::Error::other(format!(
+                "parity {p:?}: give N, E or O"
+            )))
+        }
+    };
+    let stream = tokio_serial::new(&port.path, port.baud)
+        .data_bits(DataBits::Eight)
+        .parity(parity)
+        .stop_bits(if port.stop_bits == 2 {
+            StopBits::Two
+        } else {
+            StopBits::One
+        })
+        .open_native_async()
+        .map_err(|e| {
+            std::io::Error::other(format!(
+                "{}: {e}; check the path and that you may open it (dialout group)",
+                port.path
+            ))
+        })?;
+    let server = tokio_modbus::server::rtu::Server::new(stream);
+    server
+        .serve_forever(Service {
+            gateway,
+            link: Link::Rtu,
+        })
+        .await
+}
+
+/// The map as text: one line per entry, for `hartkit serve --print-map`.
+pub fn map_text(gateway: &Gateway) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let image = gateway.engine.image().snapshot();
+    let _ = writeln!(
+        out,
+        "units (Modbus unit id = 1 + position in the device list):"
+    );
+    for d in &image {
+        let _ = writeln!(
+            out,
+            "  unit {:>3}  {:<10} poll {:>2}  {:<32} {}",
+            d.position + 1,
+            d.loop_name,
+            d.polling_address.map_or("-".to_string(), |p| p.to_string()),
+            d.display_name(),
+            d.unique_id()
+                .map_or("(not found yet)".to_string(), |u| format!("unique ID {u}"))
+        );
+    }
+    if image.is_empty() {
+        let _ = writeln!(out, "  (no device found)");
+    }
+    let _ = writeln!(
+        out,
+        "registers of every unit (floats and 32-bit integers in {} order):",
+        gateway.config.float_order.name()
+    );
+    for e in gateway.config.map.entries() {
+        let table = match e.table {
+            Table::Input => "input",
+            Table::Holding => "holding",
+        };
+        let regs = if e.format().words() == 2 {
+            format!("{}-{}", e.register, e.register + 1)
+        } else {
+            e.register.to_string()
+        };
+        let _ = writeln!(
+            out,
+            "  {table:<7} {regs:>11}  {:<6} {:<16} {}{}",
+            format!("{:?}", e.format()).to_lowercase(),
+            e.value.name(),
+            e.value.description(),
+            if e.table == Table::Holding && e.value.writable() {
+                " [read/write]"
+            } else {
+                ""
+            }
+        );
+    }
+    out
+}
+
+/// The map as JSON: `units` (unit id, loop, polling address, name, unique ID) and
+/// `registers` (table, register, words, format, value, writable, description).
+pub fn map_json(gateway: &Gateway) -> serde_json::Value {
+    let units: Vec<_> = gateway
+        .engine
+        .image()
+        .snapshot()
+        .iter()
+        .map(|d| {
+            serde_json::json!({
+                "unit": d.position + 1,
+                "loop": d.loop_name,
+                "polling_address": d.polling_address,
+                "name": d.display_name(),
+                "unique_id": d.unique_id().map(|u| u.to_string()),
+                "tag": d.info.as_ref().and_then(|i| i.tag.clone()),
+                "long_tag": d.info.as_ref().and_then(|i| i.long_tag.clone()),
+            })
+        })
+        .collect();
+    let registers: Vec<_> = gateway
+        .config
+        .map
+        .entries()
+        .iter()
+        .map(|e| {
+            serde_json::json!({
+                "table": e.table,
+                "register": e.register,
+                "words": e.format().words(),
+                "format": e.format(),
+                "value": e.value,
+                "writable": e.table == Table::Holding && e.value.writable(),
+                "description": e.value.description(),
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "float_order": gateway.config.float_order.name(),
+        "units": units,
+        "registers": registers,
+    })
+}

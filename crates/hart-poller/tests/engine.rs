@@ -1,0 +1,311 @@
+//! The polling engine against simulated plants: devices found and polled, a device
+//! that dies and comes back, writes ahead of polls, configured devices and their
+//! positions, burst messages into the image.
+
+use std::time::{Duration, Instant};
+
+use hart_host::transport::Plant;
+use hart_poller::{
+    DeviceSettings, Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop, PollSettings,
+    Quality, ReadCommand,
+};
+
+fn local<F: std::future::Future>(f: F) -> F::Output {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, f)
+}
+
+fn config(period_ms: u64, read: ReadCommand) -> EngineConfig {
+    EngineConfig {
+        poll: true,
+        defaults: PollSettings {
+            period: Duration::from_millis(period_ms),
+            read,
+            ..Default::default()
+        },
+    }
+}
+
+/// Waits (at most `limit`) until `f` holds for the engine's image.
+async fn until(engine: &Engine, limit: Duration, f: impl Fn(&Engine) -> bool) -> bool {
+    let end = Instant::now() + limit;
+    while Instant::now() < end {
+        if f(engine) {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    f(engine)
+}
+
+fn demo_in_memory() -> (MemoryLoop, hart_poller::Faults) {
+    let m = MemoryLoop::new(Plant::demo().devices().unwrap());
+    let f = m.faults();
+    (m, f)
+}
+
+#[test]
+fn finds_and_polls_every_device_of_the_demo_plant() {
+    local(async {
+        let (m, _) = demo_in_memory();
+        let (engine, _tasks) = Engine::start(
+            config(50, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(m),
+            }],
+        );
+        engine.ready().await;
+        let ok = until(&engine, Duration::from_secs(5), |e| {
+            let img = e.image().snapshot();
+            img.len() == 4
+                && img
+                    .iter()
+                    .all(|d| d.quality(Instant::now()) == Quality::Good)
+        })
+        .await;
+        let img = engine.image().snapshot();
+        assert!(ok, "{img:#?}");
+        // Found in polling address order: 1, 2, 3, 17.
+        let polls: Vec<_> = img.iter().map(|d| d.polling_address).collect();
+        assert_eq!(polls, [Some(1), Some(2), Some(3), Some(17)]);
+        for d in &img {
+            assert!(
+                d.variables[0].is_some() && d.loop_current.is_some(),
+                "{d:?}"
+            );
+            assert!(d.range.is_some(), "command 15 read: {d:?}");
+            assert!(d.info.as_ref().unwrap().tag.is_some());
+        }
+    });
+}
+
+#[test]
+fn a_dead_device_is_no_reply_within_one_poll_and_good_again_when_back() {
+    local(async {
+        let (m, faults) = demo_in_memory();
+        let (engine, _tasks) = Engine::start(
+            config(20, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(m),
+            }],
+        );
+        engine.ready().await;
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image()
+                    .with(1, |d| d.quality(Instant::now()) == Quality::Good)
+                    .unwrap_or(false)
+            })
+            .await
+        );
+        // Polling address 2 is position 1.
+        let polls_before = engine.image().with(1, |d| d.polls).unwrap();
+        faults.set_connected(2, false);
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image().with(1, |d| d.polls).unwrap() > polls_before
+            })
+            .await
+        );
+        // One poll after the fault (the one that may have been under way counts too).
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image().with(1, |d| d.polls).unwrap() >= polls_before + 2
+            })
+            .await
+        );
+        let q = engine
+            .image()
+            .with(1, |d| d.quality(Instant::now()))
+            .unwrap();
+        assert_eq!(q, Quality::NoReply);
+        // The others go on.
+        assert_eq!(
+            engine
+                .image()
+                .with(0, |d| d.quality(Instant::now()))
+                .unwrap(),
+            Quality::Good
+        );
+        faults.set_connected(2, true);
+        assert!(
+            until(&engine, Duration::from_secs(10), |e| {
+                e.image()
+                    .with(1, |d| d.quality(Instant::now()) == Quality::Good)
+                    .unwrap()
+            })
+            .await,
+            "back to good after the device returns"
+        );
+    });
+}
+
+#[test]
+fn configured_devices_keep_their_positions_even_when_absent() {
+    local(async {
+        let (m, _) = demo_in_memory();
+        let settings = LoopSettings {
+            name: Some("north".into()),
+            scan: false,
+            device: vec![
+                DeviceSettings {
+                    poll: 17,
+                    name: Some("PT-017".into()),
+                    period: None,
+                    read: Some(ReadCommand::Variables),
+                },
+                DeviceSettings {
+                    poll: 40,
+                    name: None,
+                    period: None,
+                    read: None,
+                },
+                DeviceSettings {
+                    poll: 1,
+                    name: None,
+                    period: None,
+                    read: None,
+                },
+            ],
+            ..Default::default()
+        };
+        let (engine, _tasks) = Engine::start(
+            config(20, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings,
+                line: Line::Memory(m),
+            }],
+        );
+        engine.ready().await;
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                let img = e.image().snapshot();
+                img[0].quality(Instant::now()) == Quality::Good
+                    && img[2].quality(Instant::now()) == Quality::Good
+            })
+            .await
+        );
+        let img = engine.image().snapshot();
+        assert_eq!(img.len(), 3, "no scan: only the listed devices");
+        assert_eq!(img[0].display_name(), "PT-017");
+        assert_eq!(img[0].loop_name, "north");
+        assert_eq!(img[1].polling_address, Some(40));
+        assert!(img[1].info.is_none());
+        assert_eq!(img[1].quality(Instant::now()), Quality::NoReply);
+        assert_eq!(img[2].polling_address, Some(1));
+        // Command 9 for the first: PV with its device variable status, percent of range.
+        assert!(
+            img[0].variables[0].unwrap().status.is_some(),
+            "{:?}",
+            img[0]
+        );
+        assert!(img[0].percent_range.is_some());
+        assert!(img[2].variables[0].unwrap().status.is_none());
+    });
+}
+
+#[test]
+fn writes_go_through_and_the_configuration_is_read_again() {
+    local(async {
+        // The demo plant and a pressure transmitter at polling address 0, whose loop
+        // current is live (the multidrop devices hold 4 mA).
+        let mut plant = Plant::demo();
+        plant.device.push(hart_host::transport::PlantDevice {
+            profile: "pressure".into(),
+            poll: 0,
+            burst: None,
+        });
+        let m = MemoryLoop::new(plant.devices().unwrap());
+        let (engine, _tasks) = Engine::start(
+            config(10_000, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(m),
+            }],
+        );
+        engine.ready().await;
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image().snapshot().iter().all(|d| d.range.is_some()) && e.image().len() == 5
+            })
+            .await
+        );
+        let r = engine.write(1, 34, &2.5f32.to_be_bytes()).await.unwrap();
+        assert_eq!(r.response_code, 0);
+        // The period is 10 s: the new damping shows because the write hurried a poll.
+        assert!(
+            until(&engine, Duration::from_secs(3), |e| {
+                e.image()
+                    .with(1, |d| d.range.map(|r| r.damping) == Some(2.5))
+                    .unwrap()
+            })
+            .await,
+            "{:?}",
+            engine.image().with(1, |d| d.range)
+        );
+        // A multidrop device refuses fixed current: response code 11, "in multidrop
+        // mode", passed on for the front end to judge.
+        let r = engine.write(1, 40, &12.0f32.to_be_bytes()).await.unwrap();
+        assert_eq!(r.response_code, 11);
+        assert_eq!(engine.image().with(1, |d| d.fixed_current).unwrap(), None);
+        // The device at polling address 0 (found first: position 0 is it) drives its
+        // loop current: fixed, shown, released.
+        let p0 = engine
+            .image()
+            .snapshot()
+            .iter()
+            .find(|d| d.polling_address == Some(0))
+            .map(|d| d.position)
+            .unwrap();
+        let r = engine.write(p0, 40, &12.0f32.to_be_bytes()).await.unwrap();
+        assert_eq!(r.response_code, 0);
+        assert_eq!(
+            engine.image().with(p0, |d| d.fixed_current).unwrap(),
+            Some(12.0)
+        );
+        engine.write(p0, 40, &0f32.to_be_bytes()).await.unwrap();
+        assert_eq!(engine.image().with(p0, |d| d.fixed_current).unwrap(), None);
+        // No such device.
+        assert_eq!(
+            engine.write(99, 34, &[0; 4]).await,
+            Err(hart_poller::WriteError::UnknownDevice)
+        );
+    });
+}
+
+#[test]
+fn burst_messages_update_the_image() {
+    local(async {
+        // Polls every 60 s: after the first poll, only the burst messages of the
+        // temperature transmitter (command 3 every 2 s) move its values.
+        let (m, _) = demo_in_memory();
+        let (engine, _tasks) = Engine::start(
+            config(60_000, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(m),
+            }],
+        );
+        engine.ready().await;
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image().with(1, |d| d.polls == 1).unwrap_or(false)
+            })
+            .await
+        );
+        let first = engine.image().with(1, |d| d.updated).unwrap();
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| {
+                e.image().with(1, |d| d.updated != first).unwrap()
+            })
+            .await,
+            "a burst message updated the image"
+        );
+        assert_eq!(engine.image().with(1, |d| d.polls).unwrap(), 1);
+    });
+}
