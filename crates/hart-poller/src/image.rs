@@ -90,6 +90,8 @@ pub struct RangeInfo {
     pub damping: f32,
     /// Write protect code (0 not protected, 1 protected, 250/251 none).
     pub write_protect: u8,
+    /// PV transfer function (Common Table 3: 0 linear, 1 square root, ...).
+    pub transfer_function: u8,
 }
 
 /// The result of the last poll.
@@ -304,6 +306,7 @@ impl DeviceImage {
                         lower: d.lower_range_value,
                         damping: d.damping.0,
                         write_protect: d.write_protect.0,
+                        transfer_function: d.transfer_function.0,
                     });
                     true
                 }
@@ -318,12 +321,27 @@ impl DeviceImage {
             }
             _ => false,
         };
+        if kept && matches!(command, 1 | 3 | 15) {
+            self.percent_range = self.percent_from_range().or(self.percent_range);
+        }
         if kept && matches!(command, 1 | 2 | 3 | 9) {
             self.updated = Some(wall);
             self.last_good = Some(now);
             self.last_poll = LastPoll::Answered;
         }
         kept
+    }
+
+    /// The PV's percent of range from its range values (command 15), for a linear
+    /// transfer function with the range in the PV's units: what command 2 would
+    /// report, without its line time. (Commands 1 and 3 do not carry it.)
+    fn percent_from_range(&self) -> Option<f32> {
+        let r = self.range?;
+        let pv = self.variables[0]?;
+        if r.transfer_function != 0 || r.units != pv.units || r.upper == r.lower {
+            return None;
+        }
+        Some((pv.value - r.lower) / (r.upper - r.lower) * 100.0)
     }
 
     /// Command 9's reply: extended status, then slots. Slots 246-249 are PV..QV,

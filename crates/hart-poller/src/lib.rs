@@ -228,7 +228,9 @@ impl Engine {
         &self.shared.config
     }
 
-    /// Waits until every loop has identified its listed devices and scanned once.
+    /// Waits until every loop has tried its listed devices (when it lists some) or
+    /// scanned once (when it lists none): the device list's first positions are then
+    /// known.
     pub async fn ready(&self) {
         let mut rx = self.ready.clone();
         let _ = rx.wait_for(|r| r.iter().all(|&x| x)).await;

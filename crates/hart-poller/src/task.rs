@@ -230,9 +230,7 @@ impl LoopTask {
     }
 
     fn first_pass_done(&mut self) {
-        if self.first_pass {
-            self.first_pass = false;
-        }
+        self.first_pass = false;
         self.shared.loop_ready(self.channel);
     }
 
@@ -329,6 +327,12 @@ impl LoopTask {
             }
         }
         self.next_scan += 1;
+        // Listed devices come first in the scan order: once they have been tried, the
+        // device list's first positions are known.
+        let listed = self.settings.device.len();
+        if self.first_pass && listed > 0 && self.next_scan == listed {
+            self.shared.loop_ready(self.channel);
+        }
         if self.next_scan >= self.scan_order.len() {
             self.next_scan = 0;
             self.first_pass_done();

@@ -1,0 +1,313 @@
+//! The gateway's Modbus front end against an outside client: pymodbus (BSD), run as a
+//! separate process by `scripts/interop/pymodbus_client.py` against `hartkit serve
+//! --sim --modbus ...` on defaults (the demo plant on a simulated 1200 bit/s loop).
+//! It reads every unit's registers with its own float decoder, meets the exceptions a
+//! SCADA meets, and writes a damping value, which HART (over the gateway's own HART-IP
+//! front end) then reads back from the device.
+//!
+//! Without the interop venv (`scripts/interop/setup`) the pymodbus checks say so and
+//! pass, unless `HARTKIT_REQUIRE_INTEROP=1`. The checks without Python (the printed
+//! map, the terminal view) always run.
+
+use std::collections::HashMap;
+use std::io::BufRead;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+
+mod common;
+use common::hartkit;
+
+fn workspace() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The venv's python, if pymodbus is installed there.
+fn python() -> Option<PathBuf> {
+    let venv = std::env::var_os("HARTKIT_INTEROP_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join("target/interop-venv"));
+    let py = venv.join("bin/python");
+    let ok = Command::new(&py)
+        .args(["-c", "import pymodbus"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(py);
+    }
+    assert!(
+        std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
+        "pymodbus is not installed in {} although HARTKIT_REQUIRE_INTEROP=1; run scripts/interop/setup",
+        venv.display()
+    );
+    eprintln!(
+        "pymodbus not installed ({}); skipping (scripts/interop/setup installs it)",
+        venv.display()
+    );
+    None
+}
+
+/// `hartkit serve ARGS` killed when dropped, and the addresses it printed by front end
+/// (`hart-ip` → its UDP address, `modbus` → its TCP address).
+struct Gateway(Child, HashMap<String, String>);
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn gateway(args: &[&str], front_ends: usize) -> Gateway {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .arg("serve")
+        .args(args)
+        .args(["--run-for", "300"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut addrs = HashMap::new();
+    for _ in 0..front_ends {
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)"
+        let mut words = line.split_whitespace();
+        let name = words.next().unwrap_or("").trim_end_matches(':').to_string();
+        let addr = words
+            .find(|w| w.contains(':'))
+            .unwrap_or_else(|| panic!("gateway did not start: {line:?}"));
+        addrs.insert(name, addr.to_string());
+    }
+    Gateway(child, addrs)
+}
+
+fn port_of(addr: &str) -> String {
+    addr.rsplit(':').next().unwrap().to_string()
+}
+
+fn run_client(py: &PathBuf, port: &str, extra: &[&str]) -> serde_json::Value {
+    let out = Command::new(py)
+        .arg(workspace().join("scripts/interop/pymodbus_client.py"))
+        .args(["--port", port, "--units", "4"])
+        .args(extra)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "pymodbus client failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+#[test]
+fn pymodbus_reads_the_demo_plant_and_a_write_lands_on_the_device() {
+    let Some(py) = python() else { return };
+    let gw = gateway(
+        &[
+            "--sim",
+            "--modbus",
+            "127.0.0.1:0",
+            "--hart-ip",
+            "127.0.0.1:0",
+        ],
+        2,
+    );
+    let r = run_client(&py, &port_of(&gw.1["modbus"]), &["--damping", "2.5"]);
+    assert_eq!(r["qualities"], serde_json::json!([0, 0, 0, 0]), "{r}");
+    let units = r["units"].as_array().unwrap();
+    // The demo plant: pressure (kPa, 12) at 1, temperature (degC, 32) at 2, valve
+    // positioner (%, 57) at 3, pressure at 17.
+    let expect = [(1, 12), (2, 32), (3, 57), (17, 12)];
+    for (u, (poll, pv_units)) in units.iter().zip(expect) {
+        assert_eq!(u["polling_address"], poll, "{u}");
+        assert_eq!(u["pv_units"], pv_units, "{u}");
+        assert_eq!(u["quality"], 0, "{u}");
+        assert!(u["pv"].as_f64().is_some_and(f64::is_finite), "{u}");
+        assert!(
+            u["loop_current"]
+                .as_f64()
+                .is_some_and(|c| (3.5..=22.0).contains(&c)),
+            "{u}"
+        );
+        // Percent of range from the range values: linear transmitters (the valve
+        // positioner's characterised PV has none).
+        if poll != 3 {
+            assert!(u["percent_range"].as_f64().is_some(), "{u}");
+        }
+        assert!(u["age"].as_u64().is_some_and(|a| a < 30), "{u}");
+        assert_eq!(u["manufacturer_id"], 240, "{u}");
+    }
+    // Same HART identity as the HART-IP side reports.
+    assert_eq!(units[0]["device_id"], 0x010002);
+    assert_eq!(r["unknown_unit"], 10, "gateway path unavailable");
+    assert_eq!(r["outside_map"], 2, "illegal data address");
+    assert_eq!(r["read_coils"], 1, "illegal function");
+    assert_eq!(r["half_float"], 2, "half a float");
+    assert_eq!(r["write_input"], 2, "not a writable register");
+    assert_eq!(r["bad_damping"], 3, "the device refuses a negative damping");
+    assert_eq!(r["write_damping"], "ok");
+    assert_eq!(r["damping_read_back"], 2.5);
+    // Through HART: the device holds the new damping.
+    let hip = format!("udp://{}", gw.1["hart-ip"]);
+    let (code, out, err) = hartkit(&["read", "--port", &hip, "--poll", "1", "info", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let info: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(info["damping"], 2.5, "{info}");
+}
+
+#[test]
+fn word_swapped_floats_for_plcs_that_want_them() {
+    let Some(py) = python() else { return };
+    let gw = gateway(
+        &[
+            "--sim",
+            "--instant",
+            "--modbus",
+            "127.0.0.1:0",
+            "--float-order",
+            "cdab",
+        ],
+        1,
+    );
+    let r = run_client(
+        &py,
+        &port_of(&gw.1["modbus"]),
+        &["--word-order", "little", "--wait", "20"],
+    );
+    assert_eq!(r["qualities"], serde_json::json!([0, 0, 0, 0]), "{r}");
+    assert_eq!(r["units"][0]["upper_range"], 250.0, "{r}");
+    assert_eq!(r["units"][2]["loop_current"], 12.0, "{r}");
+    assert_eq!(r["damping_read_back"], 2.5);
+}
+
+#[test]
+fn the_printed_map_lists_units_and_registers() {
+    let (code, out, err) = hartkit(&["serve", "--sim", "--print-map", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let m: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let units = m["units"].as_array().unwrap();
+    let polls: Vec<_> = units.iter().map(|u| u["polling_address"].clone()).collect();
+    assert_eq!(polls, [1, 2, 3, 17]);
+    assert_eq!(units[0]["unit"], 1);
+    assert_eq!(units[0]["name"], "PT-100");
+    assert_eq!(m["float_order"], "abcd");
+    let regs = m["registers"].as_array().unwrap();
+    let find = |table: &str, register: u64| {
+        regs.iter()
+            .find(|r| r["table"] == table && r["register"] == register)
+            .unwrap_or_else(|| panic!("{table} {register} not in {m}"))
+    };
+    // The fixed part of the map (docs/gateway.md).
+    for (register, value) in [
+        (0, "pv"),
+        (2, "sv"),
+        (4, "tv"),
+        (6, "qv"),
+        (8, "loop_current"),
+        (10, "pv_units"),
+        (11, "device_status"),
+        (12, "extended_status"),
+        (13, "quality"),
+        (14, "age"),
+    ] {
+        assert_eq!(find("input", register)["value"], value);
+    }
+    assert_eq!(find("holding", 4)["value"], "damping");
+    assert_eq!(find("holding", 4)["writable"], true);
+    let (code, text, _) = hartkit(&["serve", "--sim", "--instant", "--print-map"]);
+    assert_eq!(code, 0);
+    assert!(
+        text.contains("unit   1") && text.contains("PT-100"),
+        "{text}"
+    );
+    assert!(
+        text.lines().any(|l| l
+            .split_whitespace()
+            .take(4)
+            .eq(["input", "0-1", "float", "pv"])),
+        "{text}"
+    );
+}
+
+#[test]
+fn configuration_file_and_its_errors() {
+    let dir = std::env::temp_dir().join(format!("hartkit-gw-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cfg = dir.join("gateway.toml");
+    std::fs::write(
+        &cfg,
+        r#"
+[poll]
+period = "500ms"
+
+[[loop]]
+name = "north"
+port = "sim"
+scan = false
+[[loop.device]]
+poll = 17
+name = "PT-017"
+[[loop.device]]
+poll = 1
+
+[modbus]
+float_order = "cdab"
+[[modbus.register]]
+table = "input"
+register = 100
+value = "pv"
+[[modbus.register]]
+table = "input"
+register = 102
+value = "quality"
+"#,
+    )
+    .unwrap();
+    let (code, out, err) = hartkit(&[
+        "serve",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--print-map",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let m: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(m["float_order"], "cdab");
+    assert_eq!(m["units"][0]["name"], "PT-017");
+    assert_eq!(m["units"][0]["loop"], "north");
+    assert_eq!(m["units"][1]["polling_address"], 1);
+    assert_eq!(m["units"].as_array().unwrap().len(), 2);
+    assert_eq!(m["registers"].as_array().unwrap().len(), 2);
+    // Mistakes are named.
+    std::fs::write(&cfg, "[[loop]]\nport = \"sim\"\nread = 7\n").unwrap();
+    let (code, _, err) = hartkit(&["serve", "--config", cfg.to_str().unwrap(), "--print-map"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("command 3"), "{err}");
+    std::fs::write(
+        &cfg,
+        "[modbus]\n[[modbus.register]]\ntable = \"input\"\nregister = 0\nvalue = \"pv\"\n[[modbus.register]]\ntable = \"input\"\nregister = 1\nvalue = \"sv\"\n[[loop]]\nport = \"sim\"\n",
+    )
+    .unwrap();
+    let (code, _, err) = hartkit(&["serve", "--config", cfg.to_str().unwrap(), "--print-map"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("overlaps"), "{err}");
+    let (code, _, err) = hartkit(&["serve", "--print-map"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("no loop"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn with_no_front_end_the_gateway_shows_the_devices() {
+    let (code, out, err) = hartkit(&["serve", "--sim", "--instant", "--json", "--run-for", "6"]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(lines.len() >= 4, "{out}");
+    let last: Vec<_> = lines.iter().rev().take(4).collect();
+    assert!(last.iter().all(|l| l["quality"] == "good"), "{out}");
+}
