@@ -141,26 +141,42 @@ impl Gateway {
                 })
                 .unwrap_or(Err(ExceptionCode::GatewayPathUnavailable))
         };
+        if broadcast {
+            // RTU broadcast: writes are carried out, nothing is ever answered.
+            let values = match request {
+                Request::WriteSingleRegister(register, word) => {
+                    self.config.map.decode_write(register, &[word], order)
+                }
+                Request::WriteMultipleRegisters(start, words) => {
+                    self.config.map.decode_write(start, &words, order)
+                }
+                _ => return Ok(None),
+            };
+            if let Ok(values) = values {
+                let _ = self.write_all(None, true, values).await;
+            }
+            return Ok(None);
+        }
         let response = match request {
-            Request::ReadInputRegisters(start, count) if !broadcast => {
+            Request::ReadInputRegisters(start, count) => {
                 Response::ReadInputRegisters(read(Table::Input, start, count)?)
             }
-            Request::ReadHoldingRegisters(start, count) if !broadcast => {
+            Request::ReadHoldingRegisters(start, count) => {
                 Response::ReadHoldingRegisters(read(Table::Holding, start, count)?)
             }
             Request::WriteSingleRegister(register, word) => {
                 let values = self.config.map.decode_write(register, &[word], order)?;
-                self.write_all(position, broadcast, values).await?;
+                self.write_all(position, false, values).await?;
                 Response::WriteSingleRegister(register, word)
             }
             Request::WriteMultipleRegisters(start, words) => {
                 let values = self.config.map.decode_write(start, &words, order)?;
-                self.write_all(position, broadcast, values).await?;
+                self.write_all(position, false, values).await?;
                 Response::WriteMultipleRegisters(start, words.len() as u16)
             }
             _ => return Err(ExceptionCode::IllegalFunction),
         };
-        Ok((!broadcast).then_some(response))
+        Ok(Some(response))
     }
 
     /// Carries the values of one write request to the device at `position` (every

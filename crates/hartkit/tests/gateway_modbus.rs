@@ -70,11 +70,12 @@ fn gateway(args: &[&str], front_ends: usize) -> Gateway {
     for _ in 0..front_ends {
         let mut line = String::new();
         out.read_line(&mut line).unwrap();
-        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)"
+        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)",
+        // "modbus-rtu: PATH 19200 8N1"
         let mut words = line.split_whitespace();
         let name = words.next().unwrap_or("").trim_end_matches(':').to_string();
         let addr = words
-            .find(|w| w.contains(':'))
+            .find(|w| w.contains(':') || w.starts_with('/'))
             .unwrap_or_else(|| panic!("gateway did not start: {line:?}"));
         addrs.insert(name, addr.to_string());
     }
@@ -310,4 +311,77 @@ fn with_no_front_end_the_gateway_shows_the_devices() {
     assert!(lines.len() >= 4, "{out}");
     let last: Vec<_> = lines.iter().rev().take(4).collect();
     assert!(last.iter().all(|l| l["quality"] == "good"), "{out}");
+}
+
+/// A pseudo-terminal pair joined by socat (an outside program, run as a process): the
+/// gateway on one end, pymodbus's RTU master on the other. Killed when dropped.
+struct PtyPair(Child, PathBuf, PathBuf);
+
+impl Drop for PtyPair {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn pty_pair() -> Option<PtyPair> {
+    if Command::new("socat").arg("-V").output().is_err() {
+        assert!(
+            std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
+            "socat is not installed although HARTKIT_REQUIRE_INTEROP=1 (apt-get install socat)"
+        );
+        eprintln!("socat not installed; skipping the Modbus RTU check");
+        return None;
+    }
+    let dir = std::env::temp_dir().join(format!("hartkit-rtu-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (a, b) = (dir.join("gateway"), dir.join("master"));
+    let child = Command::new("socat")
+        .arg(format!("pty,raw,echo=0,link={}", a.display()))
+        .arg(format!("pty,raw,echo=0,link={}", b.display()))
+        .spawn()
+        .unwrap();
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !(a.exists() && b.exists()) {
+        assert!(
+            std::time::Instant::now() < end,
+            "socat made no pseudo-terminals"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    Some(PtyPair(child, a, b))
+}
+
+#[test]
+fn pymodbus_rtu_master_on_a_serial_line() {
+    let Some(py) = python() else { return };
+    let Some(pty) = pty_pair() else { return };
+    // A pseudo-terminal has no parity: 8N1.
+    let _gw = gateway(
+        &[
+            "--sim",
+            "--instant",
+            "--modbus-rtu",
+            pty.1.to_str().unwrap(),
+            "--modbus-parity",
+            "N",
+        ],
+        1,
+    );
+    let out = Command::new(&py)
+        .arg(workspace().join("scripts/interop/pymodbus_rtu_client.py"))
+        .args(["--device", pty.2.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "RTU master failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(r["pv_units"], 12, "{r}");
+    assert_eq!(r["quality"], 0, "{r}");
+    assert_eq!(r["unknown_unit"], "silent", "{r}");
+    assert_eq!(r["damping"], serde_json::json!({"1": 3.0, "2": 3.0}), "{r}");
 }
