@@ -23,6 +23,7 @@ use std::time::Instant;
 use hart_poller::{Engine, WriteError};
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
+pub mod load;
 pub mod map;
 
 use map::{FloatOrder, RegisterMap, Table, Value};

@@ -535,10 +535,7 @@ mod tests {
             .read(Table::Input, 0, 16, &d, now, FloatOrder::Abcd)
             .unwrap();
         assert_eq!(&r[0..2], &[0x4248, 0x0000]); // PV 50.0
-        assert_eq!(
-            f32::from_bits(FloatOrder::Abcd.join([r[2], r[3]])).is_nan(),
-            true
-        );
+        assert!(f32::from_bits(FloatOrder::Abcd.join([r[2], r[3]])).is_nan());
         assert_eq!(&r[8..10], &[0x4140, 0x0000]); // 12 mA
         assert_eq!(r[10], 12); // kPa
         assert_eq!(r[13], 0); // good

@@ -489,7 +489,7 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
 }
 
 /// With no front end, `hartkit serve` shows the image: every few seconds a table
-/// (or, with `--json`, one JSON line per device).
+/// (or, with `--json`, one JSON line per device, with its poll and failure counts).
 async fn console_view(engine: Engine, json: bool) {
     use std::io::Write as _;
     let mut tick = tokio::time::interval(Duration::from_secs(5));
@@ -520,6 +520,8 @@ async fn console_view(engine: Engine, json: bool) {
                     "loop_current": d.loop_current,
                     "device_status": d.device_status,
                     "quality": d.quality(now).name(),
+                    "polls": d.polls,
+                    "failures": d.failures,
                 });
                 let _ = writeln!(out, "{line}");
             } else {

@@ -97,6 +97,9 @@ enum Top {
     /// HART-IP tools: a load generator for HART-IP servers.
     #[command(subcommand)]
     HartIp(HartIpCmd),
+    /// Modbus tools: a load generator for Modbus TCP servers (the gateway's front end).
+    #[command(subcommand)]
+    Modbus(ModbusCmd),
     /// The software Bell 202 modem: frames to and from WAV files or raw samples.
     #[command(subcommand)]
     Modem(ModemCmd),
@@ -115,6 +118,43 @@ enum Top {
         #[arg(long, short = 'p', default_value = "sim")]
         port: String,
     },
+}
+
+#[derive(Subcommand)]
+enum ModbusCmd {
+    /// Load a Modbus TCP server: CLIENTS connections, each reading COUNT input
+    /// registers of the units in turn, one request at a time, for --duration seconds;
+    /// reports requests/s, latency and errors. Runs in its own process, so start the
+    /// gateway separately (hartkit serve --sim --instant --modbus 127.0.0.1:1502).
+    Bench(ModbusBenchArgs),
+}
+
+#[derive(Args)]
+struct ModbusBenchArgs {
+    /// The server, HOST:PORT (port 502 by default).
+    #[arg(long, short = 'p', value_name = "HOST[:PORT]")]
+    port: String,
+    /// Connections at once.
+    #[arg(long, default_value_t = 10)]
+    clients: usize,
+    /// Seconds to run.
+    #[arg(long, default_value_t = 10.0)]
+    duration: f64,
+    /// Unit ids to read, in turn (e.g. 1-4 or 1,3).
+    #[arg(long, default_value = "1")]
+    units: String,
+    /// First input register.
+    #[arg(long, default_value_t = 0)]
+    register: u16,
+    /// Registers per request (1-125).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u16).range(1..=125))]
+    count: u16,
+    /// Worker threads of the load generator (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// JSON output.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -810,8 +850,59 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
         } => hartkit::demo::run(port, *duration, *json).map(|_| String::new()),
         Top::Serve(a) => hartkit::gateway::run(a.options()),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
+        Top::Modbus(ModbusCmd::Bench(a)) => modbus_bench(a),
         _ => return None,
     })
+}
+
+/// `hartkit modbus bench`: the load generator of `hart_modbus::load`.
+fn modbus_bench(a: &ModbusBenchArgs) -> Result<String, (String, u8)> {
+    let address = hartkit::gateway::socket_addr("--port", &a.port, 502)?;
+    if !(a.duration > 0.0 && a.duration <= 86_400.0) {
+        return Err((
+            format!(
+                "--duration {}: must be more than 0 and at most 86400 s",
+                a.duration
+            ),
+            2,
+        ));
+    }
+    let mut units = vec![];
+    for part in a.units.split(',').filter(|p| !p.trim().is_empty()) {
+        let bad = || {
+            (
+                format!("--units {}: give unit ids 1-247 like 1-4 or 1,3", a.units),
+                2,
+            )
+        };
+        let (lo, hi) = part.split_once('-').unwrap_or((part, part));
+        let (lo, hi): (u8, u8) = (
+            lo.trim().parse().map_err(|_| bad())?,
+            hi.trim().parse().map_err(|_| bad())?,
+        );
+        if lo > hi {
+            return Err(bad());
+        }
+        units.extend(lo..=hi);
+    }
+    let opts = hart_modbus::load::LoadOptions {
+        address,
+        clients: a.clients.max(1),
+        duration: std::time::Duration::from_secs_f64(a.duration),
+        units,
+        register: a.register,
+        count: a.count,
+        threads: a.threads,
+    };
+    let r = hart_modbus::load::run_blocking(&opts).map_err(|e| (e.to_string(), 5))?;
+    if a.json {
+        return serde_json::to_string_pretty(&r).map_err(|e| (e.to_string(), 5));
+    }
+    Ok(format!(
+        "{} clients, {:.1} s: {} requests, {:.0} requests/s, {} errors\nlatency ms: p50 {:.3}  p90 {:.3}  p99 {:.3}  max {:.3}",
+        r.clients, r.seconds, r.requests, r.per_second, r.errors,
+        r.latency_ms[0], r.latency_ms[1], r.latency_ms[2], r.latency_ms[3]
+    ))
 }
 
 /// `hartkit hart-ip bench`: the load generator of `hart_host::load`, on a
