@@ -33,6 +33,28 @@ pub struct GatewayFile {
     /// The Modbus RTU front end (`[modbus_rtu]`).
     #[serde(default)]
     pub modbus_rtu: Option<RtuSection>,
+    /// The OPC UA front end (`[opcua]`).
+    #[serde(default)]
+    pub opcua: Option<OpcUaSection>,
+}
+
+/// `[opcua]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OpcUaSection {
+    /// `ADDR[:PORT]` (port 4840 by default).
+    #[serde(default)]
+    pub bind: Option<String>,
+    /// `none`, `basic256sha256` or `both`; default `none` on a loopback address,
+    /// `basic256sha256` on any other.
+    #[serde(default)]
+    pub security: Option<String>,
+    /// Users of the secure endpoint, `NAME:PASSWORD`.
+    #[serde(default)]
+    pub users: Vec<String>,
+    /// Where the certificate and key are kept.
+    #[serde(default)]
+    pub pki_dir: Option<PathBuf>,
 }
 
 /// `[hart_ip]`.
@@ -124,6 +146,14 @@ pub struct ServeOptions {
     pub modbus_parity: Option<char>,
     /// `--float-order`.
     pub float_order: Option<FloatOrder>,
+    /// `--opcua ADDR[:PORT]`.
+    pub opcua: Option<String>,
+    /// `--opcua-security`.
+    pub opcua_security: Option<String>,
+    /// `--opcua-user NAME:PASSWORD`.
+    pub opcua_users: Vec<String>,
+    /// `--opcua-pki DIR`.
+    pub opcua_pki: Option<PathBuf>,
     /// `--poll-period` seconds.
     pub poll_period: Option<f64>,
     /// `--print-map`: print the Modbus map and exit.
@@ -161,6 +191,71 @@ fn sim_plant(profiles: &[String]) -> Result<hart_host::transport::Plant, Failure
     } else {
         Plant::from_profiles(profiles).map_err(|e| (format!("--sim: {e}"), 2))
     }
+}
+
+/// The OPC UA settings from the file's `[opcua]` and the options; `None`: no OPC UA.
+fn opcua_config(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<Option<hart_opcua::Config>, Failure> {
+    let section = file.opcua.clone().unwrap_or_default();
+    let Some(bind) = opts.opcua.clone().or(section.bind.clone()) else {
+        return Ok(None);
+    };
+    let bind = socket_addr("--opcua", &bind, 4840)?;
+    let security = match opts
+        .opcua_security
+        .clone()
+        .or(section.security.clone())
+        .as_deref()
+    {
+        None if bind.ip().is_loopback() => hart_opcua::Security::None,
+        None => hart_opcua::Security::Basic256Sha256,
+        Some("none") => hart_opcua::Security::None,
+        Some("basic256sha256") => hart_opcua::Security::Basic256Sha256,
+        Some("both") => hart_opcua::Security::Both,
+        Some(other) => {
+            return Err((
+                format!("--opcua-security {other}: give none, basic256sha256 or both"),
+                2,
+            ))
+        }
+    };
+    let mut users = vec![];
+    for u in opts.opcua_users.iter().chain(&section.users) {
+        let Some((name, pass)) = u
+            .split_once(':')
+            .filter(|(n, p)| !n.is_empty() && !p.is_empty())
+        else {
+            return Err((
+                format!("--opcua-user {u:?}: give NAME:PASSWORD (both non-empty)"),
+                2,
+            ));
+        };
+        users.push((name.to_string(), pass.to_string()));
+    }
+    let pki_dir = opts
+        .opcua_pki
+        .clone()
+        .or(section.pki_dir.clone())
+        .unwrap_or_else(default_pki_dir);
+    Ok(Some(hart_opcua::Config {
+        bind,
+        security,
+        users,
+        pki_dir,
+        read_only: opts.read_only,
+    }))
+}
+
+/// Where the OPC UA certificate is kept by default: `$XDG_DATA_HOME/hartkit/opcua-pki`,
+/// `~/.local/share/hartkit/opcua-pki`, or `./hartkit-opcua-pki`.
+fn default_pki_dir() -> PathBuf {
+    std::env::var_os("XDG_DATA_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/share")))
+        .map(|d| d.join("hartkit/opcua-pki"))
+        .unwrap_or_else(|| PathBuf::from("hartkit-opcua-pki"))
 }
 
 /// The Modbus settings from the file's `[modbus]` and the options.
@@ -238,11 +333,13 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
         (None, None) => None,
     };
     let modbus_cfg = modbus_config(&file, &opts)?;
-    // Polling serves the image's readers: Modbus, the console view (no front end at
-    // all), a printed map; or when the configuration or --poll-period asks for it.
-    let console = hart_ip.is_none() && modbus.is_none() && rtu.is_none();
+    let opcua_cfg = opcua_config(&file, &opts)?;
+    // Polling serves the image's readers: Modbus, OPC UA, the console view (no front
+    // end at all), a printed map; or when the configuration or --poll-period asks.
+    let console = hart_ip.is_none() && modbus.is_none() && rtu.is_none() && opcua_cfg.is_none();
     let poll = modbus.is_some()
         || rtu.is_some()
+        || opcua_cfg.is_some()
         || console
         || opts.print_map
         || file.poll.is_some()
@@ -458,6 +555,14 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                 }
             }));
         }
+        let mut opcua_server = None;
+        if let Some(cfg) = opcua_cfg {
+            let bind = cfg.bind;
+            let server = hart_opcua::start(engine.clone(), cfg)
+                .map_err(|e| (format!("--opcua {bind}: {e}"), 5))?;
+            out.push(format!("opcua: {}", server.url));
+            opcua_server = Some(server);
+        }
         {
             use std::io::Write as _;
             let mut stdout = std::io::stdout();
@@ -477,6 +582,9 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
         }
         for t in front_tasks {
             t.abort();
+        }
+        if let Some(s) = opcua_server {
+            s.stop();
         }
         for s in servers {
             s.stop();

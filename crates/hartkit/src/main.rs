@@ -91,8 +91,8 @@ enum Top {
         duration: Option<f64>,
     },
     /// The gateway: a polling engine in front of HART loops (serial or RS-485 lines,
-    /// HART-IP servers, simulated plants), with HART-IP, Modbus TCP and Modbus RTU
-    /// front ends. With no front end it shows the polled devices on the terminal.
+    /// HART-IP servers, simulated plants), with HART-IP, Modbus TCP, Modbus RTU and
+    /// OPC UA front ends. With no front end it shows the polled devices on the terminal.
     Serve(Box<ServeCli>),
     /// HART-IP tools: a load generator for HART-IP servers.
     #[command(subcommand)]
@@ -1117,6 +1117,20 @@ struct ServeCli {
     /// the default), cdab (low word first), badc, dcba.
     #[arg(long, value_name = "ORDER")]
     float_order: Option<hart_modbus::map::FloatOrder>,
+    /// Serve OPC UA here (port 4840 by default): Objects/HART/<loop>/<device> with PV,
+    /// SV, TV, QV, LoopCurrent, PercentRange and methods.
+    #[arg(long, value_name = "ADDR[:PORT]")]
+    opcua: Option<String>,
+    /// OPC UA endpoint security: none, basic256sha256 or both (default: none on a
+    /// loopback address, basic256sha256 on any other).
+    #[arg(long, value_name = "MODE")]
+    opcua_security: Option<String>,
+    /// A user of the secure OPC UA endpoint, NAME:PASSWORD (repeat for more).
+    #[arg(long = "opcua-user", value_name = "NAME:PASSWORD")]
+    opcua_users: Vec<String>,
+    /// Directory of the OPC UA certificate and key (made at the first start).
+    #[arg(long, value_name = "DIR")]
+    opcua_pki: Option<std::path::PathBuf>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit.
     #[arg(long)]
     print_map: bool,
@@ -1202,6 +1216,10 @@ impl ServeCli {
             modbus_baud: self.modbus_baud,
             modbus_parity: self.modbus_parity,
             float_order: self.float_order,
+            opcua: self.opcua.clone(),
+            opcua_security: self.opcua_security.clone(),
+            opcua_users: self.opcua_users.clone(),
+            opcua_pki: self.opcua_pki.clone(),
             poll_period: self.poll_period,
             print_map: self.print_map,
             json: self.json,

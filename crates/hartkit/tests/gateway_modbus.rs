@@ -9,77 +9,14 @@
 //! pass, unless `HARTKIT_REQUIRE_INTEROP=1`. The checks without Python (the printed
 //! map, the terminal view) always run.
 
-use std::collections::HashMap;
-use std::io::BufRead;
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 
 mod common;
-use common::hartkit;
+use common::{gateway, hartkit, workspace};
 
-fn workspace() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// The venv's python, if pymodbus is installed there.
 fn python() -> Option<PathBuf> {
-    let venv = std::env::var_os("HARTKIT_INTEROP_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace().join("target/interop-venv"));
-    let py = venv.join("bin/python");
-    let ok = Command::new(&py)
-        .args(["-c", "import pymodbus"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(py);
-    }
-    assert!(
-        std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
-        "pymodbus is not installed in {} although HARTKIT_REQUIRE_INTEROP=1; run scripts/interop/setup",
-        venv.display()
-    );
-    eprintln!(
-        "pymodbus not installed ({}); skipping (scripts/interop/setup installs it)",
-        venv.display()
-    );
-    None
-}
-
-/// `hartkit serve ARGS` killed when dropped, and the addresses it printed by front end
-/// (`hart-ip` → its UDP address, `modbus` → its TCP address).
-struct Gateway(Child, HashMap<String, String>);
-
-impl Drop for Gateway {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn gateway(args: &[&str], front_ends: usize) -> Gateway {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .arg("serve")
-        .args(args)
-        .args(["--run-for", "300"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut addrs = HashMap::new();
-    for _ in 0..front_ends {
-        let mut line = String::new();
-        out.read_line(&mut line).unwrap();
-        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)",
-        // "modbus-rtu: PATH 19200 8N1"
-        let mut words = line.split_whitespace();
-        let name = words.next().unwrap_or("").trim_end_matches(':').to_string();
-        let addr = words
-            .find(|w| w.contains(':') || w.starts_with('/'))
-            .unwrap_or_else(|| panic!("gateway did not start: {line:?}"));
-        addrs.insert(name, addr.to_string());
-    }
-    Gateway(child, addrs)
+    common::interop_python("pymodbus")
 }
 
 fn port_of(addr: &str) -> String {

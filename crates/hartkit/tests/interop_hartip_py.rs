@@ -12,37 +12,13 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-fn workspace() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+mod common;
+use common::{serve, workspace};
 
 /// The venv's python, if hartip-py is installed there.
 fn python() -> Option<PathBuf> {
-    let venv = std::env::var_os("HARTKIT_INTEROP_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace().join("target/interop-venv"));
-    let py = venv.join("bin/python");
-    let ok = Command::new(&py)
-        .args(["-c", "import hartip"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(py);
-    }
-    assert!(
-        std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
-        "hartip-py is not installed in {} although HARTKIT_REQUIRE_INTEROP=1; run scripts/interop/setup",
-        venv.display()
-    );
-    eprintln!(
-        "hartip-py not installed ({}); skipping the interop check (scripts/interop/setup installs it)",
-        venv.display()
-    );
-    None
+    common::interop_python("hartip")
 }
-
-mod common;
-use common::serve;
 
 fn run_client(py: &PathBuf, port: u16, transport: &str) -> Vec<serde_json::Value> {
     let out = Command::new(py)

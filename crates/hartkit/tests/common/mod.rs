@@ -35,6 +35,80 @@ pub fn serve(extra: &[&str]) -> Server {
     Server(child, port)
 }
 
+/// The workspace root.
+pub fn workspace() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The interop venv's python (`scripts/interop/setup`), if `module` imports there.
+/// Without it the caller skips its check, unless `HARTKIT_REQUIRE_INTEROP=1` (set by
+/// `.ci/run` once the install worked), where this fails the test.
+pub fn interop_python(module: &str) -> Option<std::path::PathBuf> {
+    let venv = std::env::var_os("HARTKIT_INTEROP_VENV")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| workspace().join("target/interop-venv"));
+    let py = venv.join("bin/python");
+    let ok = std::process::Command::new(&py)
+        .args(["-c", &format!("import {module}")])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(py);
+    }
+    assert!(
+        std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
+        "{module} is not installed in {} although HARTKIT_REQUIRE_INTEROP=1; run scripts/interop/setup",
+        venv.display()
+    );
+    eprintln!(
+        "{module} not installed ({}); skipping this interop check (scripts/interop/setup installs it)",
+        venv.display()
+    );
+    None
+}
+
+/// `hartkit serve ARGS --run-for 300`, killed when dropped, and the addresses its front
+/// ends printed, by name (`hart-ip` its UDP address, `modbus` its TCP address,
+/// `modbus-rtu` its serial port, `opcua` its endpoint URL).
+pub struct Gateway(
+    pub std::process::Child,
+    pub std::collections::HashMap<String, String>,
+);
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `hartkit serve ARGS` and reads the `front_ends` lines it prints first.
+pub fn gateway(args: &[&str], front_ends: usize) -> Gateway {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .arg("serve")
+        .args(args)
+        .args(["--run-for", "300"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut addrs = std::collections::HashMap::new();
+    for _ in 0..front_ends {
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)",
+        // "modbus-rtu: PATH 19200 8N1", "opcua: opc.tcp://HOST:PORT/"
+        let mut words = line.split_whitespace();
+        let name = words.next().unwrap_or("").trim_end_matches(':').to_string();
+        let addr = words
+            .find(|w| w.contains(':') || w.starts_with('/'))
+            .unwrap_or_else(|| panic!("gateway did not start: {line:?}"));
+        addrs.insert(name, addr.to_string());
+    }
+    Gateway(child, addrs)
+}
+
 /// Runs the `hartkit` binary with `args`: exit status, standard output, standard error.
 pub fn hartkit(args: &[&str]) -> (i32, String, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))

@@ -1,0 +1,648 @@
+//! # hart-opcua
+//!
+//! The OPC UA front end of hartkit's gateway (on the `async-opcua` crate): every HART
+//! device the polling engine knows is an object `Objects/HART/<loop>/<name>` (the long
+//! tag, or the tag when the device has none, made unique in its loop) with variables
+//! PV, SV, TV, QV, LoopCurrent and PercentRange (each with its EngineeringUnits, a
+//! status code from the device's quality, and the source time stamp of the poll),
+//! UpperRangeValue, LowerRangeValue, Damping (command 15), DeviceStatus, Quality, Tag,
+//! LongTag, Manufacturer, DeviceType, DeviceId and PollingAddress, and methods WriteTag, SetRange, SetDamping and LoopTest that send
+//! HART commands 18, 35, 34 and 40 ahead of the engine's polls. Subscriptions see each
+//! change as the engine sees it.
+//!
+//! The server runs on a runtime of its own (a thread with two workers), so the gateway's
+//! loops and its other front ends keep their thread.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Instant, SystemTime};
+
+use hart_poller::{DeviceImage, Engine, Quality};
+use opcua::server::address_space::{MethodBuilder, ObjectBuilder, VariableBuilder};
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::{simple_node_manager, SimpleNodeManager};
+use opcua::server::{
+    ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache,
+};
+use opcua::types::{
+    DataTypeId, DataValue, DateTime, ExtensionObject, NodeId, ObjectId, ObjectTypeId,
+    QualifiedName, StatusCode, VariableTypeId, Variant,
+};
+
+pub mod units;
+
+/// The namespace of the gateway's nodes.
+pub const NAMESPACE: &str = "urn:hartkit:gateway:hart";
+
+/// Endpoint security.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Security {
+    /// No security, anonymous (for a gateway on localhost, and tests).
+    None,
+    /// Basic256Sha256, signed and encrypted, with the gateway's self-signed certificate;
+    /// users by name and password when any are configured, else anonymous.
+    Basic256Sha256,
+    /// Both endpoints.
+    Both,
+}
+
+/// Settings of the OPC UA front end.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Address to listen on (port 4840 is OPC UA's).
+    pub bind: SocketAddr,
+    /// Endpoints offered.
+    pub security: Security,
+    /// Users (name, password) of the secure endpoint.
+    pub users: Vec<(String, String)>,
+    /// Where the certificate and private key are kept (made at the first start).
+    pub pki_dir: PathBuf,
+    /// Refuse the write methods (BadUserAccessDenied).
+    pub read_only: bool,
+}
+
+/// A running OPC UA server.
+pub struct OpcUaServer {
+    /// The address bound.
+    pub addr: SocketAddr,
+    /// The endpoint URL clients use.
+    pub url: String,
+    handle: ServerHandle,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl OpcUaServer {
+    /// Stops the server (clients are told) and waits for its thread.
+    pub fn stop(mut self) {
+        self.handle.cancel();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// The node ids of one device's nodes.
+struct DeviceNodes {
+    object: NodeId,
+    name: String,
+}
+
+fn var_id(ns: u16, object: &str, var: &str) -> NodeId {
+    NodeId::new(ns, format!("{object}/{var}"))
+}
+
+/// The analog variables: browse name, and how to read it from the image.
+type Analog = (&'static str, fn(&DeviceImage) -> (Option<f32>, Option<u8>));
+
+const ANALOG: &[Analog] = &[
+    ("PV", |d| var(d, 0)),
+    ("SV", |d| var(d, 1)),
+    ("TV", |d| var(d, 2)),
+    ("QV", |d| var(d, 3)),
+    ("LoopCurrent", |d| (d.loop_current, Some(39))),
+    ("PercentRange", |d| (d.percent_range, Some(57))),
+];
+
+fn var(d: &DeviceImage, i: usize) -> (Option<f32>, Option<u8>) {
+    match d.variables[i] {
+        Some(v) => (Some(v.value), Some(v.units)),
+        None => (None, None),
+    }
+}
+
+/// The OPC UA status of a value of quality `q` (`present`: the device reported one;
+/// `pending`: not polled yet).
+fn status(q: Quality, present: bool, pending: bool) -> StatusCode {
+    if pending {
+        return StatusCode::BadWaitingForInitialData;
+    }
+    if !present {
+        return match q {
+            Quality::NoReply => StatusCode::BadNoCommunication,
+            _ => StatusCode::BadWaitingForInitialData,
+        };
+    }
+    match q {
+        Quality::Good | Quality::ConfigurationChanged => StatusCode::Good,
+        Quality::Stale => StatusCode::UncertainLastUsableValue,
+        Quality::NoReply => StatusCode::BadNoCommunication,
+        Quality::DeviceMalfunction => StatusCode::BadDeviceFailure,
+    }
+}
+
+fn source_time(d: &DeviceImage) -> DateTime {
+    d.updated
+        .map_or_else(DateTime::now, |t| DateTime::from(chrono_of(t)))
+}
+
+fn chrono_of(t: SystemTime) -> opcua::types::date_time::DateTimeUtc {
+    opcua::types::date_time::DateTimeUtc::from(t)
+}
+
+/// Starts the server on a thread of its own; returns once it listens.
+pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
+    let std_listener =
+        std::net::TcpListener::bind(config.bind).map_err(|e| format!("{}: {e}", config.bind))?;
+    let addr = std_listener.local_addr().map_err(|e| e.to_string())?;
+    std_listener
+        .set_nonblocking(true)
+        .map_err(|e| e.to_string())?;
+    let host = addr.ip().to_string();
+    let url = format!("opc.tcp://{host}:{}/", addr.port());
+    let user_ids: Vec<String> = config.users.iter().map(|(u, _)| u.clone()).collect();
+    let mut builder = ServerBuilder::new()
+        .application_name("hartkit HART gateway")
+        .application_uri("urn:hartkit:gateway")
+        .product_uri("urn:hartkit")
+        .host(host.clone())
+        .port(addr.port())
+        .pki_dir(config.pki_dir.clone())
+        .certificate_path("own/cert.der")
+        .private_key_path("private/private.pem")
+        .create_sample_keypair(true)
+        .trust_client_certs(true)
+        .discovery_urls(vec![url.clone()])
+        .with_node_manager(simple_node_manager(
+            NamespaceMetadata {
+                namespace_uri: NAMESPACE.to_owned(),
+                ..Default::default()
+            },
+            "hart",
+        ));
+    for (user, pass) in &config.users {
+        builder = builder.add_user_token(
+            user.clone(),
+            ServerUserToken::user_pass(user.as_str(), pass.as_str()),
+        );
+    }
+    let anonymous = vec![opcua::server::ANONYMOUS_USER_TOKEN_ID.to_string()];
+    let mut default = None;
+    if matches!(config.security, Security::None | Security::Both) {
+        builder = builder.add_endpoint("none", ServerEndpoint::new_none("/", &anonymous));
+        default = Some("none");
+    }
+    if matches!(config.security, Security::Basic256Sha256 | Security::Both) {
+        let tokens = if user_ids.is_empty() {
+            anonymous.clone()
+        } else {
+            user_ids.clone()
+        };
+        builder = builder.add_endpoint(
+            "basic256sha256",
+            ServerEndpoint::new_basic256sha256_sign_encrypt("/", &tokens),
+        );
+        default = default.or(Some("basic256sha256"));
+    }
+    if let Some(d) = default {
+        builder = builder.default_endpoint(d);
+    }
+    let (server, handle) = builder.build()?;
+    let manager = handle
+        .node_managers()
+        .get_of_type::<SimpleNodeManager>()
+        .ok_or("the OPC UA node manager is missing")?;
+    let ns = handle
+        .get_namespace_index(NAMESPACE)
+        .ok_or("the OPC UA namespace is missing")?;
+    let subscriptions = handle.subscriptions().clone();
+    let read_only = config.read_only;
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<(), String>>();
+    let thread = std::thread::Builder::new()
+        .name("opcua".into())
+        .spawn(move || {
+            let rt = match tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+            {
+                Ok(rt) => rt,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e.to_string()));
+                    return;
+                }
+            };
+            rt.block_on(async move {
+                let listener = match tokio::net::TcpListener::from_std(std_listener) {
+                    Ok(l) => l,
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e.to_string()));
+                        return;
+                    }
+                };
+                let model = Model {
+                    engine,
+                    manager,
+                    subscriptions,
+                    ns,
+                    read_only,
+                    devices: Default::default(),
+                    folders: Default::default(),
+                };
+                model.folder_root();
+                tokio::spawn(model.run());
+                let _ = ready_tx.send(Ok(()));
+                if let Err(e) = server.run_with(listener).await {
+                    tracing::error!("opcua: the server stopped: {e}");
+                }
+            });
+        })
+        .map_err(|e| e.to_string())?;
+    ready_rx
+        .recv()
+        .map_err(|_| "the OPC UA thread ended at start".to_string())??;
+    Ok(OpcUaServer {
+        addr,
+        url,
+        handle,
+        thread: Some(thread),
+    })
+}
+
+/// The address space kept in step with the engine's image.
+struct Model {
+    engine: Engine,
+    manager: Arc<SimpleNodeManager>,
+    subscriptions: Arc<SubscriptionCache>,
+    ns: u16,
+    read_only: bool,
+    devices: HashMap<usize, DeviceNodes>,
+    folders: HashMap<String, NodeId>,
+}
+
+impl Model {
+    fn folder_root(&self) {
+        let space = self.manager.address_space();
+        let mut space = space.write();
+        ObjectBuilder::new(
+            &NodeId::new(self.ns, "HART"),
+            QualifiedName::new(self.ns, "HART"),
+            "HART",
+        )
+        .organized_by(ObjectId::ObjectsFolder)
+        .has_type_definition(ObjectTypeId::FolderType)
+        .insert(&mut *space);
+    }
+
+    /// Adds new devices and pushes every device's values: at once, on each change the
+    /// engine announces, and every second (qualities age into "stale").
+    async fn run(mut self) {
+        let mut changes = self.engine.image().subscribe();
+        let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
+        loop {
+            let changed: Vec<usize> = tokio::select! {
+                _ = tick.tick() => (0..self.engine.image().len()).collect(),
+                r = changes.recv() => match r {
+                    Ok(p) => {
+                        let mut v = vec![p];
+                        while let Ok(p) = changes.try_recv() {
+                            if !v.contains(&p) { v.push(p); }
+                        }
+                        v
+                    }
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                        (0..self.engine.image().len()).collect()
+                    }
+                    Err(_) => return,
+                },
+            };
+            for p in changed {
+                let Some(d) = self.engine.image().with(p, |d| d.clone()) else {
+                    continue;
+                };
+                if !self.devices.contains_key(&p) {
+                    // Named by its tag once identified (or by the name configured).
+                    if d.info.is_none() && d.name.is_none() {
+                        continue;
+                    }
+                    self.add_device(&d);
+                }
+                self.push(&d);
+            }
+        }
+    }
+
+    fn loop_folder(&mut self, name: &str) -> NodeId {
+        if let Some(id) = self.folders.get(name) {
+            return id.clone();
+        }
+        let id = NodeId::new(self.ns, format!("HART/{name}"));
+        let space = self.manager.address_space();
+        let mut space = space.write();
+        ObjectBuilder::new(&id, QualifiedName::new(self.ns, name), name)
+            .organized_by(NodeId::new(self.ns, "HART"))
+            .has_type_definition(ObjectTypeId::FolderType)
+            .insert(&mut *space);
+        self.folders.insert(name.to_string(), id.clone());
+        id
+    }
+
+    /// A name unique in the device's loop.
+    fn unique_name(&self, d: &DeviceImage) -> String {
+        let base = d.display_name().replace('/', "_");
+        let taken = |n: &str| {
+            self.devices.iter().any(|(p, x)| {
+                x.name == n
+                    && self
+                        .engine
+                        .image()
+                        .with(*p, |o| o.loop_name == d.loop_name)
+                        .unwrap_or(false)
+            })
+        };
+        if !taken(&base) {
+            return base;
+        }
+        (2..)
+            .map(|k| format!("{base}_{k}"))
+            .find(|n| !taken(n))
+            .unwrap_or(base)
+    }
+
+    fn add_device(&mut self, d: &DeviceImage) {
+        let folder = self.loop_folder(&d.loop_name);
+        let name = self.unique_name(d);
+        let path = format!("HART/{}/{}", d.loop_name, name);
+        let object = NodeId::new(self.ns, path.clone());
+        let ns = self.ns;
+        {
+            let space = self.manager.address_space();
+            let mut space = space.write();
+            ObjectBuilder::new(
+                &object,
+                QualifiedName::new(ns, name.as_str()),
+                name.as_str(),
+            )
+            .organized_by(folder)
+            .has_type_definition(ObjectTypeId::BaseObjectType)
+            .insert(&mut *space);
+            for (var, read) in ANALOG {
+                let id = var_id(ns, &path, var);
+                let (_, units) = read(d);
+                VariableBuilder::new(&id, QualifiedName::new(ns, *var), *var)
+                    .data_type(DataTypeId::Float)
+                    .value(f32::NAN)
+                    .has_type_definition(VariableTypeId::AnalogItemType)
+                    .component_of(object.clone())
+                    .insert(&mut *space);
+                let eu = var_id(ns, &path, &format!("{var}/EngineeringUnits"));
+                VariableBuilder::new(
+                    &eu,
+                    QualifiedName::new(0, "EngineeringUnits"),
+                    "EngineeringUnits",
+                )
+                .data_type(DataTypeId::EUInformation)
+                .value(ExtensionObject::from_message(units::eu_information(
+                    units.unwrap_or(250),
+                )))
+                .has_type_definition(VariableTypeId::PropertyType)
+                .property_of(id.clone())
+                .insert(&mut *space);
+            }
+            let scalars: [(&str, DataTypeId); 11] = [
+                ("UpperRangeValue", DataTypeId::Float),
+                ("LowerRangeValue", DataTypeId::Float),
+                ("Damping", DataTypeId::Float),
+                ("DeviceStatus", DataTypeId::Byte),
+                ("Quality", DataTypeId::String),
+                ("Tag", DataTypeId::String),
+                ("LongTag", DataTypeId::String),
+                ("Manufacturer", DataTypeId::UInt16),
+                ("DeviceType", DataTypeId::UInt16),
+                ("DeviceId", DataTypeId::UInt32),
+                ("PollingAddress", DataTypeId::Byte),
+            ];
+            for (var, ty) in scalars {
+                VariableBuilder::new(&var_id(ns, &path, var), QualifiedName::new(ns, var), var)
+                    .data_type(ty)
+                    .has_type_definition(VariableTypeId::BaseDataVariableType)
+                    .component_of(object.clone())
+                    .insert(&mut *space);
+            }
+            let methods: [(&str, &[(&str, DataTypeId)]); 4] = [
+                ("WriteTag", &[("Tag", DataTypeId::String)]),
+                (
+                    "SetRange",
+                    &[("Upper", DataTypeId::Float), ("Lower", DataTypeId::Float)],
+                ),
+                ("SetDamping", &[("Seconds", DataTypeId::Float)]),
+                ("LoopTest", &[("Milliamps", DataTypeId::Float)]),
+            ];
+            for (method, args) in methods {
+                let id = var_id(ns, &path, method);
+                let args: Vec<opcua::types::Argument> =
+                    args.iter().map(|(n, t)| (*n, *t).into()).collect();
+                MethodBuilder::new(&id, QualifiedName::new(ns, method), method)
+                    .component_of(object.clone())
+                    .input_args(
+                        &mut *space,
+                        &var_id(ns, &path, &format!("{method}/InputArguments")),
+                        &args,
+                    )
+                    .insert(&mut *space);
+            }
+        }
+        for method in ["WriteTag", "SetRange", "SetDamping", "LoopTest"] {
+            let id = var_id(ns, &path, method);
+            let engine = self.engine.clone();
+            let position = d.position;
+            let read_only = self.read_only;
+            let rt = tokio::runtime::Handle::current();
+            self.manager.inner().add_method_callback(id, move |args| {
+                if read_only {
+                    return Err(StatusCode::BadUserAccessDenied);
+                }
+                let engine = engine.clone();
+                let args = args.to_vec();
+                tokio::task::block_in_place(|| rt.block_on(call(engine, position, method, args)))
+            });
+        }
+        tracing::info!("opcua: {path} added");
+        self.devices
+            .insert(d.position, DeviceNodes { object, name });
+    }
+
+    fn push(&self, d: &DeviceImage) {
+        let Some(nodes) = self.devices.get(&d.position) else {
+            return;
+        };
+        let path = nodes
+            .object
+            .identifier
+            .to_string()
+            .trim_start_matches("s=")
+            .to_string();
+        let q = d.quality(Instant::now());
+        let time = source_time(d);
+        let mut values: Vec<(NodeId, DataValue)> = vec![];
+        let dv = |v: Variant, s: StatusCode| DataValue {
+            value: Some(v),
+            status: Some(s),
+            source_timestamp: Some(time),
+            server_timestamp: Some(DateTime::now()),
+            ..Default::default()
+        };
+        for (var, read) in ANALOG {
+            let (value, units) = read(d);
+            values.push((
+                var_id(self.ns, &path, var),
+                dv(
+                    Variant::Float(value.unwrap_or(f32::NAN)),
+                    status(
+                        q,
+                        value.is_some_and(|v| !v.is_nan()),
+                        d.last_poll == hart_poller::LastPoll::Pending,
+                    ),
+                ),
+            ));
+            if let Some(u) = units {
+                values.push((
+                    var_id(self.ns, &path, &format!("{var}/EngineeringUnits")),
+                    dv(
+                        Variant::from(ExtensionObject::from_message(units::eu_information(u))),
+                        StatusCode::Good,
+                    ),
+                ));
+            }
+        }
+        let info = d.info.as_ref();
+        let s = |x: Option<&String>| Variant::from(x.cloned().unwrap_or_default());
+        values.push((
+            var_id(self.ns, &path, "DeviceStatus"),
+            dv(Variant::Byte(d.device_status), StatusCode::Good),
+        ));
+        values.push((
+            var_id(self.ns, &path, "Quality"),
+            dv(Variant::from(q.name()), StatusCode::Good),
+        ));
+        values.push((
+            var_id(self.ns, &path, "Tag"),
+            dv(s(info.and_then(|i| i.tag.as_ref())), StatusCode::Good),
+        ));
+        values.push((
+            var_id(self.ns, &path, "LongTag"),
+            dv(s(info.and_then(|i| i.long_tag.as_ref())), StatusCode::Good),
+        ));
+        if let Some(i) = info {
+            values.push((
+                var_id(self.ns, &path, "Manufacturer"),
+                dv(Variant::UInt16(i.manufacturer_id()), StatusCode::Good),
+            ));
+            values.push((
+                var_id(self.ns, &path, "DeviceType"),
+                dv(
+                    Variant::UInt16(i.identity.expanded_device_type),
+                    StatusCode::Good,
+                ),
+            ));
+            values.push((
+                var_id(self.ns, &path, "DeviceId"),
+                dv(
+                    Variant::UInt32(i.identity.device_id.get()),
+                    StatusCode::Good,
+                ),
+            ));
+        }
+        if let Some(r) = d.range {
+            values.push((
+                var_id(self.ns, &path, "UpperRangeValue"),
+                dv(Variant::Float(r.upper), StatusCode::Good),
+            ));
+            values.push((
+                var_id(self.ns, &path, "LowerRangeValue"),
+                dv(Variant::Float(r.lower), StatusCode::Good),
+            ));
+            values.push((
+                var_id(self.ns, &path, "Damping"),
+                dv(Variant::Float(r.damping), StatusCode::Good),
+            ));
+        }
+        if let Some(p) = d.polling_address {
+            values.push((
+                var_id(self.ns, &path, "PollingAddress"),
+                dv(Variant::Byte(p), StatusCode::Good),
+            ));
+        }
+        let r = self.manager.set_values(
+            &self.subscriptions,
+            values.iter().map(|(id, v)| (id, None, v.clone())),
+        );
+        if let Err(e) = r {
+            tracing::warn!("opcua: updating {path}: {e}");
+        }
+    }
+}
+
+/// Carries a method call to the device at `position`.
+async fn call(
+    engine: Engine,
+    position: usize,
+    method: &str,
+    args: Vec<Variant>,
+) -> Result<Vec<Variant>, StatusCode> {
+    let float = |i: usize| match args.get(i) {
+        Some(Variant::Float(f)) if f.is_finite() => Ok(*f),
+        Some(Variant::Double(f)) if f.is_finite() => Ok(*f as f32),
+        _ => Err(StatusCode::BadInvalidArgument),
+    };
+    let (command, data) = match method {
+        "SetDamping" => (34, float(0)?.to_be_bytes().to_vec()),
+        "LoopTest" => (40, float(0)?.to_be_bytes().to_vec()),
+        "SetRange" => {
+            let units = engine
+                .image()
+                .with(position, |d| d.range.map(|r| r.units))
+                .flatten()
+                .ok_or(StatusCode::BadWaitingForInitialData)?;
+            let mut data = vec![units];
+            data.extend_from_slice(&float(0)?.to_be_bytes());
+            data.extend_from_slice(&float(1)?.to_be_bytes());
+            (35, data)
+        }
+        "WriteTag" => {
+            let Some(Variant::String(tag)) = args.first() else {
+                return Err(StatusCode::BadInvalidArgument);
+            };
+            let tag = hart_proto::types::PackedString::<6>::new(tag.as_ref())
+                .map_err(|_| StatusCode::BadInvalidArgument)?;
+            // Command 18 writes tag, descriptor and date together: keep the others.
+            let current = engine.write(position, 13, &[]).await.map_err(write_error)?;
+            if current.response_code != 0 || current.data.len() < 21 {
+                return Err(StatusCode::BadDeviceFailure);
+            }
+            let mut data = tag.0.to_vec();
+            data.extend_from_slice(&current.data[6..21]);
+            (18, data)
+        }
+        _ => return Err(StatusCode::BadMethodInvalid),
+    };
+    let reply = engine
+        .write(position, command, &data)
+        .await
+        .map_err(write_error)?;
+    use hart_proto::tables::{rc, response_class, ResponseClass};
+    if response_class(reply.response_code) != ResponseClass::Error {
+        return Ok(vec![]);
+    }
+    Err(match (command, reply.response_code) {
+        (_, rc::INVALID_SELECTION | rc::TOO_LARGE | rc::TOO_SMALL) | (35, 9..=13) => {
+            StatusCode::BadOutOfRange
+        }
+        (_, rc::WRITE_PROTECTED | rc::ACCESS_RESTRICTED) => StatusCode::BadNotWritable,
+        (_, rc::BUSY | rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT) => {
+            StatusCode::BadResourceUnavailable
+        }
+        (_, rc::NOT_IMPLEMENTED) => StatusCode::BadNotSupported,
+        _ => StatusCode::BadDeviceFailure,
+    })
+}
+
+fn write_error(e: hart_poller::WriteError) -> StatusCode {
+    match e {
+        hart_poller::WriteError::UnknownDevice => StatusCode::BadNodeIdUnknown,
+        hart_poller::WriteError::NoReply => StatusCode::BadNoCommunication,
+        hart_poller::WriteError::Busy => StatusCode::BadResourceUnavailable,
+        hart_poller::WriteError::BadReply(_) => StatusCode::BadCommunicationError,
+    }
+}
