@@ -36,6 +36,9 @@ pub mod units;
 /// The namespace of the gateway's nodes.
 pub const NAMESPACE: &str = "urn:hartkit:gateway:hart";
 
+/// Most monitored items in one subscription.
+pub const MAX_MONITORED_ITEMS: usize = 50_000;
+
 /// Endpoint security.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Security {
@@ -171,6 +174,12 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
             },
             "hart",
         ));
+    // A SCADA watching every variable of a large plant: room for 50 000 monitored items
+    // in one subscription (the library's default is 1 000).
+    builder
+        .limits_mut()
+        .subscriptions
+        .max_monitored_items_per_sub = MAX_MONITORED_ITEMS;
     for (user, pass) in &config.users {
         builder = builder.add_user_token(
             user.clone(),
