@@ -13,47 +13,27 @@ use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
 
+#[path = "support.rs"]
+mod support;
+
 fn gateway() -> SocketAddr {
     static ADDR: OnceLock<SocketAddr> = OnceLock::new();
     *ADDR.get_or_init(|| {
-        std::panic::set_hook(Box::new(|info| {
-            eprintln!("{info}");
-            std::process::abort();
-        }));
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
+        support::in_background(|tx| async move {
+            let engine = support::demo_engine().await;
+            let gw = hart_modbus::Gateway::new(
+                engine,
+                hart_modbus::Config {
+                    max_connections: 100_000,
+                    ..Default::default()
+                },
+            );
+            let (addr, serve) = hart_modbus::bind_tcp(gw, "127.0.0.1:0".parse().unwrap())
+                .await
                 .unwrap();
-            tokio::task::LocalSet::new().block_on(&rt, async move {
-                let devices = hart_host::transport::Plant::demo().devices().unwrap();
-                let (engine, _tasks) = hart_poller::Engine::start(
-                    hart_poller::EngineConfig {
-                        poll: true,
-                        ..Default::default()
-                    },
-                    vec![hart_poller::LoopSpec {
-                        settings: Default::default(),
-                        line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
-                    }],
-                );
-                engine.ready().await;
-                let gw = hart_modbus::Gateway::new(
-                    engine,
-                    hart_modbus::Config {
-                        max_connections: 100_000,
-                        ..Default::default()
-                    },
-                );
-                let (addr, serve) = hart_modbus::bind_tcp(gw, "127.0.0.1:0".parse().unwrap())
-                    .await
-                    .unwrap();
-                tx.send(addr).unwrap();
-                serve.await.unwrap();
-            });
-        });
-        rx.recv().unwrap()
+            tx.send(addr).unwrap();
+            serve.await.unwrap();
+        })
     })
 }
 
@@ -74,7 +54,9 @@ fn still_serving(addr: SocketAddr) {
     let mut buf = [0u8; 64];
     let mut got = 0;
     while got < 9 + 32 {
-        let n = t.read(&mut buf[got..]).expect("the gateway stopped answering");
+        let n = t
+            .read(&mut buf[got..])
+            .expect("the gateway stopped answering");
         assert!(n > 0, "the gateway closed a good connection");
         got += n;
     }

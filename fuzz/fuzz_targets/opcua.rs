@@ -14,55 +14,35 @@ use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
 
+#[path = "support.rs"]
+mod support;
+
 /// (OPC UA address, Modbus address).
 fn gateway() -> (SocketAddr, SocketAddr) {
     static ADDRS: OnceLock<(SocketAddr, SocketAddr)> = OnceLock::new();
     *ADDRS.get_or_init(|| {
-        std::panic::set_hook(Box::new(|info| {
-            eprintln!("{info}");
-            std::process::abort();
-        }));
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
+        support::in_background(|tx| async move {
+            let engine = support::demo_engine().await;
+            let pki = std::env::temp_dir().join(format!("hartkit-fuzz-pki-{}", std::process::id()));
+            let ua = hart_opcua::start(
+                engine.clone(),
+                hart_opcua::Config {
+                    bind: "127.0.0.1:0".parse().unwrap(),
+                    security: hart_opcua::Security::None,
+                    users: vec![],
+                    pki_dir: pki,
+                    read_only: false,
+                },
+            )
+            .unwrap();
+            let gw = hart_modbus::Gateway::new(engine, Default::default());
+            let (mb, serve) = hart_modbus::bind_tcp(gw, "127.0.0.1:0".parse().unwrap())
+                .await
                 .unwrap();
-            tokio::task::LocalSet::new().block_on(&rt, async move {
-                let devices = hart_host::transport::Plant::demo().devices().unwrap();
-                let (engine, _tasks) = hart_poller::Engine::start(
-                    hart_poller::EngineConfig {
-                        poll: true,
-                        ..Default::default()
-                    },
-                    vec![hart_poller::LoopSpec {
-                        settings: Default::default(),
-                        line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
-                    }],
-                );
-                engine.ready().await;
-                let pki = std::env::temp_dir().join(format!("hartkit-fuzz-pki-{}", std::process::id()));
-                let ua = hart_opcua::start(
-                    engine.clone(),
-                    hart_opcua::Config {
-                        bind: "127.0.0.1:0".parse().unwrap(),
-                        security: hart_opcua::Security::None,
-                        users: vec![],
-                        pki_dir: pki,
-                        read_only: false,
-                    },
-                )
-                .unwrap();
-                let gw = hart_modbus::Gateway::new(engine, Default::default());
-                let (mb, serve) = hart_modbus::bind_tcp(gw, "127.0.0.1:0".parse().unwrap())
-                    .await
-                    .unwrap();
-                tx.send((ua.addr, mb)).unwrap();
-                serve.await.unwrap();
-                drop(ua);
-            });
-        });
-        rx.recv().unwrap()
+            tx.send((ua.addr, mb)).unwrap();
+            serve.await.unwrap();
+            drop(ua);
+        })
     })
 }
 

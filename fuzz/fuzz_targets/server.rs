@@ -16,37 +16,27 @@ use libfuzzer_sys::fuzz_target;
 
 const INITIATE: [u8; 13] = [1, 0, 0, 0, 0, 1, 0, 13, 1, 0, 0, 0xEA, 0x60];
 
+#[path = "support.rs"]
+mod support;
+
 fn server() -> SocketAddr {
     static ADDR: OnceLock<SocketAddr> = OnceLock::new();
     *ADDR.get_or_init(|| {
-        // A panic anywhere (the server's thread included) ends the run as a crash.
-        std::panic::set_hook(Box::new(|info| {
-            eprintln!("{info}");
-            std::process::abort();
-        }));
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
+        support::in_background(|tx| async move {
+            let mut c = hart_device::profiles::load("pressure").unwrap();
+            c.polling_address = 1;
+            let config = hart_ip_server::Config {
+                bind: "127.0.0.1:0".parse().unwrap(),
+                max_sessions: 100_000,
+                max_sessions_per_host: 100_000,
+                ..hart_ip_server::Config::default()
+            };
+            let s = hart_ip_server::start_in_memory(config, vec![hart_device::Device::new(c)])
+                .await
                 .unwrap();
-            tokio::task::LocalSet::new().block_on(&rt, async move {
-                let mut c = hart_device::profiles::load("pressure").unwrap();
-                c.polling_address = 1;
-                let config = hart_ip_server::Config {
-                    bind: "127.0.0.1:0".parse().unwrap(),
-                    max_sessions: 100_000,
-                    max_sessions_per_host: 100_000,
-                    ..hart_ip_server::Config::default()
-                };
-                let s = hart_ip_server::start_in_memory(config, vec![hart_device::Device::new(c)])
-                    .await
-                    .unwrap();
-                tx.send(s.udp_addr.unwrap()).unwrap();
-                std::future::pending::<()>().await;
-            });
-        });
-        rx.recv().unwrap()
+            tx.send(s.udp_addr.unwrap()).unwrap();
+            std::future::pending::<()>().await;
+        })
     })
 }
 

@@ -75,6 +75,19 @@ pub struct DeviceInfo {
 }
 
 impl DeviceInfo {
+    /// A device known by its command 0 identity (found at `polling_address`, or by
+    /// another address), tags not read yet.
+    pub fn identified(identity: Identity, polling_address: Option<u8>) -> Self {
+        DeviceInfo {
+            polling_address,
+            identity,
+            tag: None,
+            descriptor: None,
+            long_tag: None,
+            io_channel: None,
+        }
+    }
+
     /// Long-frame identifier.
     pub fn unique_id(&self) -> UniqueId {
         self.identity.unique_id()
@@ -453,14 +466,7 @@ impl<T: Transport> Client<T> {
         let r = self.transact(addr, 0, &[], 5, &what).await?;
         let identity = Identity::decode(&mut Reader::new(&r.data))
             .map_err(|e| HostError::Decode(format!("command 0 reply from {what}: {e}")))?;
-        let info = DeviceInfo {
-            polling_address: Some(poll),
-            identity,
-            tag: None,
-            descriptor: None,
-            long_tag: None,
-            io_channel: None,
-        };
+        let info = DeviceInfo::identified(identity, Some(poll));
         self.remember(&info);
         Ok(info)
     }
@@ -509,14 +515,7 @@ impl<T: Transport> Client<T> {
         })?;
         let identity = Identity::decode(&mut Reader::new(&reply.data))
             .map_err(|e| HostError::Decode(format!("identity reply from {what}: {e}")))?;
-        let info = DeviceInfo {
-            polling_address: None,
-            identity,
-            tag: None,
-            descriptor: None,
-            long_tag: None,
-            io_channel: None,
-        };
+        let info = DeviceInfo::identified(identity, None);
         self.remember(&info);
         Ok(info)
     }

@@ -371,14 +371,7 @@ impl LoopTask {
             return None;
         }
         let identity = Identity::decode(&mut Reader::new(f.data)).ok()?;
-        let mut info = DeviceInfo {
-            polling_address: Some(poll),
-            identity,
-            tag: None,
-            descriptor: None,
-            long_tag: None,
-            io_channel: None,
-        };
+        let mut info = DeviceInfo::identified(identity, Some(poll));
         self.read_tags(&mut info).await;
         Some(info)
     }
@@ -511,15 +504,8 @@ impl LoopTask {
             Address::Short(a) => Some(a.polling_address),
             Address::Long(_) => None,
         };
-        let info = DeviceInfo {
-            polling_address,
-            identity,
-            tag: None,
-            descriptor: None,
-            long_tag: None,
-            io_channel: None,
-        };
-        self.register(info).await;
+        self.register(DeviceInfo::identified(identity, polling_address))
+            .await;
     }
 
     /// Polls the device at `position`: its read command (3 or 9), then command 48 when

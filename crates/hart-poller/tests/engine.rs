@@ -41,24 +41,33 @@ async fn until(engine: &Engine, limit: Duration, f: impl Fn(&Engine) -> bool) ->
     f(engine)
 }
 
-fn demo_in_memory() -> (MemoryLoop, hart_poller::Faults) {
+/// An engine polling every `period_ms` over the demo plant in memory (one loop, default
+/// settings), ready; and the loop's fault hooks. Call it inside `local`.
+async fn demo_engine(period_ms: u64) -> (Engine, hart_poller::Faults) {
     let m = MemoryLoop::new(Plant::demo().devices().unwrap());
-    let f = m.faults();
-    (m, f)
+    let faults = m.faults();
+    let engine = start(period_ms, LoopSettings::default(), m).await;
+    (engine, faults)
+}
+
+/// An engine polling every `period_ms` with command 3 over loop `m`, ready.
+async fn start(period_ms: u64, settings: LoopSettings, m: MemoryLoop) -> Engine {
+    // Dropping the task handles leaves the tasks running until the runtime ends.
+    let (engine, _) = Engine::start(
+        config(period_ms, ReadCommand::Dynamic),
+        vec![LoopSpec {
+            settings,
+            line: Line::Memory(m),
+        }],
+    );
+    engine.ready().await;
+    engine
 }
 
 #[test]
 fn finds_and_polls_every_device_of_the_demo_plant() {
     local(async {
-        let (m, _) = demo_in_memory();
-        let (engine, _tasks) = Engine::start(
-            config(50, ReadCommand::Dynamic),
-            vec![LoopSpec {
-                settings: LoopSettings::default(),
-                line: Line::Memory(m),
-            }],
-        );
-        engine.ready().await;
+        let (engine, _) = demo_engine(50).await;
         let ok = until(&engine, Duration::from_secs(5), |e| {
             let img = e.image().snapshot();
             img.len() == 4
@@ -86,15 +95,7 @@ fn finds_and_polls_every_device_of_the_demo_plant() {
 #[test]
 fn a_dead_device_is_no_reply_within_one_poll_and_good_again_when_back() {
     local(async {
-        let (m, faults) = demo_in_memory();
-        let (engine, _tasks) = Engine::start(
-            config(20, ReadCommand::Dynamic),
-            vec![LoopSpec {
-                settings: LoopSettings::default(),
-                line: Line::Memory(m),
-            }],
-        );
-        engine.ready().await;
+        let (engine, faults) = demo_engine(20).await;
         assert!(
             until(&engine, Duration::from_secs(5), |e| {
                 e.image()
@@ -148,7 +149,7 @@ fn a_dead_device_is_no_reply_within_one_poll_and_good_again_when_back() {
 #[test]
 fn configured_devices_keep_their_positions_even_when_absent() {
     local(async {
-        let (m, _) = demo_in_memory();
+        let m = MemoryLoop::new(Plant::demo().devices().unwrap());
         let settings = LoopSettings {
             name: Some("north".into()),
             scan: false,
@@ -174,14 +175,7 @@ fn configured_devices_keep_their_positions_even_when_absent() {
             ],
             ..Default::default()
         };
-        let (engine, _tasks) = Engine::start(
-            config(20, ReadCommand::Dynamic),
-            vec![LoopSpec {
-                settings,
-                line: Line::Memory(m),
-            }],
-        );
-        engine.ready().await;
+        let engine = start(20, settings, m).await;
         assert!(
             until(&engine, Duration::from_secs(5), |e| {
                 let img = e.image().snapshot();
@@ -221,14 +215,7 @@ fn writes_go_through_and_the_configuration_is_read_again() {
             burst: None,
         });
         let m = MemoryLoop::new(plant.devices().unwrap());
-        let (engine, _tasks) = Engine::start(
-            config(10_000, ReadCommand::Dynamic),
-            vec![LoopSpec {
-                settings: LoopSettings::default(),
-                line: Line::Memory(m),
-            }],
-        );
-        engine.ready().await;
+        let engine = start(10_000, LoopSettings::default(), m).await;
         assert!(
             until(&engine, Duration::from_secs(5), |e| {
                 e.image().snapshot().iter().all(|d| d.range.is_some()) && e.image().len() == 5
@@ -283,15 +270,7 @@ fn burst_messages_update_the_image() {
     local(async {
         // Polls every 60 s: after the first poll, only the burst messages of the
         // temperature transmitter (command 3 every 2 s) move its values.
-        let (m, _) = demo_in_memory();
-        let (engine, _tasks) = Engine::start(
-            config(60_000, ReadCommand::Dynamic),
-            vec![LoopSpec {
-                settings: LoopSettings::default(),
-                line: Line::Memory(m),
-            }],
-        );
-        engine.ready().await;
+        let (engine, _) = demo_engine(60_000).await;
         assert!(
             until(&engine, Duration::from_secs(5), |e| {
                 e.image().with(1, |d| d.polls == 1).unwrap_or(false)
