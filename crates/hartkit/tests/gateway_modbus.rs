@@ -322,3 +322,56 @@ fn pymodbus_rtu_master_on_a_serial_line() {
     assert_eq!(r["unknown_unit"], "silent", "{r}");
     assert_eq!(r["damping"], serde_json::json!({"1": 3.0, "2": 3.0}), "{r}");
 }
+
+#[test]
+fn sub_devices_of_an_upstream_io_system_are_found_and_polled() {
+    // Upstream: a HART-IP I/O system with the demo plant behind it. The gateway's loop
+    // is that server: its scan finds the I/O system at polling address 0 and lists its
+    // sub-devices (commands 74, 84), polled by their unique IDs through it.
+    let upstream = gateway(&["--sim", "--instant", "--hart-ip", "127.0.0.1:0"], 1);
+    let loop_target = format!("udp://{}", upstream.1["hart-ip"]);
+    let (code, out, err) = hartkit(&[
+        "serve",
+        "--port",
+        &loop_target,
+        "--scan-to",
+        "0",
+        "--print-map",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let m: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let units = m["units"].as_array().unwrap();
+    let ids: Vec<_> = units
+        .iter()
+        .map(|u| u["unique_id"].as_str().unwrap())
+        .collect();
+    // The I/O system first (polling address 0), then its four sub-devices.
+    assert_eq!(ids[0], "26FF000001", "{m}");
+    for id in ["26F1010002", "26F2020003", "26F3030004", "26F1010012"] {
+        assert!(ids.contains(&id), "{id} not listed: {m}");
+    }
+    // Polled through the I/O system: every device good.
+    let (code, out, err) = hartkit(&[
+        "serve",
+        "--port",
+        &loop_target,
+        "--scan-to",
+        "0",
+        "--json",
+        "--run-for",
+        "11",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let last = &lines[lines.len().saturating_sub(5)..];
+    assert_eq!(last.len(), 5, "{out}");
+    assert!(
+        last.iter()
+            .all(|l| l["quality"] == "good" && l["polls"].as_u64() > Some(1)),
+        "{out}"
+    );
+}
