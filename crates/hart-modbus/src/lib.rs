@@ -303,6 +303,60 @@ mod tests {
     }
 
     #[test]
+    fn frame_guard_refuses_what_the_decoder_cannot_take() {
+        let frame = |pdu: &[u8]| {
+            let mut f = vec![0, 1, 0, 0];
+            f.extend_from_slice(&((pdu.len() + 1) as u16).to_be_bytes());
+            f.push(1);
+            f.extend_from_slice(pdu);
+            f
+        };
+        let ok: &[&[u8]] = &[
+            &[4, 0, 0, 0, 2],
+            &[0x10, 0, 4, 0, 2, 4, 0x40, 0x20, 0, 0],
+            &[0x0F, 0, 0, 0, 9, 2, 0xFF, 1],
+            &[0x17, 0, 0, 0, 1, 0, 4, 0, 1, 2, 0, 0],
+        ];
+        for pdu in ok {
+            assert_eq!(
+                FrameGuard::default().feed(&frame(pdu)),
+                Ok(()),
+                "{pdu:02X?}"
+            );
+        }
+        let bad: &[&[u8]] = &[
+            &[0x10, 0xD2, 0xB8, 0xD2, 0x00, 0x00], // quantity * 2 overflows u16
+            &[0x10, 0, 0, 0, 124, 248],            // more than 123 registers
+            &[0x0F, 0, 0, 0, 100, 1, 0],           // 100 coils in 1 byte
+            &[0x17, 0, 0, 0, 1, 0, 0, 0x80, 0, 0], // write quantity 32768
+        ];
+        for pdu in bad {
+            assert!(
+                FrameGuard::default().feed(&frame(pdu)).is_err(),
+                "{pdu:02X?}"
+            );
+        }
+        // Byte by byte, and two frames in one read.
+        let mut g = FrameGuard::default();
+        let mut two = frame(&[4, 0, 0, 0, 2]);
+        two.extend(frame(&[3, 0, 0, 0, 9]));
+        for b in two {
+            assert_eq!(g.feed(&[b]), Ok(()));
+        }
+        assert!(FrameGuard::default()
+            .feed(&[0, 1, 0, 0, 0xFF, 0xFF])
+            .is_err());
+    }
+
+    proptest::proptest! {
+        /// Any byte stream: the guard answers, never panics.
+        #[test]
+        fn frame_guard_takes_any_bytes(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..600)) {
+            let _ = FrameGuard::default().feed(&bytes);
+        }
+    }
+
+    #[test]
     fn hart_outcomes_become_modbus_exceptions() {
         assert_eq!(judge(34, reply(0)), Ok(()));
         // Warning "set to nearest possible value": done.
@@ -348,10 +402,76 @@ impl tokio_modbus::server::Service for Service {
     }
 }
 
-/// A TCP stream counted against [`Config::max_connections`] until dropped.
+/// A TCP stream counted against [`Config::max_connections`] until dropped, whose
+/// request frames pass the [`FrameGuard`] before tokio-modbus decodes them.
 struct Counted {
     stream: tokio::net::TcpStream,
     gateway: Arc<Gateway>,
+    guard: FrameGuard,
+    peer: SocketAddr,
+}
+
+/// Follows the Modbus TCP frames (MBAP header, then `length - 1` PDU bytes) a client
+/// sends and refuses, before they reach the decoder, those the Modbus application
+/// protocol does not allow and tokio-modbus 0.17 would panic on: write multiple coils
+/// (15), write multiple registers (16) and read/write multiple registers (23) whose
+/// quantity is outside the protocol's limits or disagrees with the byte count (the
+/// decoder indexes coils by the quantity, and multiplies register quantities by 2 in
+/// u16), and an MBAP length outside 2..=254. The connection is then closed.
+#[derive(Debug, Default)]
+struct FrameGuard {
+    frame: Vec<u8>,
+}
+
+impl FrameGuard {
+    /// Takes the bytes just received; an error names the first frame refused.
+    fn feed(&mut self, bytes: &[u8]) -> Result<(), &'static str> {
+        for &b in bytes {
+            self.frame.push(b);
+            if self.frame.len() < 6 {
+                continue;
+            }
+            let len = usize::from(u16::from_be_bytes([self.frame[4], self.frame[5]]));
+            if !(2..=254).contains(&len) {
+                return Err("MBAP length outside 2-254");
+            }
+            if self.frame.len() == 6 + len {
+                check_request_pdu(&self.frame[7..])?;
+                self.frame.clear();
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The quantity and byte-count rules of functions 15, 16 and 23 (Modbus application
+/// protocol 1.1b3, 6.11, 6.12, 6.17).
+fn check_request_pdu(pdu: &[u8]) -> Result<(), &'static str> {
+    let u16_at = |i: usize| pdu.get(i..i + 2).map(|b| u16::from_be_bytes([b[0], b[1]]));
+    let byte = |i: usize| pdu.get(i).copied().map(usize::from);
+    match pdu.first() {
+        Some(0x0F) => match (u16_at(3), byte(5)) {
+            (Some(q), Some(n)) if (1..=1968).contains(&q) && n == usize::from(q).div_ceil(8) => {
+                Ok(())
+            }
+            _ => Err("write multiple coils: quantity outside 1-1968 or byte count wrong"),
+        },
+        Some(0x10) => match (u16_at(3), byte(5)) {
+            (Some(q), Some(n)) if (1..=123).contains(&q) && n == 2 * usize::from(q) => Ok(()),
+            _ => Err("write multiple registers: quantity outside 1-123 or byte count wrong"),
+        },
+        Some(0x17) => match (u16_at(3), u16_at(7), byte(9)) {
+            (Some(r), Some(w), Some(n))
+                if (1..=125).contains(&r) && (1..=121).contains(&w) && n == 2 * usize::from(w) =>
+            {
+                Ok(())
+            }
+            _ => Err(
+                "read/write multiple registers: quantities outside the limits or byte count wrong",
+            ),
+        },
+        _ => Ok(()),
+    }
 }
 
 impl Drop for Counted {
@@ -366,7 +486,17 @@ impl tokio::io::AsyncRead for Counted {
         cx: &mut std::task::Context<'_>,
         buf: &mut tokio::io::ReadBuf<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
-        Pin::new(&mut self.stream).poll_read(cx, buf)
+        let before = buf.filled().len();
+        std::task::ready!(Pin::new(&mut self.stream).poll_read(cx, buf))?;
+        let this = &mut *self;
+        if let Err(why) = this.guard.feed(&buf.filled()[before..]) {
+            tracing::warn!("modbus: closed the connection from {}: {why}", this.peer);
+            return std::task::Poll::Ready(Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                why,
+            )));
+        }
+        std::task::Poll::Ready(Ok(()))
     }
 }
 
@@ -410,6 +540,8 @@ pub async fn bind_tcp(
                 let counted = Counted {
                     stream,
                     gateway: gateway.clone(),
+                    guard: FrameGuard::default(),
+                    peer,
                 };
                 if n >= gateway.config.max_connections {
                     gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
@@ -448,6 +580,32 @@ pub struct RtuPort {
     /// Stop bits (1 or 2; Modbus asks 2 with no parity).
     pub stop_bits: u8,
 }
+
+/// Serves Modbus RTU on `port` for as long as the gateway runs: after the port fails (a
+/// USB adapter unplugged) or the decoder gives up on a frame, the port is opened again
+/// after [`RTU_REOPEN`]. (tokio-modbus's RTU server takes its serial stream whole, so
+/// RTU frames cannot pass the [`FrameGuard`] the TCP server has: a frame it would panic
+/// on ends that serving, and this starts the next.)
+pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
+    loop {
+        let task = tokio::spawn(serve_rtu(gateway.clone(), port.clone()));
+        match task.await {
+            Ok(Ok(())) => tracing::warn!("modbus-rtu: {} closed", port.path),
+            Ok(Err(e)) => tracing::error!("modbus-rtu: {e}"),
+            Err(e) if e.is_panic() => {
+                tracing::error!(
+                    "modbus-rtu: {}: a frame the decoder could not take",
+                    port.path
+                )
+            }
+            Err(_) => return,
+        }
+        tokio::time::sleep(RTU_REOPEN).await;
+    }
+}
+
+/// Wait before the RTU port is opened again.
+pub const RTU_REOPEN: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Opens `port` and serves Modbus RTU on it until the port fails.
 pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<()> {

@@ -549,11 +549,7 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                 port.path, port.baud, 8, port.parity, port.stop_bits
             ));
             let gw = gw.clone();
-            front_tasks.push(tokio::spawn(async move {
-                if let Err(e) = hart_modbus::serve_rtu(gw, port).await {
-                    tracing::error!("modbus-rtu: {e}");
-                }
-            }));
+            front_tasks.push(tokio::spawn(hart_modbus::serve_rtu_forever(gw, port)));
         }
         let mut opcua_server = None;
         if let Some(cfg) = opcua_cfg {
