@@ -793,6 +793,7 @@ pub async fn monitor(
     duration: Option<f64>,
     as_json: bool,
     out: &mut dyn std::io::Write,
+    mut capture: Option<&mut Capture>,
 ) -> Result<(), Failure> {
     if let AnyTransport::HartIp(h) = t {
         // Servers that publish only to subscribers need to be asked.
@@ -801,6 +802,7 @@ pub async fn monitor(
             .map_err(|e| fail(HostError::Io(e)))?;
     }
     let start = t.now();
+    let wall_start = unix_us();
     let end = duration.map(|d| start + (d * 1e6) as u64);
     let mut deframer = Deframer::default();
     let mut last_end: Option<u64> = None;
@@ -813,53 +815,195 @@ pub async fn monitor(
         let bytes = t.recv(until).await.map_err(|e| fail(HostError::Io(e)))?;
         for (b, at) in bytes {
             let mut lines: Vec<String> = vec![];
+            let mut records: Vec<(Vec<u8>, bool, String)> = vec![];
             deframer.push(b, hart_proto::deframer::UartFlags::OK, &mut |e| match e {
                 DeframerEvent::Frame(f) => {
                     let gap = last_end.map(|l| at.saturating_sub(l));
-                    if as_json {
-                        let mut v = fj::frame(&f);
-                        v["t_us"] = json!(at - start);
-                        v["gap_us"] = json!(gap);
-                        lines.push(v.to_string());
-                    } else {
-                        let summary = match f.response_code {
-                            Some(rc) => {
-                                format!("rc {rc} status 0x{:02X}", f.device_status.unwrap_or(0))
-                            }
-                            None => String::new(),
-                        };
-                        lines.push(format!(
-                            "{:>10.3} s {:>8} {:<4} cmd {:<4} {} {} {}",
-                            (at - start) as f64 / 1e6,
-                            gap.map_or(String::from("-"), |g| format!(
-                                "+{:.1}ms",
-                                g as f64 / 1000.0
-                            )),
-                            f.frame_type().name(),
-                            f.command,
-                            f.address,
-                            summary,
-                            hex::compact(f.data)
-                        ));
-                    }
+                    lines.push(frame_line(&f, at - start, gap, as_json));
+                    records.push((
+                        f.pdu.to_vec(),
+                        true,
+                        gap.map_or(String::new(), |g| {
+                            format!("gap {:.1} ms", g as f64 / 1000.0)
+                        }),
+                    ));
                     last_end = Some(at);
                 }
-                DeframerEvent::Damaged(d) => lines.push(if as_json {
-                    json!({"t_us": at - start, "damaged": hex::compact(d.pdu), "errors": d.errors})
-                        .to_string()
-                } else {
-                    format!(
-                        "{:>10.3} s damaged frame (errors 0x{:02X}) {}",
-                        (at - start) as f64 / 1e6,
-                        d.errors,
-                        hex::compact(d.pdu)
-                    )
-                }),
+                DeframerEvent::Damaged(d) => {
+                    lines.push(damaged_line(d.pdu, d.errors, at - start, as_json));
+                    records.push((
+                        d.pdu.to_vec(),
+                        false,
+                        format!("damaged frame, errors 0x{:02X}", d.errors),
+                    ));
+                }
                 _ => {}
             });
             for l in lines {
                 let _ = writeln!(out, "{l}");
             }
+            if let Some(c) = capture.as_deref_mut() {
+                for (bytes, valid, note) in records {
+                    c.record(wall_start + (at - start), &bytes, valid, &note)?;
+                }
+            }
         }
     }
+}
+
+/// Microseconds since the Unix epoch, now.
+fn unix_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+/// One frame as `monitor` and `capture read` print it: `t_us` (µs since the start),
+/// the gap since the frame before, then the frame (JSON, or one line of text).
+pub fn frame_line(f: &Frame<'_>, t_us: u64, gap: Option<u64>, as_json: bool) -> String {
+    if as_json {
+        let mut v = fj::frame(f);
+        v["t_us"] = json!(t_us);
+        v["gap_us"] = json!(gap);
+        return v.to_string();
+    }
+    let summary = match f.response_code {
+        Some(rc) => format!("rc {rc} status 0x{:02X}", f.device_status.unwrap_or(0)),
+        None => String::new(),
+    };
+    format!(
+        "{:>10.3} s {:>8} {:<4} cmd {:<4} {} {} {}",
+        t_us as f64 / 1e6,
+        gap.map_or(String::from("-"), |g| format!(
+            "+{:.1}ms",
+            g as f64 / 1000.0
+        )),
+        f.frame_type().name(),
+        f.command,
+        f.address,
+        summary,
+        hex::compact(f.data)
+    )
+}
+
+/// Bytes that are not a valid frame, as `monitor` and `capture read` print them.
+pub fn damaged_line(bytes: &[u8], errors: u8, t_us: u64, as_json: bool) -> String {
+    if as_json {
+        json!({"t_us": t_us, "damaged": hex::compact(bytes), "errors": errors}).to_string()
+    } else {
+        format!(
+            "{:>10.3} s damaged frame (errors 0x{:02X}) {}",
+            t_us as f64 / 1e6,
+            errors,
+            hex::compact(bytes)
+        )
+    }
+}
+
+/// A capture being written by `monitor --pcap`: the pcapng writer and where the frames
+/// come from (for each packet's comment).
+pub struct Capture {
+    writer: hart_capture::CaptureWriter<Box<dyn std::io::Write>>,
+    source: String,
+    path: String,
+}
+
+impl Capture {
+    /// Starts a capture of frames from `source` into `path` (`-`: standard output).
+    pub fn create(path: &str, source: &str) -> Result<Self, Failure> {
+        let out: Box<dyn std::io::Write> = if path == "-" {
+            Box::new(std::io::stdout())
+        } else {
+            Box::new(std::io::BufWriter::new(
+                std::fs::File::create(path).map_err(|e| {
+                    (
+                        format!(
+                            "--pcap {path}: {e}; check the directory and that you may write there"
+                        ),
+                        2,
+                    )
+                })?,
+            ))
+        };
+        let writer = hart_capture::CaptureWriter::new(out, "hartkit monitor")
+            .map_err(|e| (format!("--pcap {path}: {e}"), 5))?;
+        Ok(Capture {
+            writer,
+            source: source.to_string(),
+            path: path.to_string(),
+        })
+    }
+
+    fn record(
+        &mut self,
+        time_us: u64,
+        bytes: &[u8],
+        valid: bool,
+        note: &str,
+    ) -> Result<(), Failure> {
+        let comment = if note.is_empty() {
+            format!("source {}", self.source)
+        } else {
+            format!("source {}; {note}", self.source)
+        };
+        self.writer
+            .write(&hart_capture::Record {
+                time_us,
+                bytes,
+                valid,
+                comment: Some(comment),
+            })
+            .map_err(|e| {
+                (
+                    format!(
+                        "--pcap {}: {e}; the frames written before are kept (each block is whole)",
+                        self.path
+                    ),
+                    5,
+                )
+            })
+    }
+}
+
+/// `hartkit capture read FILE`: every HART frame of a pcapng or pcap capture (HART-IP
+/// on `ports`), as `monitor` prints them (times from the first frame).
+pub fn capture_read(
+    path: &str,
+    ports: &[u16],
+    as_json: bool,
+    out: &mut dyn std::io::Write,
+) -> Result<(), Failure> {
+    let file = std::fs::File::open(path).map_err(|e| (format!("{path}: {e}"), 2))?;
+    let frames = hart_capture::read_capture_ports(std::io::BufReader::new(file), ports)
+        .map_err(|e| (format!("{path}: {e}"), 2))?;
+    let start = frames.first().map_or(0, |f| f.time_us);
+    let mut last: Option<u64> = None;
+    for c in &frames {
+        let t = c.time_us.saturating_sub(start);
+        let line = match Frame::parse_pdu(&c.bytes) {
+            Ok(f) if c.valid => {
+                let gap = last.map(|l| c.time_us.saturating_sub(l));
+                last = Some(c.time_us);
+                let mut l = frame_line(&f, t, gap, as_json);
+                if as_json {
+                    if let Ok(mut v) = serde_json::from_str::<Value>(&l) {
+                        v["direction"] = json!(c.direction.name());
+                        v["comment"] = json!(c.comment);
+                        l = v.to_string();
+                    }
+                }
+                l
+            }
+            _ => damaged_line(&c.bytes, 0, t, as_json),
+        };
+        let _ = writeln!(out, "{line}");
+    }
+    if frames.is_empty() && !as_json {
+        let _ = writeln!(
+            out,
+            "no HART frames in {path} (HART-IP on port {}, or hartkit's own captures; --port N for another)",
+            ports.iter().map(u16::to_string).collect::<Vec<_>>().join(", ")
+        );
+    }
+    Ok(())
 }

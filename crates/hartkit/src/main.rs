@@ -89,7 +89,15 @@ enum Top {
         /// Stop after this many seconds.
         #[arg(long)]
         duration: Option<f64>,
+        /// Also write every frame to FILE as pcapng for Wireshark (`-`: standard output,
+        /// the listing then goes to standard error): `hartkit monitor -p ... --pcap - |
+        /// wireshark -k -i -`.
+        #[arg(long, value_name = "FILE")]
+        pcap: Option<String>,
     },
+    /// HART captures: read back pcapng/pcap files (ours, or tcpdump's of HART-IP).
+    #[command(subcommand)]
+    Capture(CaptureCmd),
     /// The gateway: a polling engine in front of HART loops (serial or RS-485 lines,
     /// HART-IP servers, simulated plants), with HART-IP, Modbus TCP, Modbus RTU and
     /// OPC UA front ends. With no front end it shows the polled devices on the terminal.
@@ -117,6 +125,21 @@ enum Top {
         /// Where the plant is (default: the built-in simulated plant).
         #[arg(long, short = 'p', default_value = "sim")]
         port: String,
+    },
+}
+
+#[derive(Subcommand)]
+enum CaptureCmd {
+    /// Print every HART frame of a pcapng or pcap capture, as `monitor` prints them.
+    Read {
+        /// The capture file.
+        file: String,
+        /// HART-IP on these UDP/TCP ports (repeat for more; default 5094).
+        #[arg(long = "port", value_name = "PORT", default_values_t = [5094u16])]
+        ports: Vec<u16>,
+        /// One JSON object per frame.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -833,16 +856,33 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             let mut c = host_client(h).await?;
             host::burst(&mut c, &d, &a, h.json).await
         }),
-        Top::Monitor { host: h, duration } => host::block_on(async {
+        Top::Monitor {
+            host: h,
+            duration,
+            pcap,
+        } => host::block_on(async {
             let psk = h.key()?;
             let mut t = hart_host::target::open_async_with(&h.port, psk.as_ref())
                 .await
                 .map_err(|e| (e, 2))?;
-            let mut out = std::io::stdout();
-            host::monitor(&mut t, *duration, h.json, &mut out)
+            let mut capture = pcap
+                .as_deref()
+                .map(|p| host::Capture::create(p, &h.port))
+                .transpose()?;
+            // With the capture on standard output, the listing goes to standard error.
+            let mut out: Box<dyn std::io::Write> = if pcap.as_deref() == Some("-") {
+                Box::new(std::io::stderr())
+            } else {
+                Box::new(std::io::stdout())
+            };
+            host::monitor(&mut t, *duration, h.json, &mut out, capture.as_mut())
                 .await
                 .map(|_| String::new())
         }),
+        Top::Capture(CaptureCmd::Read { file, ports, json }) => {
+            let mut out = std::io::stdout();
+            host::capture_read(file, ports, *json, &mut out).map(|_| String::new())
+        }
         Top::Demo {
             duration,
             json,
