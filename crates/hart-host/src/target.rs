@@ -19,6 +19,8 @@ pub enum AnyTransport {
     Sim(Box<SimTransport>),
     /// HART-IP session.
     HartIp(Box<crate::hartip::HartIpTransport>),
+    /// A recorded capture played back.
+    Replay(Box<crate::replay::ReplayTransport>),
 }
 
 impl Transport for AnyTransport {
@@ -27,6 +29,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.profile(),
             AnyTransport::Sim(t) => t.profile(),
             AnyTransport::HartIp(t) => t.profile(),
+            AnyTransport::Replay(t) => t.profile(),
         }
     }
     fn now(&self) -> Micros {
@@ -34,6 +37,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.now(),
             AnyTransport::Sim(t) => t.now(),
             AnyTransport::HartIp(t) => t.now(),
+            AnyTransport::Replay(t) => t.now(),
         }
     }
     async fn send(&mut self, bytes: &[u8]) -> std::io::Result<()> {
@@ -41,6 +45,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.send(bytes).await,
             AnyTransport::Sim(t) => t.send(bytes).await,
             AnyTransport::HartIp(t) => t.send(bytes).await,
+            AnyTransport::Replay(t) => t.send(bytes).await,
         }
     }
     async fn recv(&mut self, deadline: Micros) -> std::io::Result<Vec<(u8, Micros)>> {
@@ -48,6 +53,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.recv(deadline).await,
             AnyTransport::Sim(t) => t.recv(deadline).await,
             AnyTransport::HartIp(t) => t.recv(deadline).await,
+            AnyTransport::Replay(t) => t.recv(deadline).await,
         }
     }
     fn describe(&self) -> String {
@@ -55,6 +61,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.describe(),
             AnyTransport::Sim(t) => t.describe(),
             AnyTransport::HartIp(t) => t.describe(),
+            AnyTransport::Replay(t) => t.describe(),
         }
     }
     fn take_no_reply(&mut self) -> Option<String> {
@@ -62,6 +69,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.take_no_reply(),
             AnyTransport::Sim(t) => t.take_no_reply(),
             AnyTransport::HartIp(t) => t.take_no_reply(),
+            AnyTransport::Replay(t) => t.take_no_reply(),
         }
     }
     async fn recv_flagged(
@@ -72,6 +80,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.recv_flagged(deadline).await,
             AnyTransport::Sim(t) => t.recv_flagged(deadline).await,
             AnyTransport::HartIp(t) => t.recv_flagged(deadline).await,
+            AnyTransport::Replay(t) => t.recv_flagged(deadline).await,
         }
     }
     fn carrier(&mut self) -> Option<bool> {
@@ -79,6 +88,7 @@ impl Transport for AnyTransport {
             AnyTransport::Serial(t) => t.carrier(),
             AnyTransport::Sim(t) => t.carrier(),
             AnyTransport::HartIp(t) => t.carrier(),
+            AnyTransport::Replay(t) => t.carrier(),
         }
     }
 }
@@ -94,6 +104,13 @@ pub enum Target {
         plant: Option<PathBuf>,
         /// Virtual time (`?virtual`): waiting costs nothing.
         virtual_time: bool,
+    },
+    /// A capture played back (`replay:FILE.pcapng[?port=N]`).
+    Replay {
+        /// The capture file.
+        file: PathBuf,
+        /// HART-IP port of a tcpdump capture (default 5094).
+        port: u16,
     },
     /// A HART-IP server.
     HartIp {
@@ -121,6 +138,8 @@ const SIM_OPTIONS: &[&str] = &["virtual"];
 /// * `rs485:/dev/ttyUSB1?baud=19200` (default 19200; `rts` options as for serial)
 /// * `sim` (the demo plant), `sim:plant.toml`, with `?virtual` for virtual time
 /// * `udp://HOST[:PORT]`, `tcp://HOST[:PORT]`: HART-IP, port 5094 by default
+/// * `replay:FILE.pcapng?port=5094`: a capture (`hartkit monitor --pcap`, or tcpdump's
+///   of HART-IP on that port) played back
 ///
 /// Errors name the option and what it takes.
 pub fn parse(target: &str) -> Result<Target, String> {
@@ -146,6 +165,24 @@ pub fn parse(target: &str) -> Result<Target, String> {
             )),
         }
     };
+    if let Some(file) = base.strip_prefix("replay:") {
+        check("replay", &["port"])?;
+        if file.is_empty() {
+            return Err(format!(
+                "--port {target}: no capture file after replay: (replay:FILE.pcapng)"
+            ));
+        }
+        let port = match get("port") {
+            None => hart_capture::HART_IP_PORT,
+            Some(p) => p.parse().map_err(|_| {
+                format!("--port {target}: port={p}: give the HART-IP port of the capture, 1-65535")
+            })?,
+        };
+        return Ok(Target::Replay {
+            file: PathBuf::from(file),
+            port,
+        });
+    }
     if base == "sim" || base.starts_with("sim:") {
         check("simulated plant", SIM_OPTIONS)?;
         let plant = match base.strip_prefix("sim:") {
@@ -298,6 +335,8 @@ pub fn open(target: &str) -> Result<AnyTransport, String> {
                 virtual_time,
             )?)))
         }
+        Target::Replay { file, port } => crate::replay::ReplayTransport::open(&file.to_string_lossy(), port)
+            .map(|t| AnyTransport::Replay(Box::new(t))),
         Target::HartIp { .. } => Err(format!(
             "--port {target}: HART-IP targets are opened with target::open_async (they connect first)"
         )),

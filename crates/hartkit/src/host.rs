@@ -812,7 +812,12 @@ pub async fn monitor(
             return Ok(());
         }
         let until = end.unwrap_or(now + 1_000_000).min(now + 1_000_000);
-        let bytes = t.recv(until).await.map_err(|e| fail(HostError::Io(e)))?;
+        let bytes = match t.recv(until).await {
+            Ok(b) => b,
+            // A recording played back has ended.
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            Err(e) => return Err(fail(HostError::Io(e))),
+        };
         for (b, at) in bytes {
             let mut lines: Vec<String> = vec![];
             let mut records: Vec<(Vec<u8>, bool, String)> = vec![];

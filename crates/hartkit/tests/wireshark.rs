@@ -55,7 +55,7 @@ fn wireshark_decodes_our_hart_ip_traffic() {
     assert!(ready.contains("hart-ip"), "server did not start: {ready}");
     let udp = format!("udp://127.0.0.1:{port}");
     let tcp = format!("tcp://127.0.0.1:{port}");
-    let (c1, _, e1) = hartkit(&["read", "-p", &udp, "--poll", "1", "dynamic"]);
+    let (c1, live, e1) = hartkit(&["read", "-p", &udp, "--poll", "1", "dynamic", "--json"]);
     let (c2, _, e2) = hartkit(&["read", "-p", &tcp, "--poll", "2", "info"]);
     let (c3, _, e3) = hartkit(&["command", "-p", &udp, "--poll", "1", "1024"]);
     let (c4, _, e4) = hartkit(&[
