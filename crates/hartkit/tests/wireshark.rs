@@ -223,5 +223,13 @@ fn wireshark_decodes_our_hart_ip_traffic() {
         seen("burst", 3) || seen("burst", 1),
         "a publish message: {out}"
     );
+    // The capture as a replay source: the same read answered from the recording.
+    let replay = format!("replay:{}", file.display());
+    let (code, replayed, err) =
+        hartkit(&["read", "-p", &replay, "--poll", "1", "dynamic", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(replayed, live, "the recorded answer");
+    let (code, _, err) = hartkit(&["read", "-p", &replay, "--poll", "40", "pv"]);
+    assert_eq!(code, 3, "never recorded: no reply: {err}");
     let _ = std::fs::remove_file(&file);
 }
