@@ -47,9 +47,10 @@ fn temp(name: &str) -> std::path::PathBuf {
     std::env::temp_dir().join(format!("hartkit-{}-{name}", std::process::id()))
 }
 
-#[test]
-fn monitor_writes_a_capture_that_wireshark_decodes() {
-    let file = temp("demo.pcapng");
+/// `hartkit monitor -p sim --pcap FILE --duration 5` (the demo plant's burst frames):
+/// the capture file and the monitor's listing.
+fn record_demo(name: &str) -> (std::path::PathBuf, String) {
+    let file = temp(name);
     let (code, listing, err) = hartkit(&[
         "monitor",
         "-p",
@@ -60,6 +61,12 @@ fn monitor_writes_a_capture_that_wireshark_decodes() {
         "5",
     ]);
     assert_eq!(code, 0, "{err}");
+    (file, listing)
+}
+
+#[test]
+fn monitor_writes_a_capture_that_wireshark_decodes() {
+    let (file, listing) = record_demo("demo.pcapng");
     let shown = listing.lines().filter(|l| l.contains("BACK")).count();
     assert!(shown >= 2, "{listing}");
     // Read back: the same frames.
@@ -172,17 +179,7 @@ fn a_live_capture_on_standard_output() {
 
 #[test]
 fn cut_and_foreign_files() {
-    let file = temp("cut.pcapng");
-    let (code, _, err) = hartkit(&[
-        "monitor",
-        "-p",
-        "sim",
-        "--pcap",
-        file.to_str().unwrap(),
-        "--duration",
-        "5",
-    ]);
-    assert_eq!(code, 0, "{err}");
+    let (file, _) = record_demo("cut.pcapng");
     let whole = std::fs::read(&file).unwrap();
     let all = hart_capture::read_capture(&whole[..]).unwrap().len();
     // A capture cut inside its last block (a killed process, a full disk): the frames
