@@ -702,7 +702,26 @@ impl<'a> Wav<'a> {
     }
 }
 
-/// Iterator over one channel of a [`Wav`], from [`Wav::samples`].
+/// The samples of `channel` in `data`, interleaved frames of `channels` samples in
+/// `format` (a block of a WAV file's data read on its own: whole frames; a partial
+/// frame at the end is left out). For reading a file of any length in blocks.
+pub fn samples_of(
+    format: SampleFormat,
+    channels: u16,
+    channel: u16,
+    data: &[u8],
+) -> Result<Samples<'_>, WavError> {
+    if channel >= channels {
+        return Err(WavError::NoSuchChannel { channel, channels });
+    }
+    Ok(Samples {
+        frames: data.chunks_exact((usize::from(channels) * format.bytes()).max(1)),
+        offset: usize::from(channel) * format.bytes(),
+        format,
+    })
+}
+
+/// Iterator over one channel of a [`Wav`], from [`Wav::samples`] or [`samples_of`].
 #[derive(Debug, Clone)]
 pub struct Samples<'a> {
     frames: ChunksExact<'a, u8>,

@@ -226,31 +226,15 @@ pub fn rx(
     };
     match input {
         RxInput::Wav(path) => {
-            let bytes =
-                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            let w = Wav::parse(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-            check_rate(w.sample_rate())?;
-            if w.channels() != 1 {
-                eprintln!(
-                    "hartkit: note: {} has {} channels; decoding the first",
-                    path.display(),
-                    w.channels()
-                );
+            let mut d = None;
+            read_wav_blocks(path, |rate, samples| {
+                let d = d.get_or_insert_with(|| Demodulator::new(config(rate, volts_per_fs)));
+                d.push(samples, &mut emit);
+                error.borrow().is_none()
+            })?;
+            if let Some(mut d) = d {
+                d.finish(&mut emit);
             }
-            if w.truncated() {
-                eprintln!(
-                    "hartkit: note: {} is cut short; decoding what is there",
-                    path.display()
-                );
-            }
-            let samples = w
-                .channel(0)
-                .map_err(|e| format!("{}: {e}", path.display()))?;
-            let mut d = Demodulator::new(config(w.sample_rate(), volts_per_fs));
-            for chunk in samples.chunks(4800) {
-                d.push(chunk, &mut emit);
-            }
-            d.finish(&mut emit);
         }
         RxInput::RawS16le { path, rate } => {
             check_rate(*rate)?;
@@ -307,6 +291,94 @@ pub fn rx(
         }
         _ => Ok(count),
     }
+}
+
+/// Bytes of a WAV file read at a time: memory stays a few megabytes whatever the
+/// file's length.
+pub const WAV_BLOCK: usize = 1 << 20;
+
+/// Reads the first channel of the WAV file at `path` in blocks of [`WAV_BLOCK`] and
+/// hands each block's samples to `push` with the sample rate, until the data ends or
+/// `push` returns `false`. Notes on standard error: more than one channel, a file cut
+/// short (what is there is decoded).
+pub fn read_wav_blocks(
+    path: &std::path::Path,
+    mut push: impl FnMut(u32, &[f32]) -> bool,
+) -> Result<(), String> {
+    use std::io::{Seek, SeekFrom};
+    let name = path.display();
+    let mut file = std::fs::File::open(path).map_err(|e| format!("cannot read {name}: {e}"))?;
+    let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+    // The header: parse a prefix, larger until the data chunk begins in it.
+    let mut prefix = Vec::new();
+    let header = loop {
+        let want = (prefix.len() * 2).max(65_536);
+        let mut more = vec![0u8; want - prefix.len()];
+        let n = read_full(&mut file, &mut more).map_err(|e| format!("cannot read {name}: {e}"))?;
+        prefix.extend_from_slice(&more[..n]);
+        let eof = n < more.len();
+        match Wav::parse(&prefix) {
+            Ok(w) => {
+                let offset = w.data().as_ptr() as usize - prefix.as_ptr() as usize;
+                break (
+                    w.format(),
+                    w.channels(),
+                    w.sample_rate(),
+                    offset as u64,
+                    w.declared_data_len(),
+                );
+            }
+            Err(_) if !eof && prefix.len() < (16 << 20) => continue,
+            Err(e) => return Err(format!("{name}: {e}")),
+        }
+    };
+    let (format, channels, rate, offset, declared) = header;
+    check_rate(rate)?;
+    if channels != 1 {
+        eprintln!("hartkit: note: {name} has {channels} channels; decoding the first");
+    }
+    let available = len.saturating_sub(offset);
+    let data_len = declared.map_or(available, |d| d.min(available));
+    if declared.is_some_and(|d| d > available) {
+        eprintln!("hartkit: note: {name} is cut short; decoding what is there");
+    }
+    let frame = u64::from(channels) * format.bytes() as u64;
+    file.seek(SeekFrom::Start(offset))
+        .map_err(|e| format!("cannot read {name}: {e}"))?;
+    let block = (WAV_BLOCK as u64 / frame.max(1)).max(1) * frame.max(1);
+    let mut buf = vec![0u8; block as usize];
+    let mut samples = Vec::with_capacity(block as usize);
+    let mut left = data_len - data_len % frame.max(1);
+    while left > 0 {
+        let want = left.min(block) as usize;
+        let n = read_full(&mut file, &mut buf[..want])
+            .map_err(|e| format!("cannot read {name}: {e}"))?;
+        let whole = n - n % frame.max(1) as usize;
+        samples.clear();
+        samples.extend(
+            hart_modem::wav::samples_of(format, channels, 0, &buf[..whole])
+                .map_err(|e| format!("{name}: {e}"))?,
+        );
+        if !push(rate, &samples) || n < want {
+            break;
+        }
+        left -= n as u64;
+    }
+    Ok(())
+}
+
+/// Reads until `buf` is full or the input ends; the bytes read.
+fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
 }
 
 fn config(rate: u32, volts_per_fs: f64) -> DemodConfig {

@@ -324,3 +324,81 @@ fn the_bench_writes_its_report() {
     let (ok, _, err) = hartkit(&["modem", "bench", "--only", "no-such-thing"]);
     assert!(!ok && err.contains("awgn-11"), "{err}");
 }
+
+/// `modem rx` reads a WAV file in blocks of 1 MiB (memory bounded whatever the file's
+/// length): a recording over several blocks, with frames across the block boundaries,
+/// gives every frame; so does the same file with a 100 KiB chunk before its data (the
+/// header read grows until the data begins); and a copy cut in the middle gives the
+/// frames before the cut, with a note.
+#[test]
+fn long_recordings_are_read_in_blocks() {
+    // 40 frames of 31 bytes with 50 ms gaps: 12 s at 48 kHz, 16-bit, 1.1 MiB of data.
+    let mut frames = String::new();
+    for i in 0..40u8 {
+        let mut f = vec![
+            0x86, 0x26, 0xF1, 0x01, 0x00, 0x02, 0x03, 0x1A, 0x00, 0x08, i,
+        ];
+        f.extend_from_slice(&[
+            0x40, 0, 0, 12, 0x42, 0x48, 0, 0, 12, 0x42, 0x48, 0, 0, 12, 0x42, 0x48, 0, 0, 12, 0x42,
+            0x48, 0, 0,
+        ]);
+        let check = f.iter().fold(0, |a, b| a ^ b);
+        f.push(check);
+        frames.push_str(&f.iter().map(|b| format!("{b:02X}")).collect::<String>());
+        frames.push('\n');
+    }
+    let list = tmp("frames.txt");
+    std::fs::write(&list, &frames).unwrap();
+    let wav = tmp("long.wav");
+    let (ok, _, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--out",
+        wav.to_str().unwrap(),
+        "--gap-ms",
+        "50",
+        "--in",
+        list.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let bytes = std::fs::read(&wav).unwrap();
+    assert!(
+        bytes.len() > (1 << 20) + 100_000,
+        "spans more than one block"
+    );
+    let decode = |path: &std::path::Path| {
+        let (ok, out, err) = hartkit(&["modem", "rx", "--json", path.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        (json_lines(&out), err)
+    };
+    let (all, _) = decode(&wav);
+    assert_eq!(all.len(), 40);
+    assert!(all.iter().all(|f| f["checksum_ok"] == true));
+    let expected: Vec<String> = frames.lines().map(str::to_string).collect();
+    let got: Vec<String> = all
+        .iter()
+        .map(|f| f["hex"].as_str().unwrap().to_uppercase())
+        .collect();
+    assert_eq!(got, expected);
+    // A 100 KiB LIST chunk between fmt and data.
+    let data_at = bytes.windows(4).position(|w| w == b"data").unwrap();
+    let mut padded = bytes[..data_at].to_vec();
+    padded.extend_from_slice(b"LIST");
+    padded.extend_from_slice(&(100_000u32).to_le_bytes());
+    padded.extend(std::iter::repeat_n(0u8, 100_000));
+    padded.extend_from_slice(&bytes[data_at..]);
+    let riff = (padded.len() - 8) as u32;
+    padded[4..8].copy_from_slice(&riff.to_le_bytes());
+    let big = tmp("big-header.wav");
+    std::fs::write(&big, &padded).unwrap();
+    assert_eq!(decode(&big).0.len(), 40);
+    // Cut in the middle.
+    let cut = tmp("cut.wav");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let (half, err) = decode(&cut);
+    assert!((15..=25).contains(&half.len()), "{}", half.len());
+    assert!(err.contains("cut short"), "{err}");
+    for f in [list, wav, big, cut] {
+        let _ = std::fs::remove_file(f);
+    }
+}
