@@ -225,9 +225,41 @@ struct IpBenchArgs {
 
 #[derive(Subcommand)]
 enum ModemCmd {
-    /// Modulate frames (hex, delimiter through check byte) into a mono WAV file.
+    /// A simulated line in a pipe: raw s16le samples from standard input to standard
+    /// output with a cable low-pass, mains hum and noise (`hartkit modem tx --out - |
+    /// hartkit modem channel --snr-db 15 --rc-us 65 --hum-hz 50 | hartkit modem rx --raw
+    /// s16le --rate 48000 -`).
+    Channel {
+        /// Sample rate of the stream, Hz.
+        #[arg(long, default_value_t = 48_000)]
+        rate: u32,
+        /// Signal-to-noise ratio, dB, against a sine of --signal-mvpp (none: no noise).
+        #[arg(long, allow_negative_numbers = true)]
+        snr_db: Option<f64>,
+        /// The signal level the SNR refers to, mV peak to peak.
+        #[arg(long, default_value_t = 500.0)]
+        signal_mvpp: f64,
+        /// Cable low-pass time constant, µs (the loop resistance times the cable and
+        /// device capacitance; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        rc_us: f64,
+        /// Mains hum frequency, Hz (50 or 60; 0: none).
+        #[arg(long, default_value_t = 0.0)]
+        hum_hz: f64,
+        /// Hum level, mV peak to peak.
+        #[arg(long, default_value_t = 100.0)]
+        hum_mvpp: f64,
+        /// Volts represented by a full-scale sample.
+        #[arg(long, default_value_t = 1.0)]
+        volts_per_fs: f64,
+        /// Noise seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Modulate frames (hex, delimiter through check byte) into a mono WAV file, or
+    /// (`--out -`) raw signed 16-bit samples on standard output for a pipe.
     Tx {
-        /// Output file.
+        /// Output file (`-`: raw s16le samples on standard output).
         #[arg(long, value_name = "FILE.wav")]
         out: std::path::PathBuf,
         /// Sample rate, Hz (8000-192000).
@@ -1033,6 +1065,25 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
                 },
             )
         }
+        ModemCmd::Channel {
+            rate,
+            snr_db,
+            signal_mvpp,
+            rc_us,
+            hum_hz,
+            hum_mvpp,
+            volts_per_fs,
+            seed,
+        } => modem::channel(&modem::ChannelOptions {
+            rate: *rate,
+            snr_db: *snr_db,
+            signal_mvpp: *signal_mvpp,
+            rc_us: *rc_us,
+            hum_hz: *hum_hz,
+            hum_mvpp: *hum_mvpp,
+            volts_per_fs: *volts_per_fs,
+            seed: *seed,
+        }),
         ModemCmd::Rx {
             file,
             json,

@@ -1,7 +1,7 @@
 //! `hartkit modem`: HART frames to and from sound (WAV files, raw samples on standard
 //! input), through the software Bell 202 modem in `hart-modem`.
 
-use std::io::Read;
+use std::io::{Read, Write};
 
 use hart_modem::demod::{DemodConfig, DemodEvent, Demodulator, RxFrame};
 use hart_modem::modulator::{Modulator, ModulatorConfig};
@@ -116,6 +116,21 @@ pub fn tx(frames: &[Vec<u8>], o: &TxOptions) -> Result<String, String> {
         return Err(format!(
             "the signal peaks at {peak:.2} of full scale and would clip in 16-bit PCM; lower --amplitude-mvpp, raise --volts-per-fs or use --float"
         ));
+    }
+    if o.out.as_os_str() == "-" {
+        // A pipe: raw signed 16-bit little-endian samples, for `modem channel` and
+        // `modem rx --raw s16le --rate R -`.
+        let raw: Vec<u8> = samples
+            .iter()
+            .flat_map(|&s| to_s16(s).to_le_bytes())
+            .collect();
+        let mut out = std::io::stdout().lock();
+        return match out.write_all(&raw).and_then(|_| out.flush()) {
+            Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+                Err(format!("writing samples: {e}"))
+            }
+            _ => Ok(String::new()),
+        };
     }
     let format = if o.float {
         WriteFormat::Float32
@@ -291,6 +306,92 @@ pub fn rx(
         }
         _ => Ok(count),
     }
+}
+
+/// A sample (full scale ±1) as signed 16-bit PCM, clipped.
+fn to_s16(s: f32) -> i16 {
+    (s * 32768.0).round().clamp(-32768.0, 32767.0) as i16
+}
+
+/// Settings of `hartkit modem channel`.
+#[derive(Debug, Clone)]
+pub struct ChannelOptions {
+    /// Sample rate, Hz.
+    pub rate: u32,
+    /// Signal-to-noise ratio against a sine of `signal_mvpp`, dB (`None`: no noise).
+    pub snr_db: Option<f64>,
+    /// The signal level the SNR refers to, mV peak to peak.
+    pub signal_mvpp: f64,
+    /// Cable low-pass time constant, µs (0: none).
+    pub rc_us: f64,
+    /// Hum frequency, Hz (0: none).
+    pub hum_hz: f64,
+    /// Hum level, mV peak to peak.
+    pub hum_mvpp: f64,
+    /// Volts a full-scale sample stands for.
+    pub volts_per_fs: f64,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+/// `hartkit modem channel`: raw s16le samples from standard input to standard output
+/// through a simulated line (cable low-pass, hum, noise), block by block, so `modem tx
+/// --out - | modem channel ... | modem rx --raw s16le --rate R -` is a modem link.
+pub fn channel(o: &ChannelOptions) -> Result<String, String> {
+    check_rate(o.rate)?;
+    if !(o.volts_per_fs.is_finite() && o.volts_per_fs > 0.0) {
+        return Err("--volts-per-fs must be positive".into());
+    }
+    let v = o.volts_per_fs;
+    let sigma = o.snr_db.map_or(0.0, |snr| {
+        hart_modem::channel::StreamChannel::sigma_for_snr(o.signal_mvpp / 1000.0, snr)
+    }) / v;
+    let mut ch = hart_modem::channel::StreamChannel::new(
+        o.rate,
+        sigma,
+        o.rc_us * 1e-6,
+        o.hum_hz,
+        o.hum_mvpp / 1000.0 / v,
+        o.seed,
+    );
+    let mut input = std::io::stdin().lock();
+    let mut out = std::io::stdout().lock();
+    let mut buf = vec![0u8; 16_384];
+    let mut carry: Option<u8> = None;
+    let mut samples: Vec<f32> = Vec::with_capacity(8_192);
+    let mut raw: Vec<u8> = Vec::with_capacity(16_384);
+    loop {
+        let n = match input.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(format!("reading samples: {e}")),
+        };
+        samples.clear();
+        let mut bytes = carry.take().into_iter().chain(buf[..n].iter().copied());
+        loop {
+            match (bytes.next(), bytes.next()) {
+                (Some(lo), Some(hi)) => {
+                    samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0)
+                }
+                (Some(lo), None) => {
+                    carry = Some(lo);
+                    break;
+                }
+                _ => break,
+            }
+        }
+        ch.process(&mut samples);
+        raw.clear();
+        raw.extend(samples.iter().flat_map(|&s| to_s16(s).to_le_bytes()));
+        match out.write_all(&raw) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(String::new()),
+            Err(e) => return Err(format!("writing samples: {e}")),
+        }
+    }
+    let _ = out.flush();
+    Ok(String::new())
 }
 
 /// Bytes of a WAV file read at a time: memory stays a few megabytes whatever the
