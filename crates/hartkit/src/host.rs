@@ -939,7 +939,9 @@ impl Capture {
         })
     }
 
-    fn record(
+    /// Writes one frame (`valid`) or run of damaged bytes seen at `time_us` (µs since
+    /// the Unix epoch), with `note` after the source in the packet's comment.
+    pub fn record(
         &mut self,
         time_us: u64,
         bytes: &[u8],

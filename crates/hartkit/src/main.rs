@@ -304,6 +304,10 @@ enum ModemCmd {
         /// Sample rate of raw input, Hz.
         #[arg(long)]
         rate: Option<u32>,
+        /// Also write every frame decoded to FILE as pcapng for Wireshark (`-`:
+        /// standard output; the listing then goes to standard error).
+        #[arg(long, value_name = "FILE")]
+        pcap: Option<String>,
     },
     /// Measure the demodulator: frame error rate against Eb/N0 and impairments, speed;
     /// writes the report.
@@ -1090,6 +1094,7 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             volts_per_fs,
             raw,
             rate,
+            pcap,
         } => {
             let input = match raw.as_deref() {
                 None => modem::RxInput::Wav(
@@ -1104,8 +1109,23 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
                     return Err(format!("raw format {other:?} is not supported; use s16le"))
                 }
             };
-            let mut stdout = std::io::stdout().lock();
-            let n = modem::rx(&input, *volts_per_fs, *json, &mut stdout)?;
+            let source = format!(
+                "modem rx {}",
+                file.as_deref()
+                    .map_or("-".into(), |p| p.display().to_string())
+            );
+            let mut capture = pcap
+                .as_deref()
+                .map(|p| hartkit::host::Capture::create(p, &source))
+                .transpose()
+                .map_err(|(e, _)| e)?;
+            // With the capture on standard output, the listing goes to standard error.
+            let mut out: Box<dyn std::io::Write> = if pcap.as_deref() == Some("-") {
+                Box::new(std::io::stderr())
+            } else {
+                Box::new(std::io::stdout().lock())
+            };
+            let n = modem::rx(&input, *volts_per_fs, *json, &mut out, capture.as_mut())?;
             if !*json {
                 eprintln!("{n} frame(s)");
             }

@@ -223,12 +223,35 @@ pub fn rx(
     volts_per_fs: f64,
     as_json: bool,
     out: &mut dyn std::io::Write,
+    mut capture: Option<&mut crate::host::Capture>,
 ) -> Result<usize, String> {
     let mut count = 0usize;
     let error: std::cell::RefCell<Option<std::io::Error>> = std::cell::RefCell::new(None);
+    let capture_error: std::cell::RefCell<Option<String>> = std::cell::RefCell::new(None);
+    // Capture time stamps: a file's modification time, or now for standard input,
+    // plus the frame's time in the recording.
+    let start_us = recording_start_us(input);
     let mut emit = |ev: DemodEvent<'_>| {
         if let DemodEvent::Frame(f) = ev {
             count += 1;
+            if let Some(c) = capture.as_deref_mut() {
+                let valid = f.checksum_ok && f.parity_errors == 0 && f.framing_errors == 0;
+                let note = format!(
+                    "level {:.0} mVpp, {} preambles, {} parity and {} framing errors{}",
+                    f.level_vpp * 1000.0,
+                    f.preambles,
+                    f.parity_errors,
+                    f.framing_errors,
+                    if f.checksum_ok {
+                        ""
+                    } else {
+                        ", check byte wrong"
+                    }
+                );
+                if let Err((e, _)) = c.record(start_us + (f.t * 1e6) as u64, f.pdu, valid, &note) {
+                    capture_error.borrow_mut().get_or_insert(e);
+                }
+            }
             let text = if as_json {
                 frame_json(&f).to_string() + "\n"
             } else {
@@ -299,6 +322,9 @@ pub fn rx(
             d.finish(&mut emit);
         }
     }
+    if let Some(e) = capture_error.into_inner() {
+        return Err(e);
+    }
     match error.into_inner() {
         // A closed pipe (`| head`) ends the run quietly.
         Some(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
@@ -306,6 +332,21 @@ pub fn rx(
         }
         _ => Ok(count),
     }
+}
+
+/// When the recording began, µs since the Unix epoch: the file's modification time, or
+/// now for standard input.
+fn recording_start_us(input: &RxInput) -> u64 {
+    let path = match input {
+        RxInput::Wav(p) => Some(p),
+        RxInput::RawS16le { path, .. } if path.as_os_str() != "-" => Some(path),
+        RxInput::RawS16le { .. } => None,
+    };
+    path.and_then(|p| std::fs::metadata(p).ok())
+        .and_then(|m| m.modified().ok())
+        .unwrap_or_else(std::time::SystemTime::now)
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
 }
 
 /// A sample (full scale ±1) as signed 16-bit PCM, clipped.

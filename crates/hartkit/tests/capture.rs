@@ -213,3 +213,43 @@ fn cut_and_foreign_files() {
     assert!(err.contains("--pcap /nonexistent/x.pcapng"), "{err}");
     let _ = std::fs::remove_file(&file);
 }
+
+/// The software modem as a capture source: `modem rx FILE.wav --pcap` writes the frames
+/// it decodes from a recording, which tshark decodes as HART-IP with their commands.
+#[test]
+fn the_modem_on_a_recording_writes_a_capture() {
+    let wav = temp("modem.wav");
+    let file = temp("modem.pcapng");
+    let (code, _, err) = hartkit(&[
+        "modem",
+        "tx",
+        "--out",
+        wav.to_str().unwrap(),
+        "0280000082",
+        "82A606BC614E0100B0",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = hartkit(&[
+        "modem",
+        "rx",
+        wav.to_str().unwrap(),
+        "--json",
+        "--pcap",
+        file.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let frames = hart_capture::read_capture(std::fs::File::open(&file).unwrap()).unwrap();
+    let hex: Vec<String> = frames
+        .iter()
+        .map(|f| f.bytes.iter().map(|b| format!("{b:02X}")).collect())
+        .collect();
+    assert_eq!(hex, ["0280000082", "82A606BC614E0100B0"]);
+    assert!(frames[0].comment.as_deref().unwrap().contains("mVpp"));
+    if tshark() {
+        let (rows, bad) = tshark_fields(&file, &["hart_ip.message_type", "hart_ip.pt.command"]);
+        assert!(bad.is_empty(), "malformed: {bad:?}");
+        assert_eq!(rows, ["0;0", "0;1"]);
+    }
+    let _ = std::fs::remove_file(&wav);
+    let _ = std::fs::remove_file(&file);
+}
