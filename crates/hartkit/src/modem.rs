@@ -286,7 +286,7 @@ pub fn rx(
             };
             let mut d = Demodulator::new(config(*rate, volts_per_fs));
             let mut buf = vec![0u8; 8192];
-            let mut carry: Option<u8> = None;
+            let mut s16 = S16Decoder::default();
             let mut samples = Vec::with_capacity(4096);
             loop {
                 let n = match reader.read(&mut buf) {
@@ -296,24 +296,7 @@ pub fn rx(
                     Err(e) => return Err(format!("reading samples: {e}")),
                 };
                 samples.clear();
-                let mut bytes = buf[..n].iter().copied();
-                if let Some(lo) = carry.take() {
-                    if let Some(hi) = bytes.next() {
-                        samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0);
-                    }
-                }
-                loop {
-                    match (bytes.next(), bytes.next()) {
-                        (Some(lo), Some(hi)) => {
-                            samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0)
-                        }
-                        (Some(lo), None) => {
-                            carry = Some(lo);
-                            break;
-                        }
-                        _ => break,
-                    }
-                }
+                s16.decode(&buf[..n], &mut samples);
                 d.push(&samples, &mut emit);
                 if error.borrow().is_some() {
                     break;
@@ -347,6 +330,30 @@ fn recording_start_us(input: &RxInput) -> u64 {
         .unwrap_or_else(std::time::SystemTime::now)
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_micros() as u64)
+}
+
+/// Raw signed 16-bit little-endian samples read in pieces: a byte left over at the end
+/// of one piece starts the next sample.
+#[derive(Debug, Default)]
+struct S16Decoder {
+    carry: Option<u8>,
+}
+
+impl S16Decoder {
+    /// Appends the samples of `bytes` (full scale ±1) to `out`.
+    fn decode(&mut self, bytes: &[u8], out: &mut Vec<f32>) {
+        let mut it = self.carry.take().into_iter().chain(bytes.iter().copied());
+        loop {
+            match (it.next(), it.next()) {
+                (Some(lo), Some(hi)) => out.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0),
+                (Some(lo), None) => {
+                    self.carry = Some(lo);
+                    break;
+                }
+                _ => break,
+            }
+        }
+    }
 }
 
 /// A sample (full scale ±1) as signed 16-bit PCM, clipped.
@@ -398,7 +405,7 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
     let mut input = std::io::stdin().lock();
     let mut out = std::io::stdout().lock();
     let mut buf = vec![0u8; 16_384];
-    let mut carry: Option<u8> = None;
+    let mut s16 = S16Decoder::default();
     let mut samples: Vec<f32> = Vec::with_capacity(8_192);
     let mut raw: Vec<u8> = Vec::with_capacity(16_384);
     loop {
@@ -409,19 +416,7 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
             Err(e) => return Err(format!("reading samples: {e}")),
         };
         samples.clear();
-        let mut bytes = carry.take().into_iter().chain(buf[..n].iter().copied());
-        loop {
-            match (bytes.next(), bytes.next()) {
-                (Some(lo), Some(hi)) => {
-                    samples.push(f32::from(i16::from_le_bytes([lo, hi])) / 32768.0)
-                }
-                (Some(lo), None) => {
-                    carry = Some(lo);
-                    break;
-                }
-                _ => break,
-            }
-        }
+        s16.decode(&buf[..n], &mut samples);
         ch.process(&mut samples);
         raw.clear();
         raw.extend(samples.iter().flat_map(|&s| to_s16(s).to_le_bytes()));
@@ -527,4 +522,24 @@ fn config(rate: u32, volts_per_fs: f64) -> DemodConfig {
     let mut c = DemodConfig::new(rate);
     c.volts_per_unit = volts_per_fs;
     c
+}
+
+#[cfg(test)]
+mod s16_tests {
+    use super::S16Decoder;
+
+    /// Samples split across reads at an odd byte come out whole and in order.
+    #[test]
+    fn odd_splits() {
+        let bytes: Vec<u8> = [0i16, 16384, -16384, 32767, -32768]
+            .iter()
+            .flat_map(|s| s.to_le_bytes())
+            .collect();
+        let mut d = S16Decoder::default();
+        let mut out = vec![];
+        for piece in bytes.chunks(3) {
+            d.decode(piece, &mut out);
+        }
+        assert_eq!(out, [0.0, 0.5, -0.5, 32767.0 / 32768.0, -1.0]);
+    }
 }
