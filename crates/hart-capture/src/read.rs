@@ -140,7 +140,7 @@ fn frames_of(
         let Ok((m, used)) = hart_ip::Message::parse(rest) else {
             return;
         };
-        rest = &rest[used.max(hart_ip::HEADER_LEN)..];
+        rest = &rest[used..];
         if m.header.message_id != hart_ip::MessageId::TokenPassingPdu || m.body.is_empty() {
             continue;
         }

@@ -158,11 +158,24 @@ impl Default for LoopSettings {
 }
 
 impl LoopSettings {
-    /// The polling addresses the scan visits, listed devices first.
+    /// Checks what serde cannot: listed polling addresses are 0-63 (HART's six bits).
+    pub fn check(&self) -> Result<(), String> {
+        match self.device.iter().find(|d| d.poll > 63) {
+            Some(d) => Err(format!(
+                "loop {}: device poll = {}: polling addresses are 0-63",
+                self.name.as_deref().unwrap_or("(unnamed)"),
+                d.poll
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// The polling addresses the scan visits, listed devices first (addresses over 63,
+    /// which [`LoopSettings::check`] refuses, are left out).
     pub fn scan_order(&self) -> Vec<u8> {
         let mut order: Vec<u8> = vec![];
         for d in &self.device {
-            if !order.contains(&d.poll) {
+            if d.poll <= 63 && !order.contains(&d.poll) {
                 order.push(d.poll);
             }
         }
@@ -262,6 +275,14 @@ mod tests {
             e.device_settings(lp, None),
             (Duration::from_secs(2), ReadCommand::Variables)
         );
+    }
+
+    #[test]
+    fn refuses_polling_addresses_over_63() {
+        let l: LoopSettings = toml::from_str("[[device]]\npoll = 200\n").unwrap();
+        assert!(l.check().unwrap_err().contains("0-63"));
+        // The engine, given one anyway, leaves it out of the scan.
+        assert!(!l.scan_order().contains(&200));
     }
 
     #[test]

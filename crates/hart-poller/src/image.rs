@@ -450,10 +450,12 @@ impl Image {
 
     /// The position of the device with `id` on `channel`.
     pub fn find(&self, channel: u8, id: UniqueId) -> Option<usize> {
-        self.read()
-            .iter()
-            .find(|d| d.channel == channel && d.unique_id() == Some(id))
-            .map(|d| d.position)
+        self.position_where(|d| d.channel == channel && d.unique_id() == Some(id))
+    }
+
+    /// The position of the first device for which `f` holds, without copying the list.
+    pub fn position_where(&self, f: impl Fn(&DeviceImage) -> bool) -> Option<usize> {
+        self.read().iter().find(|d| f(d)).map(|d| d.position)
     }
 }
 

@@ -295,11 +295,10 @@ impl LoopTask {
     fn position_of(&self, address: &Address) -> Option<usize> {
         match address {
             Address::Long(a) => self.shared.image.find(self.channel, a.id),
-            Address::Short(a) => self.shared.image.snapshot().iter().find_map(|d| {
-                (d.channel == self.channel
+            Address::Short(a) => self.shared.image.position_where(|d| {
+                d.channel == self.channel
                     && d.polling_address == Some(a.polling_address)
-                    && d.info.is_some())
-                .then_some(d.position)
+                    && d.info.is_some()
             }),
         }
     }
@@ -312,7 +311,9 @@ impl LoopTask {
         };
         match self.identify(poll).await {
             Some(info) => {
-                self.misses[usize::from(poll)] = 0;
+                if let Some(m) = self.misses.get_mut(usize::from(poll)) {
+                    *m = 0;
+                }
                 let io = info.is_io_system().then(|| info.unique_id());
                 self.register(info).await;
                 if let Some(io) = io {
@@ -320,9 +321,11 @@ impl LoopTask {
                 }
             }
             None => {
-                let m = &mut self.misses[usize::from(poll)];
-                *m = m.saturating_add(1);
-                if *m >= MISSES_TO_FORGET {
+                let misses = self.misses.get_mut(usize::from(poll)).map_or(0, |m| {
+                    *m = m.saturating_add(1);
+                    *m
+                });
+                if misses >= MISSES_TO_FORGET {
                     let channel = self.channel;
                     self.shared
                         .subs
@@ -445,12 +448,11 @@ impl LoopTask {
         let image = &self.shared.image;
         let position = image.find(self.channel, id).or_else(|| {
             // A configured device not yet found, at this polling address.
-            image.snapshot().iter().find_map(|d| {
-                (d.channel == self.channel
+            image.position_where(|d| {
+                d.channel == self.channel
                     && d.info.is_none()
                     && d.polling_address.is_some()
-                    && d.polling_address == info.polling_address)
-                    .then_some(d.position)
+                    && d.polling_address == info.polling_address
             })
         });
         let (period, _) = self.device_settings(info.polling_address);
@@ -541,8 +543,8 @@ impl LoopTask {
             return;
         };
         let (_, read) = self.device_settings(img.polling_address);
-        let state = self.polled.get(&position).cloned().unwrap_or_default();
-        let use_9 = read == ReadCommand::Variables && info.revision() >= 6 && !state.no_command_9;
+        let mut st = self.polled.get(&position).cloned().unwrap_or_default();
+        let use_9 = read == ReadCommand::Variables && info.revision() >= 6 && !st.no_command_9;
         let (command, data): (u16, Vec<u8>) = if use_9 {
             // PV..QV, percent of range, loop current: 6 slots (HART 7 allows 8, HART 6
             // only 4: there PV..QV).
@@ -597,7 +599,6 @@ impl LoopTask {
         // Configuration changed: shown for one period, then read again.
         let bit = status & fds::CONFIGURATION_CHANGED != 0;
         let first = img.range.is_none();
-        let mut st = self.polled.get(&position).cloned().unwrap_or_default();
         let newly_changed = bit && !st.config_bit && !first;
         let reread = st.refresh || first || (img.config_changed_pending && !newly_changed);
         st.config_bit = bit;

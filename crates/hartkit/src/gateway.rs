@@ -387,6 +387,7 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
         loops.push((cli_loop(None), Source::Target(p.clone())));
     }
     for l in &file.loops {
+        l.check().map_err(|e| (format!("--config: {e}"), 2))?;
         let Some(port) = l.port.clone() else {
             return Err((
                 format!(

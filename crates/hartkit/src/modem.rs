@@ -288,15 +288,7 @@ pub fn rx(
             let mut buf = vec![0u8; 8192];
             let mut s16 = S16Decoder::default();
             let mut samples = Vec::with_capacity(4096);
-            loop {
-                let n = match reader.read(&mut buf) {
-                    Ok(0) => break,
-                    Ok(n) => n,
-                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                    Err(e) => return Err(format!("reading samples: {e}")),
-                };
-                samples.clear();
-                s16.decode(&buf[..n], &mut samples);
+            while s16.read(&mut reader, &mut buf, &mut samples)? {
                 d.push(&samples, &mut emit);
                 if error.borrow().is_some() {
                     break;
@@ -340,6 +332,26 @@ struct S16Decoder {
 }
 
 impl S16Decoder {
+    /// Reads what `r` has (at most `buf`'s size) and puts its samples in `out`;
+    /// `false` at the end of the input.
+    fn read(
+        &mut self,
+        r: &mut impl Read,
+        buf: &mut [u8],
+        out: &mut Vec<f32>,
+    ) -> Result<bool, String> {
+        let n = loop {
+            match r.read(buf) {
+                Ok(n) => break n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(format!("reading samples: {e}")),
+            }
+        };
+        out.clear();
+        self.decode(&buf[..n], out);
+        Ok(n > 0)
+    }
+
     /// Appends the samples of `bytes` (full scale ±1) to `out`.
     fn decode(&mut self, bytes: &[u8], out: &mut Vec<f32>) {
         let mut it = self.carry.take().into_iter().chain(bytes.iter().copied());
@@ -408,15 +420,7 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
     let mut s16 = S16Decoder::default();
     let mut samples: Vec<f32> = Vec::with_capacity(8_192);
     let mut raw: Vec<u8> = Vec::with_capacity(16_384);
-    loop {
-        let n = match input.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(format!("reading samples: {e}")),
-        };
-        samples.clear();
-        s16.decode(&buf[..n], &mut samples);
+    while s16.read(&mut input, &mut buf, &mut samples)? {
         ch.process(&mut samples);
         raw.clear();
         raw.extend(samples.iter().flat_map(|&s| to_s16(s).to_le_bytes()));

@@ -7,19 +7,10 @@ use std::process::Command;
 use serde_json::Value;
 
 mod common;
-use common::serve;
+use common::{hartkit, serve};
 
 fn bench(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(["hart-ip", "bench"])
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    hartkit(&[&["hart-ip", "bench"], args].concat())
 }
 
 #[test]
