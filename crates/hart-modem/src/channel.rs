@@ -222,30 +222,57 @@ impl LoopModel {
     }
 }
 
-/// Reads the analog current the way a 4-20 mA input does: volts across `r_ohm`
-/// through a 10 Hz second-order Butterworth low-pass (bilinear, pre-warped). Returns mA
+/// A 4-20 mA analog input: volts across the sense resistor through a 10 Hz
+/// second-order Butterworth low-pass (bilinear, pre-warped), read sample by sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnalogInput {
+    b0: f64,
+    a1: f64,
+    a2: f64,
+    z1: f64,
+    z2: f64,
+    ma_per_volt: f64,
+}
+
+impl AnalogInput {
+    /// An input across `r_ohm` sampled at `fs`.
+    pub fn new(fs: u32, r_ohm: f64) -> Self {
+        let k = libm::tan(PI * 10.0 / f64::from(fs));
+        let q = core::f64::consts::FRAC_1_SQRT_2;
+        let norm = 1.0 / (1.0 + k / q + k * k);
+        AnalogInput {
+            b0: k * k * norm,
+            a1: 2.0 * (k * k - 1.0) * norm,
+            a2: (1.0 - k / q + k * k) * norm,
+            z1: 0.0,
+            z2: 0.0,
+            ma_per_volt: 1e3 / r_ohm,
+        }
+    }
+
+    /// Starts settled at `ma` (as if that current had flowed for ever).
+    pub fn settle(&mut self, ma: f64) {
+        // Steady state of the transposed direct form II for a constant input x = y.
+        self.z1 = ma - self.b0 * ma;
+        self.z2 = self.b0 * ma - self.a2 * ma;
+    }
+
+    /// The next sample (volts across the resistor); returns the reading in mA.
+    pub fn next(&mut self, volts: f64) -> f64 {
+        let x = volts * self.ma_per_volt;
+        let y = self.b0 * x + self.z1;
+        self.z1 = 2.0 * self.b0 * x - self.a1 * y + self.z2;
+        self.z2 = self.b0 * x - self.a2 * y;
+        y
+    }
+}
+
+/// Reads the analog current the way a 4-20 mA input does ([`AnalogInput`]). Returns mA
 /// per sample.
 #[cfg(feature = "alloc")]
 pub fn analog_reading_ma(volts: &[f32], fs: u32, r_ohm: f64) -> alloc::vec::Vec<f64> {
-    let fs = f64::from(fs);
-    let k = libm::tan(PI * 10.0 / fs);
-    let q = core::f64::consts::FRAC_1_SQRT_2;
-    let norm = 1.0 / (1.0 + k / q + k * k);
-    let b0 = k * k * norm;
-    let (b1, b2) = (2.0 * b0, b0);
-    let a1 = 2.0 * (k * k - 1.0) * norm;
-    let a2 = (1.0 - k / q + k * k) * norm;
-    let (mut z1, mut z2) = (0.0f64, 0.0f64);
-    volts
-        .iter()
-        .map(|&v| {
-            let x = f64::from(v) / r_ohm * 1e3;
-            let y = b0 * x + z1;
-            z1 = b1 * x - a1 * y + z2;
-            z2 = b2 * x - a2 * y;
-            y
-        })
-        .collect()
+    let mut input = AnalogInput::new(fs, r_ohm);
+    volts.iter().map(|&v| input.next(f64::from(v))).collect()
 }
 
 /// How much an FSK signal (volts across `r_ohm`, e.g. a modem's output) shifts the
