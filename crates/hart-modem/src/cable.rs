@@ -71,34 +71,35 @@ pub fn max_cable_length_m(pf_per_m: f64, devices: u32, p: &CableParams) -> f64 {
     (-b + libm::sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
 }
 
+/// The classic cable table: (cable pF/m, devices, longest cable in metres), as printed
+/// in the Biffi ICON3000 manual (MDE 254 Rev. 1, §6.1, table 2).
+pub const CLASSIC_TABLE: [(f64, u32, f64); 16] = [
+    (65.0, 1, 2769.0),
+    (65.0, 5, 2462.0),
+    (65.0, 10, 2154.0),
+    (65.0, 15, 1846.0),
+    (95.0, 1, 2000.0),
+    (95.0, 5, 1815.0),
+    (95.0, 10, 1600.0),
+    (95.0, 15, 1415.0),
+    (160.0, 1, 1292.0),
+    (160.0, 5, 1138.0),
+    (160.0, 10, 1015.0),
+    (160.0, 15, 892.0),
+    (225.0, 1, 985.0),
+    (225.0, 5, 892.0),
+    (225.0, 10, 769.0),
+    (225.0, 15, 708.0),
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// The classic table: (pF/m, devices, metres), Biffi ICON3000 manual table 2.
-    const TABLE: [(f64, u32, f64); 16] = [
-        (65.0, 1, 2769.0),
-        (65.0, 5, 2462.0),
-        (65.0, 10, 2154.0),
-        (65.0, 15, 1846.0),
-        (95.0, 1, 2000.0),
-        (95.0, 5, 1815.0),
-        (95.0, 10, 1600.0),
-        (95.0, 15, 1415.0),
-        (160.0, 1, 1292.0),
-        (160.0, 5, 1138.0),
-        (160.0, 10, 1015.0),
-        (160.0, 15, 892.0),
-        (225.0, 1, 985.0),
-        (225.0, 5, 892.0),
-        (225.0, 10, 769.0),
-        (225.0, 15, 708.0),
-    ];
-
     #[test]
     fn reproduces_the_classic_table_within_five_percent() {
         let p = CableParams::default();
-        for (cm, n, metres) in TABLE {
+        for (cm, n, metres) in CLASSIC_TABLE {
             let got = max_cable_length_m(cm, n, &p);
             assert!(
                 (got / metres - 1.0).abs() < 0.05,

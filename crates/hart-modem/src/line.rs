@@ -78,13 +78,17 @@ pub struct LineOptions {
     pub device_mapp: f64,
     /// Noise at every receiver, mV rms in the 0.5-10 kHz band.
     pub noise_mv_rms: f64,
+    /// Every receiver's carrier detect switches on at this level, volts peak to peak
+    /// (off at 85 % of it). HART receivers must accept 120 mVpp and ignore 80 mVpp.
+    pub carrier_on_vpp: f64,
     /// Seed of the noise.
     pub seed: u64,
 }
 
 impl Default for LineOptions {
     /// 9600 samples/s, masters 500 mVpp behind 50 Ω, devices 1 mApp, 2.2 mV rms of
-    /// noise (the in-band figure usually quoted from HCF_SPEC-54).
+    /// noise (the in-band figure usually quoted from HCF_SPEC-54), carrier detect on
+    /// at 100 mVpp (the demodulator's default).
     fn default() -> Self {
         LineOptions {
             sample_rate: 9600,
@@ -92,6 +96,7 @@ impl Default for LineOptions {
             master_output_ohm: 50.0,
             device_mapp: 1.0,
             noise_mv_rms: 2.2,
+            carrier_on_vpp: 0.1,
             seed: 1,
         }
     }
@@ -386,7 +391,11 @@ impl AnalogLine {
             place,
             drive,
             modulator: Modulator::new(mc),
-            demod: Demodulator::new(DemodConfig::new(fs)),
+            demod: Demodulator::new(DemodConfig {
+                carrier_on_vpp: self.opts.carrier_on_vpp,
+                carrier_off_vpp: self.opts.carrier_on_vpp * 0.85,
+                ..DemodConfig::new(fs)
+            }),
             rng: Rng::new(self.opts.seed ^ (k + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
             tx: vec![],
             tx_pos: 0,

@@ -11,9 +11,22 @@
 //! command 0 in short frames, then polls them round-robin with a chosen command in long
 //! frames; an optional secondary does the same with command 1. Or they follow a given
 //! schedule of requests ([`run_schedule`]), one transaction at a time.
+//!
+//! Two media carry the characters ([`Medium`]). The digital one delivers each
+//! character whole at its stop bit, garbled by overlap and by a bit error rate. The
+//! analog one ([`Medium::Analog`]) is the loop sample by sample
+//! ([`hart_modem::line`]): every station modulates, the signals add on one electrical
+//! model of the loop, and every station's own demodulator decides what it heard and
+//! when its carrier detect is on, so collisions, noise and too long a cable act
+//! through the signal.
 
+mod analog;
+pub mod cable;
 pub mod device;
 pub mod rng;
+
+pub use hart_modem::channel::{AnalogProfile, LoopModel};
+pub use hart_modem::line::{AnalogDisturbance, LineOptions};
 
 use hart_link::master::{MasterOutput, RetryPolicy, MAX_TX_LEN};
 use hart_link::slave::{BurstConfig, Slave, SlaveConfig};
@@ -83,6 +96,28 @@ pub struct SimConfig {
     /// Run full field devices of this profile (`hart-device`) instead of minimal
     /// responders.
     pub device_profile: Option<&'static str>,
+    /// What carries the characters.
+    pub medium: Medium,
+}
+
+/// What carries the characters between the stations.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Medium {
+    /// Whole characters at their stop bit; overlapping ones garbled, bit errors at
+    /// [`SimConfig::ber`].
+    #[default]
+    Digital,
+    /// The 4-20 mA loop sample by sample. The primary master sits across the sense
+    /// resistor, the secondary (a handheld) and the devices at the field end; every
+    /// device adds its capacitance (the model's `devices` is set from
+    /// [`SimConfig::devices`]). [`SimConfig::ber`] does not apply: errors come from
+    /// the noise, the cable and collisions.
+    Analog {
+        /// The loop: resistance, cable, capacitances, analog current.
+        model: LoopModel,
+        /// Sample rate, transmit levels, receiver noise.
+        options: LineOptions,
+    },
 }
 
 impl Default for SimConfig {
@@ -99,6 +134,7 @@ impl Default for SimConfig {
             trace: false,
             faults: Faults::default(),
             device_profile: None,
+            medium: Medium::Digital,
         }
     }
 }
@@ -180,6 +216,26 @@ pub struct SimReport {
     pub outcomes: Vec<Outcome>,
     /// Every transmission, when tracing.
     pub trace: Vec<TraceRecord>,
+    /// Analog medium: frames sent to a station that exists (requests to a device,
+    /// replies and burst frames to a master).
+    pub frames_sent: u64,
+    /// Analog medium: those of them the addressee's demodulator decoded intact.
+    pub frames_heard: u64,
+    /// Analog medium: how much the digital traffic moved the control system's 10 Hz
+    /// reading of the 4-20 mA current.
+    pub analog_disturbance: Option<AnalogDisturbance>,
+}
+
+impl SimReport {
+    /// Frames the addressee did not decode, as a fraction of those sent (analog
+    /// medium; 0 when none were sent).
+    pub fn frame_error_rate(&self) -> f64 {
+        if self.frames_sent == 0 {
+            0.0
+        } else {
+            1.0 - self.frames_heard as f64 / self.frames_sent as f64
+        }
+    }
 }
 
 /// A transaction that failed after all retries.
@@ -424,6 +480,8 @@ struct Sim<'a> {
     carrier_until: Micros,
     carrier_time: Micros,
     backs: Vec<(Micros, MasterKind)>,
+    /// The analog medium, when it is the one.
+    air: Option<analog::Air>,
 }
 
 fn frame_kind(bytes: &[u8]) -> FrameKind {
@@ -544,10 +602,15 @@ impl<'a> Sim<'a> {
             carrier_until: 0,
             carrier_time: 0,
             backs: vec![],
+            air: None,
         }
+        .with_medium()
     }
 
     fn run(mut self) -> SimReport {
+        if self.air.is_some() {
+            return self.run_analog();
+        }
         let ct = self.cfg.profile.char_time;
         let end = self.cfg.duration;
         loop {
@@ -621,23 +684,32 @@ impl<'a> Sim<'a> {
             tx.next += 1;
             if tx.next == tx.len {
                 let tx = self.txs.swap_remove(i);
-                self.finished(tx, now);
+                if self.txs.is_empty() {
+                    for st in &mut self.stations {
+                        set_carrier(st, false);
+                        st.dirty = true;
+                    }
+                }
+                let collided = !tx.overlaps.is_empty();
+                self.finished(tx.src, tx.t0, &tx.bytes[..tx.len], tx.kind, collided, now);
             } else {
                 i += 1;
             }
         }
     }
 
-    fn finished(&mut self, tx: Tx, now: Micros) {
-        if self.txs.is_empty() {
-            for st in &mut self.stations {
-                set_carrier(st, false);
-                st.dirty = true;
-            }
-        }
-        let st = &mut self.stations[tx.src];
+    /// A transmission by station `src` that started at `t0` ended at `now`.
+    fn finished(
+        &mut self,
+        src: usize,
+        t0: Micros,
+        bytes: &[u8],
+        kind: FrameKind,
+        collided: bool,
+        now: Micros,
+    ) {
+        let st = &mut self.stations[src];
         st.dirty = true;
-        let collided = !tx.overlaps.is_empty();
         if collided {
             self.report.collisions += 1;
         }
@@ -651,27 +723,27 @@ impl<'a> Sim<'a> {
                 Source::Device(s.poll)
             }
         };
-        if let FrameKind::Back(to) = tx.kind {
+        if let FrameKind::Back(to) = kind {
             self.report.burst_frames += 1;
-            self.backs.push((tx.t0, to));
+            self.backs.push((t0, to));
         }
-        self.sent.push(Sent {
-            t0: tx.t0,
-            t1: now,
-            kind: tx.kind,
-        });
+        self.sent.push(Sent { t0, t1: now, kind });
         if self.cfg.trace {
             self.report.trace.push(TraceRecord {
-                t0_us: tx.t0,
+                t0_us: t0,
                 t1_us: now,
                 src,
-                bytes: tx.bytes[..tx.len].to_vec(),
+                bytes: bytes.to_vec(),
                 collided,
             });
         }
     }
 
     fn start_tx(&mut self, src: usize, bytes: &[u8], now: Micros) {
+        if self.air.is_some() {
+            self.start_analog_tx(src, bytes, now);
+            return;
+        }
         let ct = self.cfg.profile.char_time;
         let mut tx = Tx {
             src,
@@ -840,6 +912,7 @@ impl<'a> Sim<'a> {
 
     fn finish(mut self, end: Micros) -> SimReport {
         let p = self.cfg.profile;
+        self.finish_analog(end);
         let mut r = std::mem::take(&mut self.report);
         r.virtual_seconds = end as f64 / 1e6;
         for st in &self.stations {

@@ -3,6 +3,7 @@
 //! itself lives in `hart-proto`; this crate only presents it.
 
 pub mod annotate;
+pub mod cable;
 pub mod demo;
 pub mod gateway;
 pub mod hex;

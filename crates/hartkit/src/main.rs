@@ -338,23 +338,49 @@ struct ModemBenchArgs {
 
 #[derive(Subcommand)]
 enum LoopCmd {
-    /// Longest cable for a network: the RC time constant of loop resistance and cable
-    /// plus device capacitance must stay within 65 µs.
-    Cable {
-        /// Cable capacitance, pF per metre.
-        #[arg(long)]
-        capacitance_pf_per_m: f64,
-        /// Devices on the loop.
-        #[arg(long, default_value_t = 1)]
-        devices: u32,
-        /// Print JSON.
-        #[arg(long)]
-        json: bool,
-        /// Also send 200 frames through the RC of that length (Eb/N0 16 dB) and report
-        /// how many decode.
-        #[arg(long)]
-        simulate: bool,
-    },
+    /// Longest cable for a network: by the rule (the RC time constant of loop
+    /// resistance and cable plus device capacitance within 65 µs), and with --simulate
+    /// from the signal (the network on the analog loop, sample by sample).
+    Cable(CableArgs),
+}
+
+#[derive(Args)]
+struct CableArgs {
+    /// Cable capacitance, pF per metre.
+    #[arg(long, required_unless_present = "table", allow_hyphen_values = true)]
+    capacitance_pf_per_m: Option<f64>,
+    /// Devices on the loop.
+    #[arg(long, default_value_t = 1)]
+    devices: u32,
+    /// The whole classic table: 65, 95, 160 and 225 pF/m against 1, 5, 10 and 15
+    /// devices, with the published figures.
+    #[arg(long, conflicts_with = "capacitance_pf_per_m")]
+    table: bool,
+    /// Also find the longest cable from the signal: the primary master polls every
+    /// device on the analog loop, and the cable is lengthened until fewer than 99.9 %
+    /// of frames are decoded by their addressee (each cell takes seconds; the table
+    /// runs its cells in parallel).
+    #[arg(long)]
+    simulate: bool,
+    /// With --simulate: transactions of the confirming measurement (each at least
+    /// two frames; the search itself uses a fifth of them).
+    #[arg(long, default_value_t = 500)]
+    transactions: usize,
+    /// With --simulate: resolution of the search, m.
+    #[arg(long, default_value_t = 25.0, value_name = "M")]
+    resolution_m: f64,
+    /// With --simulate: write every measurement (pF/m, devices, length, frames,
+    /// decoded, FER) as CSV to FILE, for scripts/plot-cable.py.
+    #[arg(long, value_name = "FILE")]
+    csv: Option<std::path::PathBuf>,
+    /// Seed of the receivers' noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    analog: hartkit::sim::LoopArgs,
 }
 
 #[derive(Args, Clone)]
@@ -543,6 +569,15 @@ struct BenchArgs {
     /// instead of minimal responders.
     #[arg(long, value_name = "NAME")]
     profile: Option<String>,
+    /// What carries the characters: digital (whole characters, --ber) or analog (the
+    /// 4-20 mA loop sample by sample, every station with its own modem; FSK only).
+    #[arg(long, default_value = "digital", value_parser = ["digital", "analog"])]
+    medium: String,
+    /// Analog medium: cable length, m.
+    #[arg(long, default_value_t = 0.0, value_name = "M")]
+    cable_m: f64,
+    #[command(flatten)]
+    analog: hartkit::sim::LoopArgs,
 }
 
 #[derive(Subcommand)]
@@ -714,6 +749,16 @@ fn sim_bench(a: &BenchArgs) -> Result<String, String> {
                         format!("--profile {name}: expected pressure, temperature or valve")
                     })?,
             ),
+        },
+        medium: match a.medium.as_str() {
+            "analog" if profile.name != "fsk" => {
+                return Err(format!(
+                    "--medium analog models the FSK loop; --phy {} has no analog medium",
+                    a.phy
+                ))
+            }
+            "analog" => a.analog.medium(a.cable_m, a.seed)?,
+            _ => hart_sim::Medium::Digital,
         },
     };
     let started = std::time::Instant::now();
@@ -1144,12 +1189,18 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
 
 fn loop_cmd(cmd: &LoopCmd) -> Result<String, String> {
     match cmd {
-        LoopCmd::Cable {
-            capacitance_pf_per_m,
-            devices,
-            json,
-            simulate,
-        } => hartkit::modem_bench::cable(*capacitance_pf_per_m, *devices, *json, *simulate),
+        LoopCmd::Cable(a) => hartkit::cable::run(&hartkit::cable::CableOptions {
+            pf_per_m: a.capacitance_pf_per_m,
+            devices: a.devices,
+            table: a.table,
+            simulate: a.simulate,
+            transactions: a.transactions,
+            resolution_m: a.resolution_m,
+            csv: a.csv.clone(),
+            json: a.json,
+            seed: a.seed,
+            analog: a.analog.clone(),
+        }),
     }
 }
 

@@ -11,7 +11,6 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use hart_modem::cable;
 use hart_modem::channel::{self, Rng};
 use hart_modem::demod::{DemodConfig, DemodEvent, Demodulator};
 use hart_modem::modulator::{Modulator, ModulatorConfig};
@@ -495,65 +494,6 @@ pub fn fsk_analog_shift(fs: u32) -> (f64, f64) {
         m.silence(0.002, |x| s.push(x));
     }
     channel::analog_shift_ua(&s, fs, 250.0)
-}
-
-/// `hartkit loop cable`: the longest cable for a network, and with `simulate`, frames
-/// sent through that cable's RC to show they still decode.
-pub fn cable(pf_per_m: f64, devices: u32, as_json: bool, simulate: bool) -> Result<String, String> {
-    if !pf_per_m.is_finite() || pf_per_m <= 0.0 || devices == 0 || devices > 63 {
-        return Err("--capacitance-pf-per-m must be positive and --devices 1 to 63".into());
-    }
-    let p = cable::CableParams::default();
-    let len = cable::max_cable_length_m(pf_per_m, devices, &p);
-    let tau = cable::time_constant_s(len, pf_per_m, devices, &p);
-    let sim = if simulate && len > 0.0 {
-        let mut c = Condition::awgn("cable", "rc", 16.0);
-        c.rc_s = Some(tau);
-        let (out, _, _) = run_condition(&c, 200, 48000, 1);
-        Some(out)
-    } else {
-        None
-    };
-    if as_json {
-        let mut j = serde_json::json!({
-            "capacitance_pf_per_m": pf_per_m,
-            "devices": devices,
-            "max_length_m": (len * 10.0).round() / 10.0,
-            "time_constant_us": (tau * 1e7).round() / 10.0,
-            "loop_resistance_ohm": p.loop_resistance_ohm,
-            "cable_ohm_per_m": p.cable_ohm_per_m,
-            "device_capacitance_pf": p.device_capacitance_pf,
-            "fixed_capacitance_pf": p.fixed_capacitance_pf,
-            "rc_limit_us": p.rc_limit_s * 1e6,
-        });
-        if let Some(o) = &sim {
-            j["simulated_frames"] = o.sent.into();
-            j["simulated_fer"] = o.fer().into();
-        }
-        return Ok(j.to_string());
-    }
-    let mut text = format!(
-        "{devices} device(s), cable of {pf_per_m} pF/m: at most {len:.0} m (time constant {:.1} µs)\n\
-         rule: (R_loop + R_cable·L)·(C_cable·L + N·C_device + C_fixed) <= {:.0} µs with R_loop {} Ω, \
-         R_cable {} Ω/m, C_device {} pF, C_fixed {} pF",
-        tau * 1e6,
-        p.rc_limit_s * 1e6,
-        p.loop_resistance_ohm,
-        p.cable_ohm_per_m,
-        p.device_capacitance_pf,
-        p.fixed_capacitance_pf
-    );
-    if let Some(o) = sim {
-        let _ = write!(
-            text,
-            "\nsimulated at that length (RC {:.1} µs, 500 mVpp, Eb/N0 16 dB): {} of {} frames decoded (FER {:.3})",
-            tau * 1e6,
-            o.good,
-            o.sent,
-            o.fer()
-        );
-    }
-    Ok(text)
 }
 
 mod minimodem {

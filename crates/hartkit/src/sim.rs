@@ -3,7 +3,7 @@
 use std::io::Write;
 
 use hart_link::TimingProfile;
-use hart_sim::{SimConfig, SimReport};
+use hart_sim::{LineOptions, LoopModel, Medium, SimConfig, SimReport};
 use serde_json::json;
 
 use crate::hex;
@@ -34,9 +34,102 @@ pub fn parse_phy(s: &str) -> Result<TimingProfile, String> {
     }
 }
 
+/// The loop of the analog medium, as options (`sim bench --medium analog`,
+/// `loop cable --simulate`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct LoopArgs {
+    /// Analog medium: loop (sense) resistance, Ω (HART allows 230-1100).
+    #[arg(long, default_value_t = 250.0, value_name = "OHM")]
+    pub loop_ohm: f64,
+    /// Analog medium: cable capacitance, pF per metre.
+    #[arg(long, default_value_t = 100.0, value_name = "PF")]
+    pub cable_pf_per_m: f64,
+    /// Analog medium: cable resistance (both conductors), Ω per metre.
+    #[arg(long, default_value_t = 0.036, value_name = "OHM")]
+    pub cable_ohm_per_m: f64,
+    /// Analog medium: capacitance of each device, pF.
+    #[arg(long, default_value_t = 5000.0, value_name = "PF")]
+    pub device_pf: f64,
+    /// Analog medium: noise at every receiver, mV rms in the 0.5-10 kHz band.
+    #[arg(long, default_value_t = 2.2, value_name = "MV")]
+    pub noise_mv: f64,
+    /// Analog medium: every receiver's carrier detect switches on at this level, mVpp
+    /// (HART receivers must accept 120 and ignore 80).
+    #[arg(long, default_value_t = 100.0, value_name = "MVPP")]
+    pub carrier_mvpp: f64,
+    /// Analog medium: the 4-20 mA current, mA.
+    #[arg(long, default_value_t = 12.0, value_name = "MA")]
+    pub analog_ma: f64,
+    /// Analog medium: receiver sample rate, samples/s.
+    #[arg(long, default_value_t = 9600, value_name = "HZ")]
+    pub sample_rate: u32,
+}
+
+impl LoopArgs {
+    /// The loop these options describe with `cable_m` of cable (devices 1; the
+    /// simulation sets the count).
+    pub fn model(&self, cable_m: f64) -> Result<LoopModel, String> {
+        let check = |name: &str, v: f64, lo: f64, hi: f64| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(v)
+            } else {
+                Err(format!("--{name} {v}: must be {lo} to {hi}"))
+            }
+        };
+        Ok(LoopModel {
+            loop_resistance_ohm: check("loop-ohm", self.loop_ohm, 10.0, 10_000.0)?,
+            cable_length_m: check("cable-m", cable_m, 0.0, 100_000.0)?,
+            cable_pf_per_m: check("cable-pf-per-m", self.cable_pf_per_m, 0.0, 10_000.0)?,
+            cable_ohm_per_m: check("cable-ohm-per-m", self.cable_ohm_per_m, 0.0, 100.0)?,
+            device_capacitance_pf: check("device-pf", self.device_pf, 0.0, 1e6)?,
+            analog: hart_modem::channel::AnalogProfile::Constant(check(
+                "analog-ma",
+                self.analog_ma,
+                0.0,
+                25.0,
+            )?),
+            ..LoopModel::default()
+        })
+    }
+
+    /// Sample rate, levels and noise.
+    pub fn options(&self, seed: u64) -> Result<LineOptions, String> {
+        if !(8000..=96_000).contains(&self.sample_rate) {
+            return Err(format!(
+                "--sample-rate {}: must be 8000 to 96000",
+                self.sample_rate
+            ));
+        }
+        if !(self.noise_mv.is_finite() && (0.0..=1000.0).contains(&self.noise_mv)) {
+            return Err(format!("--noise-mv {}: must be 0 to 1000", self.noise_mv));
+        }
+        if !(self.carrier_mvpp.is_finite() && (10.0..=1000.0).contains(&self.carrier_mvpp)) {
+            return Err(format!(
+                "--carrier-mvpp {}: must be 10 to 1000",
+                self.carrier_mvpp
+            ));
+        }
+        Ok(LineOptions {
+            sample_rate: self.sample_rate,
+            noise_mv_rms: self.noise_mv,
+            carrier_on_vpp: self.carrier_mvpp * 1e-3,
+            seed,
+            ..LineOptions::default()
+        })
+    }
+
+    /// The analog medium with `cable_m` of cable.
+    pub fn medium(&self, cable_m: f64, seed: u64) -> Result<Medium, String> {
+        Ok(Medium::Analog {
+            model: self.model(cable_m)?,
+            options: self.options(seed)?,
+        })
+    }
+}
+
 /// The `--json` object.
 pub fn report_json(cfg: &SimConfig, r: &SimReport, wall_seconds: f64) -> serde_json::Value {
-    json!({
+    let mut j = json!({
         "virtual_seconds": r.virtual_seconds,
         "wall_seconds": wall_seconds,
         "transactions": { "primary": r.transactions_primary, "secondary": r.transactions_secondary },
@@ -55,7 +148,28 @@ pub fn report_json(cfg: &SimConfig, r: &SimReport, wall_seconds: f64) -> serde_j
         "burst_mean_period_s": r.burst_mean_period_s,
         "burst_alternates": r.burst_alternates,
         "seed": cfg.seed,
-    })
+    });
+    if let Medium::Analog { model, options } = &cfg.medium {
+        let d = r.analog_disturbance.unwrap_or_default();
+        j["medium"] = json!({
+            "kind": "analog",
+            "loop_ohm": model.loop_resistance_ohm,
+            "cable_m": model.cable_length_m,
+            "cable_pf_per_m": model.cable_pf_per_m,
+            "cable_ohm_per_m": model.cable_ohm_per_m,
+            "device_pf": model.device_capacitance_pf,
+            "noise_mv": options.noise_mv_rms,
+            "carrier_on_mvpp": options.carrier_on_vpp * 1e3,
+            "sample_rate": options.sample_rate,
+        });
+        j["frames_sent"] = r.frames_sent.into();
+        j["frames_heard"] = r.frames_heard.into();
+        j["frame_error_rate"] = r.frame_error_rate().into();
+        j["analog_disturbance_ua"] = json!({ "mean": d.mean_ua, "peak": d.peak_ua });
+    } else {
+        j["medium"] = json!({ "kind": "digital", "ber": cfg.ber });
+    }
+    j
 }
 
 /// Writes the trace: one JSON object per transmission.
@@ -120,5 +234,27 @@ pub fn report_text(cfg: &SimConfig, r: &SimReport, wall_seconds: f64) -> String 
         r.theoretical_transactions_per_s
     ));
     s.push_str(&format!("efficiency             {:.4}", r.efficiency));
+    if let Medium::Analog { model, options } = &cfg.medium {
+        let d = r.analog_disturbance.unwrap_or_default();
+        s.push_str(&format!(
+            "\nanalog loop            {} Ω, {} m of {} pF/m cable, {} pF per device, noise {} mV rms, {} samples/s\n",
+            model.loop_resistance_ohm,
+            model.cable_length_m,
+            model.cable_pf_per_m,
+            model.device_capacitance_pf,
+            options.noise_mv_rms,
+            options.sample_rate
+        ));
+        s.push_str(&format!(
+            "frames heard           {} of {} by their addressee (FER {:.4})\n",
+            r.frames_heard,
+            r.frames_sent,
+            r.frame_error_rate()
+        ));
+        s.push_str(&format!(
+            "4-20 mA reading moved  {:.2} µA mean, {:.2} µA peak by the digital traffic",
+            d.mean_ua, d.peak_ua
+        ));
+    }
     s
 }

@@ -302,12 +302,69 @@ fn sim_bench_json_contract_and_trace() {
 }
 
 #[test]
+fn sim_bench_on_the_analog_loop() {
+    // Three devices, a handheld and a burst device on 1 km of cable, sample by sample.
+    let (code, out, err) = hartkit(&[
+        "sim",
+        "bench",
+        "--medium",
+        "analog",
+        "--devices",
+        "3",
+        "--secondary",
+        "--burst",
+        "--cable-m",
+        "1000",
+        "--duration",
+        "40",
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["medium"]["kind"], "analog");
+    assert_eq!(v["medium"]["cable_m"], 1000.0);
+    assert_eq!(v["devices_found"], 3);
+    assert!(v["transactions"]["primary"].as_u64().unwrap() > 5, "{v}");
+    assert!(v["transactions"]["secondary"].as_u64().unwrap() > 3, "{v}");
+    assert!(v["burst_frames"].as_u64().unwrap() > 5, "{v}");
+    assert_eq!(v["wrong_data"], 0);
+    assert!(v["frames_sent"].as_u64().unwrap() > 40, "{v}");
+    assert!(v["frame_error_rate"].as_f64().unwrap() < 0.05, "{v}");
+    let moved = v["analog_disturbance_ua"]["peak"].as_f64().unwrap();
+    assert!(moved > 0.0 && moved < 50.0, "{v}");
+    // The digital medium says so too.
+    let (_, out, _) = hartkit(&[
+        "sim",
+        "bench",
+        "--devices",
+        "2",
+        "--duration",
+        "5",
+        "--json",
+    ]);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["medium"]["kind"], "digital");
+}
+
+#[test]
 fn sim_bench_rejects_bad_options() {
     for (args, needle) in [
         (vec!["sim", "bench", "--phy", "rs485:abc"], "baud"),
         (vec!["sim", "bench", "--phy", "modem"], "expected fsk"),
         (vec!["sim", "bench", "--ber", "0.9"], "bit error rate"),
         (vec!["sim", "bench", "--duration", "0"], "--duration"),
+        (
+            vec!["sim", "bench", "--medium", "analog", "--phy", "rs485:19200"],
+            "FSK loop",
+        ),
+        (
+            vec!["sim", "bench", "--medium", "analog", "--loop-ohm", "nan"],
+            "--loop-ohm",
+        ),
+        (
+            vec!["sim", "bench", "--medium", "analog", "--sample-rate", "100"],
+            "--sample-rate",
+        ),
     ] {
         let (code, _, err) = hartkit(&args);
         assert_eq!(code, 2, "{args:?}");
