@@ -104,6 +104,8 @@ pub enum Target {
         plant: Option<PathBuf>,
         /// Virtual time (`?virtual`): waiting costs nothing.
         virtual_time: bool,
+        /// What carries the characters (`?medium=analog&cable_m=N`).
+        medium: SimMedium,
     },
     /// A capture played back (`replay:FILE.pcapng[?port=N]`).
     Replay {
@@ -124,10 +126,25 @@ pub enum Target {
     },
 }
 
+/// What carries the characters in a simulated plant.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum SimMedium {
+    /// Whole characters, delivered intact (`medium=digital`, the default).
+    #[default]
+    Digital,
+    /// The 4-20 mA loop sample by sample (`medium=analog`): the host is a modem
+    /// across the sense resistor, every device has its own modem at the end of the
+    /// cable; noise, carrier detect and collisions come from the signal.
+    Analog {
+        /// Cable length, m (`cable_m=N`, default 0).
+        cable_m: f64,
+    },
+}
+
 /// Options each kind of target takes.
 const SERIAL_OPTIONS: &[&str] = &["baud", "rts", "rts_pre_ms", "rts_post_ms", "carrier"];
 const RS485_OPTIONS: &[&str] = &["baud", "rts", "rts_pre_ms", "rts_post_ms"];
-const SIM_OPTIONS: &[&str] = &["virtual"];
+const SIM_OPTIONS: &[&str] = &["virtual", "medium", "cable_m"];
 
 /// Reads a target string without opening anything:
 ///
@@ -136,7 +153,8 @@ const SIM_OPTIONS: &[&str] = &["virtual"];
 ///   (default); `rts_pre_ms`, `rts_post_ms` whole milliseconds, default 0; `carrier`
 ///   `dcd` to take the modem's DCD line as carrier detect, or `none` (default))
 /// * `rs485:/dev/ttyUSB1?baud=19200` (default 19200; `rts` options as for serial)
-/// * `sim` (the demo plant), `sim:plant.toml`, with `?virtual` for virtual time
+/// * `sim` (the demo plant), `sim:plant.toml`, with `?virtual` for virtual time,
+///   `?medium=analog&cable_m=N` for the loop sample by sample
 /// * `udp://HOST[:PORT]`, `tcp://HOST[:PORT]`: HART-IP, port 5094 by default
 /// * `replay:FILE.pcapng?port=5094`: a capture (`hartkit monitor --pcap`, or tcpdump's
 ///   of HART-IP on that port) played back
@@ -204,9 +222,38 @@ pub fn parse(target: &str) -> Result<Target, String> {
                 ))
             }
         };
+        let medium = match get("medium") {
+            None | Some("digital") => {
+                if get("cable_m").is_some() {
+                    return Err(format!(
+                        "--port {target}: cable_m needs medium=analog (a digital line has no cable)"
+                    ));
+                }
+                SimMedium::Digital
+            }
+            Some("analog") => {
+                let cable_m = match get("cable_m") {
+                    None => 0.0,
+                    Some(v) => v
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|m| m.is_finite() && (0.0..=100_000.0).contains(m))
+                        .ok_or_else(|| {
+                            format!("--port {target}: cable_m={v}: give the cable length in metres, 0-100000")
+                        })?,
+                };
+                SimMedium::Analog { cable_m }
+            }
+            Some(v) => {
+                return Err(format!(
+                    "--port {target}: medium={v}: expected digital or analog"
+                ))
+            }
+        };
         return Ok(Target::Sim {
             plant,
             virtual_time,
+            medium,
         });
     }
     for (scheme, tcp, secure) in [
@@ -325,15 +372,23 @@ pub fn open(target: &str) -> Result<AnyTransport, String> {
         Target::Sim {
             plant,
             virtual_time,
+            medium,
         } => {
             let plant = match plant {
                 Some(path) => Plant::load(&path)?,
                 None => Plant::demo(),
             };
-            Ok(AnyTransport::Sim(Box::new(SimTransport::new(
-                &plant,
-                virtual_time,
-            )?)))
+            let mut t = SimTransport::new(&plant, virtual_time)?;
+            if let SimMedium::Analog { cable_m } = medium {
+                t.set_analog(
+                    hart_modem::channel::LoopModel {
+                        cable_length_m: cable_m,
+                        ..hart_modem::channel::LoopModel::default()
+                    },
+                    hart_modem::line::LineOptions::default(),
+                );
+            }
+            Ok(AnyTransport::Sim(Box::new(t)))
         }
         Target::Replay { file, port } => crate::replay::ReplayTransport::open(&file.to_string_lossy(), port)
             .map(|t| AnyTransport::Replay(Box::new(t))),

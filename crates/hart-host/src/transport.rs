@@ -5,7 +5,8 @@
 //!   character, optional carrier detect on DCD; or baseband RS-485 with its own
 //!   transmission read back and dropped.
 //! * [`SimTransport`]: an in-process plant of `hart-device` devices on a simulated
-//!   line, in real time or in virtual time (instant).
+//!   line, in real time or in virtual time (instant); the line either delivers whole
+//!   characters or is the 4-20 mA loop sample by sample ([`SimTransport::set_analog`]).
 
 use std::ffi::CString;
 use std::io;
@@ -691,9 +692,25 @@ pub struct SimTransport {
     virtual_time: Option<Micros>,
     /// How far the devices have been run.
     dev_time: Micros,
-    /// Bytes on the way to the host: (byte, arrival time), in order.
-    pending: Vec<(u8, Micros)>,
+    /// Characters on the way to the host, in order.
+    pending: Vec<RxChar>,
+    /// The analog loop, when the plant is on one.
+    analog: Option<Box<AnalogPlant>>,
 }
+
+/// A plant on the analog loop: the host's modem across the sense resistor, each
+/// device's (and the handheld's) at the field end of the cable.
+struct AnalogPlant {
+    line: hart_modem::line::AnalogLine,
+    host: hart_modem::line::PortId,
+    nodes: Vec<hart_modem::line::PortId>,
+    secondary: Option<hart_modem::line::PortId>,
+    /// The host's carrier detect.
+    carrier: bool,
+}
+
+/// Longest step of the analog loop between two looks at the devices, µs.
+const ANALOG_STEP_US: Micros = 1_000;
 
 impl SimTransport {
     /// A plant in real time (`virtual_time` false) or in virtual time, where waiting
@@ -708,7 +725,121 @@ impl SimTransport {
             virtual_time: virtual_time.then_some(0),
             dev_time: 0,
             pending: vec![],
+            analog: None,
         })
+    }
+
+    /// Puts the plant on the 4-20 mA loop, sample by sample: every character goes
+    /// through the sender's modulator, the loop and each receiver's demodulator
+    /// ([`hart_modem::line`]), so what arrives may be damaged, late or lost as on a
+    /// real loop. Each device adds its capacitance to `model`.
+    pub fn set_analog(
+        &mut self,
+        mut model: hart_modem::channel::LoopModel,
+        options: hart_modem::line::LineOptions,
+    ) {
+        use hart_modem::line::{AnalogLine, Drive, Place};
+        model.devices = self.nodes.len().max(1) as u32;
+        let mut line = AnalogLine::new(model, options);
+        let host = line.add_port(Place::ControlRoom, Drive::Voltage);
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|_| line.add_port(Place::Field, Drive::Current))
+            .collect();
+        let secondary = self
+            .secondary
+            .as_ref()
+            .map(|_| line.add_port(Place::Field, Drive::Voltage));
+        self.analog = Some(Box::new(AnalogPlant {
+            line,
+            host,
+            nodes,
+            secondary,
+            carrier: false,
+        }));
+    }
+
+    /// Runs the analog loop and the devices up to `until`.
+    fn run_analog(&mut self, until: Micros) {
+        use hart_modem::line::LineEvent;
+        let mut events = vec![];
+        while self.dev_time < until {
+            let t = self.dev_time;
+            let next = self
+                .nodes
+                .iter()
+                .filter_map(|n| n.next_deadline(t))
+                .chain(self.secondary_deadline())
+                .min()
+                .unwrap_or(Micros::MAX)
+                .max(t + 1);
+            let step = until.min(t + ANALOG_STEP_US).min(next);
+            let Some(a) = self.analog.as_mut() else {
+                return;
+            };
+            a.line.advance(step, |e| events.push(e));
+            for e in events.drain(..) {
+                let Some(a) = self.analog.as_mut() else {
+                    return;
+                };
+                let node = |p| a.nodes.iter().position(|n| *n == p);
+                match e {
+                    LineEvent::Char {
+                        port,
+                        byte,
+                        flags,
+                        t_us,
+                    } => {
+                        if port == a.host {
+                            self.pending.push(RxChar {
+                                byte,
+                                flags,
+                                at: t_us,
+                            });
+                        } else if let Some(k) = node(port) {
+                            self.nodes[k].receive(byte, flags, t_us);
+                        } else if let Some(s) = &mut self.secondary {
+                            s.master.receive(byte, flags, t_us);
+                        }
+                    }
+                    LineEvent::Carrier { port, on, .. } => {
+                        if port == a.host {
+                            a.carrier = on;
+                        } else if let Some(k) = node(port) {
+                            self.nodes[k].carrier(on);
+                        } else if let Some(s) = &mut self.secondary {
+                            s.master.carrier(on);
+                        }
+                    }
+                    LineEvent::TxDone { port, t_us } => {
+                        if let Some(k) = node(port) {
+                            self.nodes[k].transmitted(t_us);
+                        } else if Some(port) == a.secondary {
+                            if let Some(s) = &mut self.secondary {
+                                s.master.transmitted(t_us);
+                            }
+                        }
+                    }
+                    LineEvent::Frame { .. } => {}
+                }
+            }
+            self.dev_time = step;
+            for k in 0..self.nodes.len() {
+                if let Some(bytes) = self.nodes[k].poll(step) {
+                    if let Some(a) = self.analog.as_mut() {
+                        a.line.transmit(a.nodes[k], &bytes, step);
+                    }
+                }
+            }
+            if let Some(bytes) = self.run_secondary(step) {
+                if let Some(a) = self.analog.as_mut() {
+                    if let Some(p) = a.secondary {
+                        a.line.transmit(p, &bytes, step);
+                    }
+                }
+            }
+        }
     }
 
     /// Adds a secondary master that reads command 1 from each device in turn, one
@@ -733,6 +864,12 @@ impl SimTransport {
             next_at: self.dev_time + every,
             done: 0,
         });
+        if let Some(a) = self.analog.as_mut() {
+            a.secondary = Some(a.line.add_port(
+                hart_modem::line::Place::Field,
+                hart_modem::line::Drive::Voltage,
+            ));
+        }
     }
 
     /// Transactions the in-plant secondary master completed.
@@ -787,6 +924,10 @@ impl SimTransport {
     /// Runs the devices up to `until`; what they send goes to the host and to the
     /// other devices.
     fn run_devices(&mut self, until: Micros) {
+        if self.analog.is_some() {
+            self.run_analog(until);
+            return;
+        }
         let ct = self.profile.char_time;
         loop {
             let t = self.dev_time;
@@ -818,7 +959,11 @@ impl SimTransport {
                 Some((from, bytes)) => {
                     for (i, &b) in bytes.iter().enumerate() {
                         let at = t + (i as Micros + 1) * ct;
-                        self.pending.push((b, at));
+                        self.pending.push(RxChar {
+                            byte: b,
+                            flags: UartFlags::OK,
+                            at,
+                        });
                         for (j, other) in self.nodes.iter_mut().enumerate() {
                             if Some(j) != from {
                                 other.receive(b, UartFlags::OK, at);
@@ -848,6 +993,21 @@ impl SimTransport {
     }
 }
 
+impl SimTransport {
+    /// Lets the clock reach `end`: at once in virtual time, by sleeping in real time.
+    async fn pass_time(&mut self, end: Micros) {
+        match &mut self.virtual_time {
+            Some(v) => *v = end,
+            None => {
+                tokio::time::sleep(Duration::from_micros(
+                    end.saturating_sub(self.start.elapsed().as_micros() as Micros),
+                ))
+                .await
+            }
+        }
+    }
+}
+
 impl Transport for SimTransport {
     fn profile(&self) -> TimingProfile {
         self.profile
@@ -862,6 +1022,13 @@ impl Transport for SimTransport {
         let ct = self.profile.char_time;
         let t0 = self.now().max(self.dev_time);
         self.run_devices(t0);
+        if let Some(a) = self.analog.as_mut() {
+            // The host's modem sends; the devices hear it through the loop.
+            let end = a.line.transmit(a.host, bytes, t0);
+            self.run_analog(end);
+            self.pass_time(end).await;
+            return Ok(());
+        }
         for (i, &b) in bytes.iter().enumerate() {
             let at = t0 + (i as Micros + 1) * ct;
             for n in &mut self.nodes {
@@ -873,19 +1040,24 @@ impl Transport for SimTransport {
         }
         let end = t0 + bytes.len() as Micros * ct;
         self.dev_time = end;
-        match &mut self.virtual_time {
-            Some(v) => *v = end,
-            None => {
-                tokio::time::sleep(Duration::from_micros(
-                    end.saturating_sub(self.start.elapsed().as_micros() as Micros),
-                ))
-                .await
-            }
-        }
+        self.pass_time(end).await;
         Ok(())
     }
 
     async fn recv(&mut self, deadline: Micros) -> io::Result<Vec<(u8, Micros)>> {
+        Ok(self
+            .recv_flagged(deadline)
+            .await?
+            .into_iter()
+            .map(|c| (c.byte, c.at))
+            .collect())
+    }
+
+    fn carrier(&mut self) -> Option<bool> {
+        self.analog.as_ref().map(|a| a.carrier)
+    }
+
+    async fn recv_flagged(&mut self, deadline: Micros) -> io::Result<Vec<RxChar>> {
         loop {
             let now = self.now();
             let horizon = if self.virtual_time.is_some() {
@@ -894,11 +1066,11 @@ impl Transport for SimTransport {
                 now
             };
             self.run_devices(horizon);
-            let n = self.pending.iter().take_while(|p| p.1 <= horizon).count();
+            let n = self.pending.iter().take_while(|p| p.at <= horizon).count();
             if n > 0 {
-                let ready: Vec<(u8, Micros)> = self.pending.drain(..n).collect();
+                let ready: Vec<RxChar> = self.pending.drain(..n).collect();
                 if let (Some(v), Some(last)) = (&mut self.virtual_time, ready.last()) {
-                    *v = (*v).max(last.1);
+                    *v = (*v).max(last.at);
                 }
                 return Ok(ready);
             }
@@ -923,8 +1095,15 @@ impl Transport for SimTransport {
 
     fn describe(&self) -> String {
         format!(
-            "simulated plant of {} device(s){}",
+            "simulated plant of {} device(s){}{}",
             self.nodes.len(),
+            match &self.analog {
+                Some(a) => format!(
+                    " on an analog loop ({} m of cable)",
+                    a.line.model().cable_length_m
+                ),
+                None => String::new(),
+            },
             if self.virtual_time.is_some() {
                 " (virtual time)"
             } else {

@@ -96,3 +96,34 @@ async fn bursts_are_collected_while_listening() {
         bursts.len()
     );
 }
+
+/// The demo plant on the analog loop: every character through a modulator, the loop
+/// and a demodulator.
+fn analog_client(cable_m: u32) -> Client<AnyTransport> {
+    Client::new(open(&format!("sim?virtual&medium=analog&cable_m={cable_m}")).unwrap())
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn the_demo_plant_on_the_analog_loop() {
+    let mut c = analog_client(1000);
+    let found = c.scan(0..=20, |_| {}).await.unwrap();
+    let polls: Vec<u8> = found.iter().map(|d| d.polling_address.unwrap()).collect();
+    assert_eq!(polls, vec![1, 2, 3, 17]);
+    let d = c.resolve(&DeviceRef::Poll(3)).await.unwrap();
+    let r = c.command(&d, 1, &[]).await.unwrap();
+    assert_eq!(r.data[0], 57, "valve travel in %");
+    c.listen(6_000_000).await.unwrap();
+    assert!(
+        c.take_bursts().len() >= 2,
+        "the temperature transmitter's bursts"
+    );
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn on_too_long_a_cable_no_device_is_heard() {
+    // 8 km of 100 pF/m: the devices' 1 mApp reaches the control room under carrier
+    // detect.
+    let mut c = analog_client(8000);
+    let found = c.scan(1..=3, |_| {}).await.unwrap();
+    assert!(found.is_empty(), "{found:?}");
+}

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use hart_host::target::{open, parse, Target};
+use hart_host::target::{open, parse, SimMedium, Target};
 use hart_host::transport::{Rts, SerialOptions};
 
 fn serial(target: &str) -> SerialOptions {
@@ -82,30 +82,50 @@ fn sim_targets_are_the_demo_plant_or_a_plant_file_in_real_or_virtual_time() {
         parse("sim").unwrap(),
         Target::Sim {
             plant: None,
-            virtual_time: false
+            virtual_time: false,
+            medium: SimMedium::Digital,
         }
     );
     assert_eq!(
         parse("sim?virtual").unwrap(),
         Target::Sim {
             plant: None,
-            virtual_time: true
+            virtual_time: true,
+            medium: SimMedium::Digital,
         }
     );
     assert_eq!(
         parse("sim:plants/loop.toml?virtual=1").unwrap(),
         Target::Sim {
             plant: Some(PathBuf::from("plants/loop.toml")),
-            virtual_time: true
+            virtual_time: true,
+            medium: SimMedium::Digital,
         }
     );
     assert_eq!(
         parse("sim:loop.toml?virtual=0").unwrap(),
         Target::Sim {
             plant: Some(PathBuf::from("loop.toml")),
-            virtual_time: false
+            virtual_time: false,
+            medium: SimMedium::Digital,
         }
     );
+    assert_eq!(
+        parse("sim?virtual&medium=analog&cable_m=1500").unwrap(),
+        Target::Sim {
+            plant: None,
+            virtual_time: true,
+            medium: SimMedium::Analog { cable_m: 1500.0 },
+        }
+    );
+    for (bad, needle) in [
+        ("sim?medium=copper", "expected digital or analog"),
+        ("sim?medium=analog&cable_m=-1", "cable_m=-1"),
+        ("sim?cable_m=100", "needs medium=analog"),
+    ] {
+        let e = parse(bad).unwrap_err();
+        assert!(e.contains(needle), "{bad}: {e}");
+    }
 }
 
 #[test]

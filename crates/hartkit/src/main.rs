@@ -386,7 +386,8 @@ struct CableArgs {
 #[derive(Args, Clone)]
 struct HostArgs {
     /// Where the devices are: /dev/ttyUSB0, serial:PATH?baud=1200&rts=high-tx&carrier=dcd,
-    /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual, udp://HOST[:PORT],
+    /// rs485:PATH?baud=19200, sim, sim:PLANT.toml, sim?virtual, sim?medium=analog&cable_m=N
+    /// (the loop sample by sample), udp://HOST[:PORT],
     /// tcp://HOST[:PORT] (HART-IP, port 5094 by default), tls://HOST[:PORT],
     /// dtls://HOST[:PORT] (HART-IP version 2, with --psk or --psk-file).
     #[arg(long, short = 'p', value_name = "TARGET")]
