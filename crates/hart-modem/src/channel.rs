@@ -381,6 +381,10 @@ pub struct StreamChannel {
     hum: Option<(f64, f64)>,
     hum_phase: f64,
     rng: Rng,
+    /// The 4-20 mA current and the resistance it develops its voltage across.
+    analog: Option<(AnalogProfile, f64)>,
+    /// Samples processed so far (the analog current's clock).
+    n: u64,
 }
 
 impl StreamChannel {
@@ -396,7 +400,16 @@ impl StreamChannel {
             hum: (hum_hz > 0.0 && hum_vpp > 0.0).then_some((hum_hz, hum_vpp)),
             hum_phase: 0.0,
             rng: Rng::new(seed),
+            analog: None,
+            n: 0,
         }
+    }
+
+    /// Adds the 4-20 mA current's voltage across `r_ohm` (the sense resistor a
+    /// receiver across the loop sees) to the stream.
+    pub fn with_analog(mut self, profile: AnalogProfile, r_ohm: f64) -> Self {
+        self.analog = Some((profile, r_ohm));
+        self
     }
 
     /// The noise sigma that gives `snr_db` against a sine of `signal_vpp` volts peak to
@@ -407,7 +420,8 @@ impl StreamChannel {
     }
 
     /// Applies the channel to the next block, in place: the cable's low-pass on the
-    /// signal, then the hum and the noise picked up at the receiver.
+    /// signal, then the analog current's voltage, the hum and the noise picked up at
+    /// the receiver.
     pub fn process(&mut self, samples: &mut [f32]) {
         if let Some(a) = self.rc_a {
             for x in samples.iter_mut() {
@@ -415,6 +429,14 @@ impl StreamChannel {
                 *x = self.rc_y as f32;
             }
         }
+        if let Some((profile, r)) = self.analog {
+            let fs = f64::from(self.fs);
+            for (i, x) in samples.iter_mut().enumerate() {
+                let t = (self.n + i as u64) as f64 / fs;
+                *x += (profile.current_ma(t) * 1e-3 * r) as f32;
+            }
+        }
+        self.n += samples.len() as u64;
         if let Some((hz, vpp)) = self.hum {
             add_tone(samples, self.fs, hz, vpp, self.hum_phase);
             let p = self.hum_phase + hz * samples.len() as f64 / f64::from(self.fs);
@@ -438,9 +460,17 @@ mod stream_tests {
             .map(|i| libm::sinf(i as f32 * 0.157) * 0.25)
             .collect();
         let mut whole = input.clone();
-        StreamChannel::new(48_000, 0.01, 65e-6, 50.0, 0.1, 7).process(&mut whole);
+        let analog = AnalogProfile::Sweep {
+            low_ma: 4.0,
+            high_ma: 20.0,
+            hz: 10.0,
+        };
+        StreamChannel::new(48_000, 0.01, 65e-6, 50.0, 0.1, 7)
+            .with_analog(analog, 250.0)
+            .process(&mut whole);
         let mut parts = input.clone();
-        let mut c = StreamChannel::new(48_000, 0.01, 65e-6, 50.0, 0.1, 7);
+        let mut c =
+            StreamChannel::new(48_000, 0.01, 65e-6, 50.0, 0.1, 7).with_analog(analog, 250.0);
         for chunk in parts.chunks_mut(997) {
             c.process(chunk);
         }

@@ -173,35 +173,52 @@ pub struct CableCell {
     pub simulated: CableLimit,
     /// The network at the rule's length.
     pub at_rule: CablePoint,
+    /// Measurements from 80 % to 120 % of the length found, to show the edge.
+    pub sweep: Vec<CablePoint>,
 }
 
 /// Measures one cell: the network at the rule's length, then the longest cable with a
-/// frame error rate within `max_fer` (to `resolution_m`).
+/// frame error rate within `max_fer` (to `resolution_m`), then `sweep_points` lengths
+/// from 80 % to 120 % of it with a fifth of the transactions.
 pub fn cell(
     setup: &CableSetup,
     max_fer: f64,
     resolution_m: f64,
+    sweep_points: usize,
     on_point: impl FnMut(&CablePoint),
 ) -> CableCell {
     let rule_m = rule_length_m(setup);
     let at_rule = measure(setup, rule_m);
     let simulated = longest_cable(setup, max_fer, 2.0 * rule_m, resolution_m, on_point);
+    let coarse = CableSetup {
+        transactions: (setup.transactions / 5).max(20),
+        ..*setup
+    };
+    let sweep = (0..sweep_points)
+        .map(|i| {
+            let x = 0.8 + 0.4 * i as f64 / (sweep_points.max(2) - 1) as f64;
+            measure(&coarse, (simulated.length_m * x).round())
+        })
+        .collect();
     CableCell {
         pf_per_m: setup.model.cable_pf_per_m,
         devices: setup.devices,
         rule_m,
         simulated,
         at_rule,
+        sweep,
     }
 }
 
-/// Measures the cells `(pF/m, devices)` of a table on `threads` threads; `on_cell` sees
-/// each as it is done. Cells come back in the order given.
+/// Measures the cells `(pF/m, devices)` of a table ([`cell`]) on `threads` threads;
+/// `on_cell` sees each as it is done. Cells come back in the order given.
+#[allow(clippy::too_many_arguments)]
 pub fn table(
     base: &CableSetup,
     cells: &[(f64, u8)],
     max_fer: f64,
     resolution_m: f64,
+    sweep_points: usize,
     threads: usize,
     on_cell: &(dyn Fn(&CableCell) + Sync),
 ) -> Vec<CableCell> {
@@ -222,7 +239,7 @@ pub fn table(
                     devices,
                     ..*base
                 };
-                let c = cell(&setup, max_fer, resolution_m, |_| {});
+                let c = cell(&setup, max_fer, resolution_m, sweep_points, |_| {});
                 on_cell(&c);
                 if let Ok(mut d) = done.lock() {
                     d.push((k, c));

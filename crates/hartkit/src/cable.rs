@@ -31,6 +31,8 @@ pub struct CableOptions {
     pub resolution_m: f64,
     /// Every measurement as CSV.
     pub csv: Option<PathBuf>,
+    /// Extra measurements around each cell's edge.
+    pub sweep: usize,
     /// Print JSON.
     pub json: bool,
     /// Seed of the noise.
@@ -75,6 +77,9 @@ pub fn run(o: &CableOptions) -> Result<String, String> {
             o.transactions
         ));
     }
+    if o.sweep > 1000 {
+        return Err(format!("--sweep {}: give at most 1000 points", o.sweep));
+    }
     if !(o.resolution_m.is_finite() && o.resolution_m >= 1.0) {
         return Err(format!(
             "--resolution-m {}: give 1 m or more",
@@ -112,9 +117,15 @@ pub fn run(o: &CableOptions) -> Result<String, String> {
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let done = hart_sim::cable::table(&base, &cells, MAX_FER, o.resolution_m, threads, &|_| {
-        bar.inc(1)
-    });
+    let done = hart_sim::cable::table(
+        &base,
+        &cells,
+        MAX_FER,
+        o.resolution_m,
+        o.sweep,
+        threads,
+        &|_| bar.inc(1),
+    );
     bar.finish_and_clear();
     if let Some(path) = &o.csv {
         write_csv(path, &done).map_err(|e| format!("--csv {}: {e}", path.display()))?;
@@ -211,6 +222,7 @@ fn simulated_json(o: &CableOptions, cells: &[CableCell], p: &CableParams) -> Str
                 .simulated
                 .points
                 .iter()
+                .chain(&c.sweep)
                 .map(|p| json!({"length_m": p.length_m, "frames": p.frames, "heard": p.heard}))
                 .collect();
             j
@@ -252,7 +264,12 @@ fn simulated_text(o: &CableOptions, cells: &[CableCell], p: &CableParams) -> Str
 fn write_csv(path: &std::path::Path, cells: &[CableCell]) -> std::io::Result<()> {
     let mut s = String::from("pf_per_m,devices,rule_m,length_m,frames,heard,fer\n");
     for c in cells {
-        for p in std::iter::once(&c.at_rule).chain(&c.simulated.points) {
+        let mut all: Vec<_> = std::iter::once(&c.at_rule)
+            .chain(&c.simulated.points)
+            .chain(&c.sweep)
+            .collect();
+        all.sort_by(|a, b| a.length_m.total_cmp(&b.length_m));
+        for p in all {
             let _ = writeln!(
                 s,
                 "{},{},{:.1},{:.1},{},{},{:.6}",

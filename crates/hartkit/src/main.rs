@@ -249,6 +249,17 @@ enum ModemCmd {
         /// Hum level, mV peak to peak.
         #[arg(long, default_value_t = 100.0)]
         hum_mvpp: f64,
+        /// The 4-20 mA loop current, mA, whose voltage across --loop-ohm is added
+        /// (raise --volts-per-fs to keep it within full scale: 12 mA across 250 Ω is 3 V).
+        #[arg(long, value_name = "MA")]
+        analog_ma: Option<f64>,
+        /// Sweep the loop current 4 ↔ 20 mA at this rate instead (the receiver test's
+        /// worst case is 10-18 Hz).
+        #[arg(long, value_name = "HZ", conflicts_with = "analog_ma")]
+        analog_sweep_hz: Option<f64>,
+        /// Sense resistor the analog current flows through, Ω.
+        #[arg(long, default_value_t = 250.0)]
+        loop_ohm: f64,
         /// Volts represented by a full-scale sample.
         #[arg(long, default_value_t = 1.0)]
         volts_per_fs: f64,
@@ -373,6 +384,10 @@ struct CableArgs {
     /// decoded, FER) as CSV to FILE, for scripts/plot-cable.py.
     #[arg(long, value_name = "FILE")]
     csv: Option<std::path::PathBuf>,
+    /// With --simulate: also measure this many lengths from 80 % to 120 % of the
+    /// length found (a fifth of the transactions each), to draw the edge.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    sweep: usize,
     /// Seed of the receivers' noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -1122,9 +1137,15 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             rc_us,
             hum_hz,
             hum_mvpp,
+            analog_ma,
+            analog_sweep_hz,
+            loop_ohm,
             volts_per_fs,
             seed,
         } => modem::channel(&modem::ChannelOptions {
+            analog_ma: *analog_ma,
+            analog_sweep_hz: *analog_sweep_hz,
+            loop_ohm: *loop_ohm,
             rate: *rate,
             snr_db: *snr_db,
             signal_mvpp: *signal_mvpp,
@@ -1198,6 +1219,7 @@ fn loop_cmd(cmd: &LoopCmd) -> Result<String, String> {
             transactions: a.transactions,
             resolution_m: a.resolution_m,
             csv: a.csv.clone(),
+            sweep: a.sweep,
             json: a.json,
             seed: a.seed,
             analog: a.analog.clone(),

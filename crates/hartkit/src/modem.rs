@@ -388,6 +388,12 @@ pub struct ChannelOptions {
     pub hum_hz: f64,
     /// Hum level, mV peak to peak.
     pub hum_mvpp: f64,
+    /// A constant 4-20 mA current, mA.
+    pub analog_ma: Option<f64>,
+    /// A 4 ↔ 20 mA sweep at this rate, Hz.
+    pub analog_sweep_hz: Option<f64>,
+    /// Sense resistor of the analog current, Ω.
+    pub loop_ohm: f64,
     /// Volts a full-scale sample stands for.
     pub volts_per_fs: f64,
     /// Noise seed.
@@ -395,8 +401,9 @@ pub struct ChannelOptions {
 }
 
 /// `hartkit modem channel`: raw s16le samples from standard input to standard output
-/// through a simulated line (cable low-pass, hum, noise), block by block, so `modem tx
-/// --out - | modem channel ... | modem rx --raw s16le --rate R -` is a modem link.
+/// through a simulated line (cable low-pass, the 4-20 mA current, hum, noise), block by
+/// block, so `modem tx --out - | modem channel ... | modem rx --raw s16le --rate R -` is
+/// a modem link. Samples beyond full scale are clipped and counted on standard error.
 pub fn channel(o: &ChannelOptions) -> Result<String, String> {
     check_rate(o.rate)?;
     if !(o.volts_per_fs.is_finite() && o.volts_per_fs > 0.0) {
@@ -414,6 +421,30 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
         o.hum_mvpp / 1000.0 / v,
         o.seed,
     );
+    use hart_modem::channel::AnalogProfile;
+    let analog = match (o.analog_ma, o.analog_sweep_hz) {
+        (Some(ma), _) if !(ma.is_finite() && (0.0..=25.0).contains(&ma)) => {
+            return Err(format!("--analog-ma {ma}: give 0 to 25 mA"))
+        }
+        (_, Some(hz)) if !(hz.is_finite() && hz > 0.0 && hz <= 1000.0) => {
+            return Err(format!("--analog-sweep-hz {hz}: give 0 to 1000 Hz"))
+        }
+        (Some(ma), _) => Some(AnalogProfile::Constant(ma)),
+        (None, Some(hz)) => Some(AnalogProfile::Sweep {
+            low_ma: 4.0,
+            high_ma: 20.0,
+            hz,
+        }),
+        (None, None) => None,
+    };
+    if let Some(profile) = analog {
+        if !(o.loop_ohm.is_finite() && o.loop_ohm > 0.0) {
+            return Err(format!("--loop-ohm {}: must be positive", o.loop_ohm));
+        }
+        // In full-scale units, like the rest of the stream.
+        ch = ch.with_analog(profile, o.loop_ohm / v);
+    }
+    let mut clipped = 0u64;
     let mut input = std::io::stdin().lock();
     let mut out = std::io::stdout().lock();
     let mut buf = vec![0u8; 16_384];
@@ -422,6 +453,7 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
     let mut raw: Vec<u8> = Vec::with_capacity(16_384);
     while s16.read(&mut input, &mut buf, &mut samples)? {
         ch.process(&mut samples);
+        clipped += samples.iter().filter(|s| s.abs() >= 1.0).count() as u64;
         raw.clear();
         raw.extend(samples.iter().flat_map(|&s| to_s16(s).to_le_bytes()));
         match out.write_all(&raw) {
@@ -431,6 +463,12 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
         }
     }
     let _ = out.flush();
+    if clipped > 0 {
+        eprintln!(
+            "hartkit: {clipped} sample(s) beyond full scale were clipped: raise --volts-per-fs \
+             (it is {v} V; the analog current alone puts up to 25 mA × --loop-ohm on the line)"
+        );
+    }
     Ok(String::new())
 }
 

@@ -456,3 +456,35 @@ fn a_modem_link_through_pipes() {
     assert!(good(&link("--rc-us 2000")).is_empty());
     assert!(good(&link("--snr-db -10 --seed 3")).len() < 2);
 }
+
+/// The 4-20 mA current in the pipe: 12 mA, and the receiver test's 4 ↔ 20 mA sweep at
+/// 10 Hz, with every stage at 8 V full scale; at 1 V the current is clipped and the
+/// channel says so.
+#[test]
+fn the_analog_current_in_a_modem_pipe() {
+    let bin = env!("CARGO_BIN_EXE_hartkit");
+    let run = |fs: &str, analog: &str| {
+        let script = format!(
+            "{bin} modem tx --volts-per-fs {fs} --out - {} {} \
+             | {bin} modem channel --volts-per-fs {fs} --snr-db 20 {analog} \
+             | {bin} modem rx --raw s16le --rate 48000 --volts-per-fs {fs} --json -",
+            FRAMES[0], FRAMES[1]
+        );
+        let out = Command::new("sh").args(["-c", &script]).output().unwrap();
+        let frames: Vec<String> = json_lines(&String::from_utf8_lossy(&out.stdout))
+            .iter()
+            .filter(|f| f["checksum_ok"] == true)
+            .map(|f| f["hex"].as_str().unwrap().to_string())
+            .collect();
+        (frames, String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    assert_eq!(run("8", "--analog-ma 12").0, FRAMES);
+    assert_eq!(run("8", "--analog-sweep-hz 10").0, FRAMES);
+    let (_, err) = run("1", "--analog-ma 12");
+    assert!(
+        err.contains("clipped") && err.contains("--volts-per-fs"),
+        "{err}"
+    );
+    let (_, err) = run("8", "--analog-ma 40");
+    assert!(err.contains("--analog-ma 40"), "{err}");
+}
