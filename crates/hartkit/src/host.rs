@@ -812,16 +812,19 @@ pub async fn monitor(
             return Ok(());
         }
         let until = end.unwrap_or(now + 1_000_000).min(now + 1_000_000);
-        let bytes = match t.recv(until).await {
+        // With the UART's flags: a modem's parity and framing errors, the analog
+        // loop's demodulators', reach the damaged frames and the capture's comments.
+        let chars = match t.recv_flagged(until).await {
             Ok(b) => b,
             // A recording played back has ended.
             Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
             Err(e) => return Err(fail(HostError::Io(e))),
         };
-        for (b, at) in bytes {
+        for c in chars {
+            let (b, at) = (c.byte, c.at);
             let mut lines: Vec<String> = vec![];
             let mut records: Vec<(Vec<u8>, bool, String)> = vec![];
-            deframer.push(b, hart_proto::deframer::UartFlags::OK, &mut |e| match e {
+            deframer.push(b, c.flags, &mut |e| match e {
                 DeframerEvent::Frame(f) => {
                     let gap = last_end.map(|l| at.saturating_sub(l));
                     lines.push(frame_line(&f, at - start, gap, as_json));
@@ -836,11 +839,7 @@ pub async fn monitor(
                 }
                 DeframerEvent::Damaged(d) => {
                     lines.push(damaged_line(d.pdu, d.errors, at - start, as_json));
-                    records.push((
-                        d.pdu.to_vec(),
-                        false,
-                        format!("damaged frame, errors 0x{:02X}", d.errors),
-                    ));
+                    records.push((d.pdu.to_vec(), false, damage_note(d.errors)));
                 }
                 _ => {}
             });
@@ -853,6 +852,23 @@ pub async fn monitor(
                 }
             }
         }
+    }
+}
+
+/// A damaged frame's link errors in words, for a capture's comment: "damaged frame:
+/// vertical parity error, framing error (errors 0xD0)".
+pub fn damage_note(errors: u8) -> String {
+    let words: Vec<&str> = hart_proto::tables::COMMUNICATION_ERROR
+        .set_bits(errors)
+        .map(|b| b.name)
+        .collect();
+    if words.is_empty() {
+        format!("damaged frame (errors 0x{errors:02X})")
+    } else {
+        format!(
+            "damaged frame: {} (errors 0x{errors:02X})",
+            words.join(", ")
+        )
     }
 }
 
@@ -1001,7 +1017,23 @@ pub fn capture_read(
                 }
                 l
             }
-            _ => damaged_line(&c.bytes, 0, t, as_json),
+            _ => {
+                // hartkit's own captures keep the link errors in the comment.
+                let errors = c
+                    .comment
+                    .as_deref()
+                    .and_then(|m| m.split("(errors 0x").nth(1))
+                    .and_then(|r| u8::from_str_radix(r.get(..2)?, 16).ok())
+                    .unwrap_or(0);
+                let mut l = damaged_line(&c.bytes, errors, t, as_json);
+                if as_json {
+                    if let Ok(mut v) = serde_json::from_str::<Value>(&l) {
+                        v["comment"] = json!(c.comment);
+                        l = v.to_string();
+                    }
+                }
+                l
+            }
         };
         let _ = writeln!(out, "{line}");
     }

@@ -253,3 +253,56 @@ fn the_modem_on_a_recording_writes_a_capture() {
     let _ = std::fs::remove_file(&wav);
     let _ = std::fs::remove_file(&file);
 }
+
+/// The demo plant at the edge of the analog loop's reach (5550 m of 100 pF/m): some
+/// burst frames arrive damaged, and the capture keeps them as raw data with the UART's
+/// errors in words in the packet comment; `capture read` gives the errors back.
+#[test]
+fn link_errors_from_the_analog_loop_reach_the_capture() {
+    let file = temp("edge.pcapng");
+    let (code, listing, err) = hartkit(&[
+        "monitor",
+        "-p",
+        "sim?virtual&medium=analog&cable_m=5550",
+        "--pcap",
+        file.to_str().unwrap(),
+        "--duration",
+        "30",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(listing.contains("BACK"), "{listing}");
+    assert!(listing.contains("damaged frame"), "{listing}");
+    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let damaged: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v.get("damaged").is_some())
+        .collect();
+    assert!(!damaged.is_empty(), "{out}");
+    for d in &damaged {
+        let comment = d["comment"].as_str().unwrap();
+        assert!(
+            comment.starts_with("source sim?virtual&medium=analog"),
+            "{comment}"
+        );
+        assert!(comment.contains("damaged frame: "), "{comment}");
+        assert!(
+            comment.contains("parity")
+                || comment.contains("framing")
+                || comment.contains("check byte"),
+            "{comment}"
+        );
+        assert_ne!(d["errors"], 0, "{d}");
+    }
+    if tshark() {
+        let (rows, bad) = tshark_fields(&file, &["frame.comment", "pkt_comment"]);
+        assert!(bad.is_empty(), "malformed: {bad:?}");
+        assert!(
+            rows.iter()
+                .any(|r| r.contains("vertical parity error") || r.contains("framing error")),
+            "{rows:?}"
+        );
+    }
+    let _ = std::fs::remove_file(&file);
+}
