@@ -14,6 +14,7 @@ pub mod modem;
 pub mod modem_bench;
 pub mod serve;
 pub mod sim;
+pub mod sound;
 
 use hart_proto::frame::{Frame, FrameType};
 use hart_proto::tables::{response_class, ResponseClass};

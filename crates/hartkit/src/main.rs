@@ -319,6 +319,17 @@ enum ModemCmd {
         /// standard output; the listing then goes to standard error).
         #[arg(long, value_name = "FILE")]
         pcap: Option<String>,
+        /// Listen to a sound card's input instead (`default`, or a name from
+        /// --list-sound-cards); needs a hartkit built with the `sound-card` feature.
+        #[arg(long, value_name = "NAME", conflicts_with_all = ["file", "raw"])]
+        sound_card: Option<String>,
+        /// List the sound cards' inputs and stop.
+        #[arg(long)]
+        list_sound_cards: bool,
+        /// Show the carrier, the level and the frames live on one line of standard
+        /// error.
+        #[arg(long)]
+        live: bool,
     },
     /// Measure the demodulator: frame error rate against Eb/N0 and impairments, speed;
     /// writes the report.
@@ -1162,25 +1173,35 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             raw,
             rate,
             pcap,
+            sound_card,
+            list_sound_cards,
+            live,
         } => {
-            let input = match raw.as_deref() {
-                None => modem::RxInput::Wav(
+            if *list_sound_cards {
+                return Ok(hartkit::sound::list()?.join("\n"));
+            }
+            let input = match (raw.as_deref(), sound_card) {
+                (_, Some(name)) => modem::RxInput::SoundCard(name.clone()),
+                (None, None) => modem::RxInput::Wav(
                     file.clone()
                         .ok_or("give a WAV file, or --raw s16le --rate R for raw samples")?,
                 ),
-                Some("s16le") => modem::RxInput::RawS16le {
+                (Some("s16le"), None) => modem::RxInput::RawS16le {
                     path: file.clone().unwrap_or_else(|| "-".into()),
                     rate: rate.ok_or("--raw needs --rate (the sample rate in Hz)")?,
                 },
-                Some(other) => {
+                (Some(other), None) => {
                     return Err(format!("raw format {other:?} is not supported; use s16le"))
                 }
             };
-            let source = format!(
-                "modem rx {}",
-                file.as_deref()
-                    .map_or("-".into(), |p| p.display().to_string())
-            );
+            let source = match sound_card {
+                Some(name) => format!("modem rx --sound-card {name}"),
+                None => format!(
+                    "modem rx {}",
+                    file.as_deref()
+                        .map_or("-".into(), |p| p.display().to_string())
+                ),
+            };
             let mut capture = pcap
                 .as_deref()
                 .map(|p| hartkit::host::Capture::create(p, &source))
@@ -1192,7 +1213,14 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             } else {
                 Box::new(std::io::stdout().lock())
             };
-            let n = modem::rx(&input, *volts_per_fs, *json, &mut out, capture.as_mut())?;
+            let n = modem::rx(
+                &input,
+                *volts_per_fs,
+                *json,
+                &mut out,
+                capture.as_mut(),
+                *live,
+            )?;
             if !*json {
                 eprintln!("{n} frame(s)");
             }

@@ -162,6 +162,108 @@ pub enum RxInput {
         /// Sample rate, Hz.
         rate: u32,
     },
+    /// A sound card's input (`default` or a name as `--list-sound-cards` prints it),
+    /// first channel, at its own rate; needs the `sound-card` feature.
+    SoundCard(String),
+}
+
+/// The live view of `modem rx --live`: one status line on standard error, redrawn at
+/// most ten times a second: carrier, level, frames so far, the last frame.
+#[derive(Debug)]
+pub struct LiveView {
+    carrier: bool,
+    level_vpp: f64,
+    frames: usize,
+    damaged: usize,
+    last: String,
+    last_draw: Option<std::time::Instant>,
+    /// Seconds of signal seen.
+    seconds: f64,
+}
+
+impl Default for LiveView {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl LiveView {
+    /// Nothing seen yet.
+    pub fn new() -> Self {
+        LiveView {
+            carrier: false,
+            level_vpp: 0.0,
+            frames: 0,
+            damaged: 0,
+            last: String::new(),
+            last_draw: None,
+            seconds: 0.0,
+        }
+    }
+
+    /// A frame was decoded.
+    pub fn frame(&mut self, f: &RxFrame<'_>) {
+        self.frames += 1;
+        if !(f.checksum_ok && f.parity_errors == 0 && f.framing_errors == 0) {
+            self.damaged += 1;
+        }
+        let mut hex = hex::compact(f.pdu);
+        if hex.len() > 24 {
+            hex.truncate(24);
+            hex.push('…');
+        }
+        self.last = format!("{hex} at {:.0} mVpp", f.level_vpp * 1000.0);
+    }
+
+    /// The demodulator's state after a block; `seconds` of signal so far.
+    pub fn update(&mut self, carrier: bool, level_vpp: f64, seconds: f64) {
+        self.carrier = carrier;
+        self.level_vpp = level_vpp;
+        self.seconds = seconds;
+    }
+
+    /// The status line: `  12.3 s  carrier ON   482 mVpp [#########-----------]  frames 12 (0 damaged)  last 82A606…`.
+    pub fn render(&self) -> String {
+        // A bar to 1 Vpp, 20 steps of 50 mV; the carrier threshold sits at step 2.
+        let steps = ((self.level_vpp / 0.05).round() as usize).min(20);
+        format!(
+            "{:>8.1} s  carrier {:<3} {:>4.0} mVpp [{}{}]  frames {} ({} damaged){}",
+            self.seconds,
+            if self.carrier { "ON" } else { "off" },
+            self.level_vpp * 1000.0,
+            "#".repeat(steps),
+            "-".repeat(20 - steps),
+            self.frames,
+            self.damaged,
+            if self.last.is_empty() {
+                String::new()
+            } else {
+                format!("  last {}", self.last)
+            }
+        )
+    }
+
+    /// Redraws the line on standard error if a tenth of a second has passed (or
+    /// `force`).
+    pub fn draw(&mut self, force: bool) {
+        let now = std::time::Instant::now();
+        if !force
+            && self
+                .last_draw
+                .is_some_and(|t| now.duration_since(t).as_millis() < 100)
+        {
+            return;
+        }
+        self.last_draw = Some(now);
+        eprint!("\r\x1b[2K{}", self.render());
+    }
+
+    /// Clears the line (before a frame's listing is written to the same terminal).
+    pub fn clear(&self) {
+        if self.last_draw.is_some() {
+            eprint!("\r\x1b[2K");
+        }
+    }
 }
 
 /// One decoded frame as the JSON line `hartkit modem rx --json` prints.
@@ -218,13 +320,18 @@ pub fn frame_text(f: &RxFrame<'_>) -> String {
 
 /// `hartkit modem rx`: decodes every frame and prints each as soon as it is found
 /// (one JSON object per line with `json`). Returns the number of frames.
+///
+/// With `live`, a status line on standard error shows the carrier, the level and the
+/// frames as they come.
 pub fn rx(
     input: &RxInput,
     volts_per_fs: f64,
     as_json: bool,
     out: &mut dyn std::io::Write,
     mut capture: Option<&mut crate::host::Capture>,
+    live: bool,
 ) -> Result<usize, String> {
+    let view = std::cell::RefCell::new(live.then(LiveView::new));
     let mut count = 0usize;
     let error: std::cell::RefCell<Option<std::io::Error>> = std::cell::RefCell::new(None);
     let capture_error: std::cell::RefCell<Option<String>> = std::cell::RefCell::new(None);
@@ -234,6 +341,10 @@ pub fn rx(
     let mut emit = |ev: DemodEvent<'_>| {
         if let DemodEvent::Frame(f) = ev {
             count += 1;
+            if let Some(v) = view.borrow_mut().as_mut() {
+                v.frame(&f);
+                v.clear();
+            }
             if let Some(c) = capture.as_deref_mut() {
                 let valid = f.checksum_ok && f.parity_errors == 0 && f.framing_errors == 0;
                 let note = format!(
@@ -260,14 +371,26 @@ pub fn rx(
             if let Err(e) = out.write_all(text.as_bytes()) {
                 error.borrow_mut().get_or_insert(e);
             }
+            let _ = out.flush();
+        }
+    };
+    // After each block: the live view, if any.
+    let tick = |d: &Demodulator, samples_seen: u64| {
+        if let Some(v) = view.borrow_mut().as_mut() {
+            let fs = f64::from(d.config().sample_rate);
+            v.update(d.carrier(), d.level_vpp(), samples_seen as f64 / fs);
+            v.draw(false);
         }
     };
     match input {
         RxInput::Wav(path) => {
             let mut d = None;
+            let mut seen = 0u64;
             read_wav_blocks(path, |rate, samples| {
                 let d = d.get_or_insert_with(|| Demodulator::new(config(rate, volts_per_fs)));
                 d.push(samples, &mut emit);
+                seen += samples.len() as u64;
+                tick(d, seen);
                 error.borrow().is_none()
             })?;
             if let Some(mut d) = d {
@@ -288,14 +411,48 @@ pub fn rx(
             let mut buf = vec![0u8; 8192];
             let mut s16 = S16Decoder::default();
             let mut samples = Vec::with_capacity(4096);
+            let mut seen = 0u64;
             while s16.read(&mut reader, &mut buf, &mut samples)? {
                 d.push(&samples, &mut emit);
+                seen += samples.len() as u64;
+                tick(&d, seen);
                 if error.borrow().is_some() {
                     break;
                 }
             }
             d.finish(&mut emit);
         }
+        RxInput::SoundCard(name) => {
+            let card = crate::sound::SoundCard::open(name)?;
+            eprintln!(
+                "listening to {} at {} samples/s (Ctrl-C to stop)",
+                card.name(),
+                card.rate()
+            );
+            check_rate(card.rate())?;
+            let mut d = Demodulator::new(config(card.rate(), volts_per_fs));
+            let mut seen = 0u64;
+            let mut reported = 0;
+            while let Some(samples) = card.next_block()? {
+                d.push(&samples, &mut emit);
+                seen += samples.len() as u64;
+                tick(&d, seen);
+                if error.borrow().is_some() {
+                    break;
+                }
+                if card.dropped() > reported {
+                    reported = card.dropped();
+                    eprintln!(
+                        "\nhartkit: {reported} block(s) of samples lost so far: the decoder fell behind the card (a busy machine?); frames across a gap are lost"
+                    );
+                }
+            }
+            d.finish(&mut emit);
+        }
+    }
+    if let Some(v) = view.borrow_mut().as_mut() {
+        v.draw(true);
+        eprintln!();
     }
     if let Some(e) = capture_error.into_inner() {
         return Err(e);
@@ -315,7 +472,7 @@ fn recording_start_us(input: &RxInput) -> u64 {
     let path = match input {
         RxInput::Wav(p) => Some(p),
         RxInput::RawS16le { path, .. } if path.as_os_str() != "-" => Some(path),
-        RxInput::RawS16le { .. } => None,
+        RxInput::RawS16le { .. } | RxInput::SoundCard(_) => None,
     };
     path.and_then(|p| std::fs::metadata(p).ok())
         .and_then(|m| m.modified().ok())

@@ -488,3 +488,26 @@ fn the_analog_current_in_a_modem_pipe() {
     let (_, err) = run("8", "--analog-ma 40");
     assert!(err.contains("--analog-ma 40"), "{err}");
 }
+
+/// `modem rx --live`: the status line on standard error (carrier, level, frames), the
+/// frames on standard output as usual; and without the sound-card feature,
+/// `--sound-card` says how to get it.
+#[test]
+fn the_live_view_and_the_sound_card_option() {
+    let bin = env!("CARGO_BIN_EXE_hartkit");
+    let script = format!(
+        "{bin} modem tx --out - {} {} | {bin} modem rx --raw s16le --rate 48000 --live --json -",
+        FRAMES[0], FRAMES[1]
+    );
+    let out = Command::new("sh").args(["-c", &script]).output().unwrap();
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("frames 2 (0 damaged)"), "{err}");
+    assert!(err.contains("mVpp [") && err.contains("carrier"), "{err}");
+    assert!(err.contains("last 82A606BC614E0100B0 at"), "{err}");
+    assert_eq!(json_lines(&String::from_utf8_lossy(&out.stdout)).len(), 2);
+    if !cfg!(feature = "sound-card") {
+        let (ok, _, err) = hartkit(&["modem", "rx", "--sound-card", "default"]);
+        assert!(!ok && err.contains("--features sound-card") && err.contains("arecord"), "{err}");
+    }
+}
