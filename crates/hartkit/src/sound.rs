@@ -153,9 +153,11 @@ mod imp {
                     on_error,
                     None,
                 ),
-                other => return Err(format!(
+                other => {
+                    return Err(format!(
                     "sound card {name}: sample format {other} is not supported (f32, i16, i32 are)"
-                )),
+                ))
+                }
             }
             .map_err(|e| format!("sound card {name}: {e}"))?;
             stream

@@ -306,3 +306,72 @@ fn link_errors_from_the_analog_loop_reach_the_capture() {
     }
     let _ = std::fs::remove_file(&file);
 }
+
+/// A full disk while capturing (`/dev/full` refuses every write): the monitor and the
+/// modem stop with an error that names the file and the problem, never a panic.
+#[test]
+fn a_full_disk_while_capturing() {
+    if !std::path::Path::new("/dev/full").exists() {
+        eprintln!("no /dev/full here; skipping");
+        return;
+    }
+    let (code, _, err) = hartkit(&[
+        "monitor",
+        "-p",
+        "sim?virtual",
+        "--pcap",
+        "/dev/full",
+        "--duration",
+        "10",
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("--pcap /dev/full") && err.contains("No space left"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    let wav = temp("full.wav");
+    let (code, _, err) = hartkit(&["modem", "tx", "--out", wav.to_str().unwrap(), "0280000082"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = hartkit(&["modem", "rx", wav.to_str().unwrap(), "--pcap", "/dev/full"]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("--pcap /dev/full") && err.contains("No space left"),
+        "{err}"
+    );
+    let (code, _, err) = hartkit(&["modem", "tx", "--out", "/dev/full", "0280000082"]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("/dev/full") && err.contains("No space left"),
+        "{err}"
+    );
+    let _ = std::fs::remove_file(&wav);
+}
+
+/// `kill -9` in the middle of a live capture: every frame written before is in the file
+/// whole (each is one pcapng block, flushed as it is written), so it reads back and
+/// tshark finds nothing malformed.
+#[test]
+fn a_capture_killed_mid_run_keeps_its_frames() {
+    let file = temp("killed.pcapng");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["monitor", "-p", "sim", "--pcap", file.to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // The demo plant's temperature transmitter bursts every 2 s.
+    std::thread::sleep(std::time::Duration::from_millis(5_500));
+    child.kill().unwrap(); // SIGKILL
+    let _ = child.wait();
+    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let frames = out.lines().count();
+    assert!(frames >= 2, "{out}");
+    if tshark() {
+        let (rows, bad) = tshark_fields(&file, &["hart_ip.pt.command"]);
+        assert!(bad.is_empty(), "malformed: {bad:?}");
+        assert_eq!(rows.len(), frames, "{rows:?}");
+    }
+    let _ = std::fs::remove_file(&file);
+}

@@ -508,6 +508,9 @@ fn the_live_view_and_the_sound_card_option() {
     assert_eq!(json_lines(&String::from_utf8_lossy(&out.stdout)).len(), 2);
     if !cfg!(feature = "sound-card") {
         let (ok, _, err) = hartkit(&["modem", "rx", "--sound-card", "default"]);
-        assert!(!ok && err.contains("--features sound-card") && err.contains("arecord"), "{err}");
+        assert!(
+            !ok && err.contains("--features sound-card") && err.contains("arecord"),
+            "{err}"
+        );
     }
 }
