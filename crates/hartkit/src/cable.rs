@@ -94,7 +94,7 @@ pub fn run(o: &CableOptions) -> Result<String, String> {
     } else {
         let pf = o
             .pf_per_m
-            .ok_or("give --capacitance-pf-per-m, or --table for the whole table")?;
+            .ok_or("give --capacitance-pf-per-m for one network, or --table for the whole table")?;
         if !pf.is_finite() || pf <= 0.0 {
             return Err("--capacitance-pf-per-m must be positive and --devices 1 to 63".into());
         }

@@ -368,14 +368,15 @@ enum LoopCmd {
 
 #[derive(Args)]
 struct CableArgs {
-    /// Cable capacitance, pF per metre.
-    #[arg(long, required_unless_present = "table", allow_hyphen_values = true)]
+    /// Cable capacitance, pF per metre (without it: the whole classic table).
+    #[arg(long, allow_hyphen_values = true)]
     capacitance_pf_per_m: Option<f64>,
     /// Devices on the loop.
     #[arg(long, default_value_t = 1)]
     devices: u32,
     /// The whole classic table: 65, 95, 160 and 225 pF/m against 1, 5, 10 and 15
-    /// devices, with the published figures.
+    /// devices, with the published figures (the default without
+    /// --capacitance-pf-per-m).
     #[arg(long, conflicts_with = "capacitance_pf_per_m")]
     table: bool,
     /// Also find the longest cable from the signal: the primary master polls every
@@ -1242,7 +1243,7 @@ fn loop_cmd(cmd: &LoopCmd) -> Result<String, String> {
         LoopCmd::Cable(a) => hartkit::cable::run(&hartkit::cable::CableOptions {
             pf_per_m: a.capacitance_pf_per_m,
             devices: a.devices,
-            table: a.table,
+            table: a.table || a.capacitance_pf_per_m.is_none(),
             simulate: a.simulate,
             transactions: a.transactions,
             resolution_m: a.resolution_m,
