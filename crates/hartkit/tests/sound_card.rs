@@ -9,6 +9,16 @@ use std::process::{Command, Stdio};
 
 const FRAMES: [&str; 2] = ["0280000082", "82A606BC614E0100B0"];
 
+/// A child process killed and reaped when dropped.
+struct Killed(std::process::Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 #[test]
 fn frames_from_the_default_sound_card_input() {
     let bin = env!("CARGO_BIN_EXE_hartkit");
@@ -31,22 +41,25 @@ fn frames_from_the_default_sound_card_input() {
         ),
     )
     .unwrap();
-    let mut child = Command::new(bin)
-        .args(["modem", "rx", "--sound-card", "default", "--json"])
-        .env("XDG_CONFIG_HOME", &dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let stdout = child.stdout.take().unwrap();
+    // The null device never ends: the guard kills the decoder whatever happens here,
+    // a failed assertion included.
+    let mut child = Killed(
+        Command::new(bin)
+            .args(["modem", "rx", "--sound-card", "default", "--json"])
+            .env("XDG_CONFIG_HOME", &dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let stdout = child.0.stdout.take().unwrap();
     let mut got = vec![];
     for line in BufReader::new(stdout).lines().take(6) {
         let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
         got.push(v["hex"].as_str().unwrap().to_string());
         assert_eq!(v["checksum_ok"], true, "{v}");
     }
-    let _ = child.kill();
-    let _ = child.wait();
+    drop(child);
     let _ = std::fs::remove_dir_all(&dir);
     // The card's own rate may differ from the recording's (ALSA's plug converts).
     assert_eq!(got, [FRAMES[0], FRAMES[1]].repeat(3));
