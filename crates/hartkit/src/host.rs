@@ -476,15 +476,15 @@ fn check_rc(r: &Reply) -> String {
     }
 }
 
-/// `hartkit write`.
-pub async fn write(
+/// What `hartkit write WHAT ARGS...` sends to device `d`: the command, its data, and the
+/// command that reads the value back. Reads what it needs first (command 13 for a tag
+/// alone, 15 for the range units). Used by the CLI and the Python package.
+pub async fn write_request(
     c: &mut Client<AnyTransport>,
-    target: &DeviceRef,
+    d: &hart_host::DeviceInfo,
     what: &str,
     args: &[String],
-    as_json: bool,
-) -> Result<String, Failure> {
-    let d = c.resolve(target).await.map_err(fail)?;
+) -> Result<(u16, Vec<u8>, u16), Failure> {
     let need = |n: usize| -> Result<(), Failure> {
         if args.len() < n {
             Err(usage(format!("write {what}: needs {n} value(s)")))
@@ -513,7 +513,7 @@ pub async fn write(
         "tag" | "descriptor" | "date" => {
             need(1)?;
             // Read the current tag/descriptor/date so one of them can change alone.
-            let mut t: cmd::TagDescriptorDate = decode(&c.command(&d, 13, &[]).await.map_err(fail)?, "command 13")?;
+            let mut t: cmd::TagDescriptorDate = decode(&c.command(d, 13, &[]).await.map_err(fail)?, "command 13")?;
             match what {
                 "tag" => t.tag = PackedString::new(&args[0]).map_err(|e| usage(format!("tag: {e}")))?,
                 "descriptor" => t.descriptor = PackedString::new(&args[0]).map_err(|e| usage(format!("descriptor: {e}")))?,
@@ -546,7 +546,7 @@ pub async fn write(
             let (urv, lrv) = (num(&args[0])?, num(&args[1])?);
             let units_code = match args.get(2) {
                 Some(u) => int(u)?,
-                None => decode::<cmd::DeviceInformation>(&c.command(&d, 15, &[]).await.map_err(fail)?, "command 15")?.range_units.0,
+                None => decode::<cmd::DeviceInformation>(&c.command(d, 15, &[]).await.map_err(fail)?, "command 15")?.range_units.0,
             };
             let r = cmd::RangeValues { range_units: hart_proto::types::UnitCode(units_code), upper_range_value: urv, lower_range_value: lrv };
             (35, enc(&|w| r.encode(w))?, 15)
@@ -579,6 +579,19 @@ pub async fn write(
         }
         other => return Err(usage(format!("write {other}: expected tag, long-tag, descriptor, message, date, range, units, damping, polling-address, fixed-current or preambles"))),
     };
+    Ok((command, data, confirm))
+}
+
+/// `hartkit write`.
+pub async fn write(
+    c: &mut Client<AnyTransport>,
+    target: &DeviceRef,
+    what: &str,
+    args: &[String],
+    as_json: bool,
+) -> Result<String, Failure> {
+    let d = c.resolve(target).await.map_err(fail)?;
+    let (command, data, confirm) = write_request(c, &d, what, args).await?;
     let r = c.command(&d, command, &data).await.map_err(fail)?;
     let warn = check_rc(&r);
     // Confirm by reading back.

@@ -2,7 +2,7 @@
 //! `docs/frame-json.md`.
 
 use hart_proto::frame::{Address, Frame};
-use hart_proto::wire::{Field, Value, Visitor};
+use hart_proto::wire::{Field, Meaning, Value, Visitor};
 use serde_json::{json, Map, Value as Json};
 
 use crate::hex;
@@ -82,6 +82,8 @@ pub struct JsonVisitor {
     /// Open containers: the root object, lists, list items.
     stack: Vec<Open>,
     root: Map<String, Json>,
+    /// Add the meaning of codes next to them (see [`JsonVisitor::with_words`]).
+    words: bool,
 }
 
 enum Open {
@@ -102,6 +104,18 @@ pub fn value(v: &Value<'_>) -> Json {
 }
 
 impl JsonVisitor {
+    /// A visitor that also puts each code's meaning beside it: `<name>_symbol` and
+    /// `<name>_name` for a unit code (`"kPa"`, `"kilopascals"`), `<name>_name` for a
+    /// code of another table, `<name>_set` (the names of the bits set) for a bit field.
+    /// The CLI's `--json` view does not use it (its fields are a contract); the Python
+    /// package does.
+    pub fn with_words() -> Self {
+        JsonVisitor {
+            words: true,
+            ..Self::default()
+        }
+    }
+
     /// The finished object.
     pub fn finish(self) -> Json {
         Json::Object(self.root)
@@ -118,7 +132,34 @@ impl JsonVisitor {
 impl Visitor for JsonVisitor {
     fn field(&mut self, f: Field<'_>) {
         let v = value(&f.value);
-        self.current().insert(f.name.to_string(), v);
+        let words = self.words;
+        let m = self.current();
+        m.insert(f.name.to_string(), v);
+        if !words {
+            return;
+        }
+        let Value::Uint(code) = f.value else {
+            return;
+        };
+        let code = code as u8;
+        match f.meaning {
+            Meaning::Unit => {
+                if let Some(u) = hart_proto::tables::unit(code) {
+                    m.insert(format!("{}_symbol", f.name), json!(u.symbol));
+                    m.insert(format!("{}_name", f.name), json!(u.name));
+                }
+            }
+            Meaning::Code(t) => {
+                if let Some(n) = t.name(code) {
+                    m.insert(format!("{}_name", f.name), json!(n));
+                }
+            }
+            Meaning::Bits(t) => {
+                let set: Vec<&str> = t.set_bits(code).map(|b| b.name).collect();
+                m.insert(format!("{}_set", f.name), json!(set));
+            }
+            _ => {}
+        }
     }
     fn begin_list(&mut self, name: &'static str) {
         self.stack.push(Open::List(name, Vec::new()));

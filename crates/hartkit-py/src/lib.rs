@@ -1,0 +1,460 @@
+//! `hartkit._native`: the Rust half of the `hartkit` Python package.
+//!
+//! * [`Frame`]: parse, build and decode frames with hart-proto, the decoded data as
+//!   Python dicts with units and codes in words.
+//! * [`NativeLoop`]: a HART master on any target the CLI takes (serial modem, RS-485,
+//!   HART-IP, a simulated plant), run by `hart-host` on its own thread; each operation
+//!   comes back both as an awaitable (asyncio) and as a blocking call that releases the
+//!   GIL. The Python modules `hartkit` and `hartkit.sync` wrap it.
+//! * `sim_bench`: the network simulation, with the same figures as `hartkit sim bench
+//!   --json`.
+//!
+//! Errors are exceptions under `hartkit.HartError` carrying the CLI's explanations.
+
+use pyo3::create_exception;
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+
+mod host;
+
+create_exception!(
+    _native,
+    HartError,
+    PyException,
+    "Every error hartkit raises: what happened and what to check."
+);
+create_exception!(
+    _native,
+    FrameError,
+    HartError,
+    "Bytes that are not a HART frame, or data a command's layout cannot hold."
+);
+create_exception!(
+    _native,
+    DeviceError,
+    HartError,
+    "The device answered with an error response code (`response_code`, `command`)."
+);
+create_exception!(
+    _native,
+    NoReplyError,
+    HartError,
+    "No reply, or only damaged ones, after every retry."
+);
+create_exception!(
+    _native,
+    TargetError,
+    HartError,
+    "The target cannot be opened, or the connection is closed."
+);
+
+/// JSON (as hartkit builds it) to Python objects.
+pub(crate) fn to_py(py: Python<'_>, v: &serde_json::Value) -> PyResult<Py<PyAny>> {
+    pythonize::pythonize(py, v)
+        .map(Bound::unbind)
+        .map_err(|e| HartError::new_err(e.to_string()))
+}
+
+/// A HART frame: parsed from bytes, or built.
+#[pyclass(module = "hartkit._native", frozen, eq)]
+#[derive(PartialEq)]
+pub struct Frame {
+    /// Preambles through check byte (and anything after it).
+    bytes: Vec<u8>,
+    preambles: usize,
+}
+
+impl Frame {
+    fn parsed(&self) -> hart_proto::Frame<'_> {
+        // Checked when the object was made.
+        hart_proto::Frame::parse(&self.bytes).expect("a Frame holds a frame")
+    }
+
+    fn make(bytes: Vec<u8>) -> PyResult<Self> {
+        let preambles = hart_proto::Frame::parse(&bytes)
+            .map_err(|e| FrameError::new_err(e.to_string()))?
+            .preambles;
+        Ok(Frame { bytes, preambles })
+    }
+
+    fn build(spec: &hart_proto::FrameSpec<'_>) -> PyResult<Self> {
+        let mut buf = vec![0u8; spec.encoded_len()];
+        let n = spec
+            .encode(&mut buf)
+            .map_err(|e| FrameError::new_err(e.to_string()))?;
+        buf.truncate(n);
+        Frame::make(buf)
+    }
+}
+
+/// `address`: a polling address (0-63) for a short frame, or a unique ID (10 hex
+/// digits) for a long one.
+fn address(a: &Bound<'_, PyAny>, secondary: bool, burst: bool) -> PyResult<hart_proto::Address> {
+    let base =
+        if let Ok(poll) = a.extract::<u8>() {
+            if poll > 63 {
+                return Err(PyValueError::new_err(format!(
+                    "polling address {poll}: give 0-63, or a unique ID as 10 hex digits"
+                )));
+            }
+            hart_proto::Address::short(poll)
+        } else if let Ok(s) = a.extract::<String>() {
+            hart_proto::Address::long(hart_proto::UniqueId::parse_hex(&s).map_err(|e| {
+                PyValueError::new_err(format!("unique ID {s:?}: {e} (10 hex digits)"))
+            })?)
+        } else {
+            return Err(PyValueError::new_err(
+                "address: a polling address (int 0-63) or a unique ID (str, 10 hex digits)",
+            ));
+        };
+    let master = if secondary {
+        hart_proto::MasterKind::Secondary
+    } else {
+        hart_proto::MasterKind::Primary
+    };
+    let mut a = base.with_master(master);
+    if burst {
+        match &mut a {
+            hart_proto::Address::Short(s) => s.burst = true,
+            hart_proto::Address::Long(l) => l.burst = true,
+        }
+    }
+    Ok(a)
+}
+
+#[pymethods]
+impl Frame {
+    /// Parses a frame (preambles optional) from `data`. Raises `FrameError` with what
+    /// is wrong and where.
+    #[staticmethod]
+    fn parse(data: &[u8]) -> PyResult<Self> {
+        Frame::make(data.to_vec())
+    }
+
+    /// A request (STX) to `address` (polling address or unique ID).
+    #[staticmethod]
+    #[pyo3(signature = (address, command, data = b"".as_slice(), *, preambles = 5, secondary = false))]
+    fn request(
+        address: &Bound<'_, PyAny>,
+        command: u16,
+        data: &[u8],
+        preambles: usize,
+        secondary: bool,
+    ) -> PyResult<Self> {
+        let a = self::address(address, secondary, false)?;
+        let mut spec = hart_proto::FrameSpec::request(a, command, data);
+        spec.preambles = preambles;
+        Frame::build(&spec)
+    }
+
+    /// A reply (ACK), or with `burst` a burst frame (BACK), from `address`.
+    #[staticmethod]
+    #[pyo3(signature = (address, command, data = b"".as_slice(), *, response_code = 0, device_status = 0, preambles = 5, secondary = false, burst = false))]
+    #[allow(clippy::too_many_arguments)]
+    fn reply(
+        address: &Bound<'_, PyAny>,
+        command: u16,
+        data: &[u8],
+        response_code: u8,
+        device_status: u8,
+        preambles: usize,
+        secondary: bool,
+        burst: bool,
+    ) -> PyResult<Self> {
+        let a = self::address(address, secondary, burst)?;
+        let mut spec = hart_proto::FrameSpec::reply(a, command, response_code, device_status, data);
+        spec.preambles = preambles;
+        if burst {
+            spec.frame_type = hart_proto::FrameType::Back;
+        }
+        Frame::build(&spec)
+    }
+
+    /// The frame as sent on the wire, preambles included.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.bytes)
+    }
+
+    /// Delimiter through check byte.
+    #[getter]
+    fn pdu<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, self.parsed().pdu)
+    }
+
+    /// Preamble bytes before the delimiter.
+    #[getter]
+    fn preambles(&self) -> usize {
+        self.preambles
+    }
+
+    /// "STX" (request), "ACK" (reply) or "BACK" (burst).
+    #[getter]
+    fn frame_type(&self) -> &'static str {
+        self.parsed().frame_type().name()
+    }
+
+    /// Command number (the expanded one for command 31).
+    #[getter]
+    fn command(&self) -> u16 {
+        self.parsed().command
+    }
+
+    /// Polling address of a short frame, else None.
+    #[getter]
+    fn polling_address(&self) -> Option<u8> {
+        match self.parsed().address {
+            hart_proto::Address::Short(s) => Some(s.polling_address),
+            hart_proto::Address::Long(_) => None,
+        }
+    }
+
+    /// Unique ID (10 hex digits) of a long frame, else None.
+    #[getter]
+    fn unique_id(&self) -> Option<String> {
+        match self.parsed().address {
+            hart_proto::Address::Long(l) => Some(l.id.to_string()),
+            hart_proto::Address::Short(_) => None,
+        }
+    }
+
+    /// "primary" or "secondary": the master that sent the request or is answered.
+    #[getter]
+    fn master(&self) -> &'static str {
+        self.parsed().address.master().name()
+    }
+
+    /// Response code of a reply, else None.
+    #[getter]
+    fn response_code(&self) -> Option<u8> {
+        self.parsed().response_code
+    }
+
+    /// Field device status of a reply, else None.
+    #[getter]
+    fn device_status(&self) -> Option<u8> {
+        self.parsed().device_status
+    }
+
+    /// Data bytes (after the status bytes and any expanded command number).
+    #[getter]
+    fn data<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, self.parsed().data)
+    }
+
+    /// True when the check byte is right.
+    #[getter]
+    fn checksum_ok(&self) -> bool {
+        self.parsed().checksum_ok()
+    }
+
+    /// The data decoded field by field (units, codes and status bits also in words),
+    /// or None for a command hartkit does not type. Raises `FrameError` when the data
+    /// does not fit the command's layout.
+    #[getter]
+    fn decoded(&self, py: Python<'_>) -> PyResult<Option<Py<PyAny>>> {
+        match hartkit::decode_body(&self.parsed()) {
+            None => Ok(None),
+            Some(Err(e)) => Err(FrameError::new_err(format!(
+                "command {} data: {e}",
+                self.command()
+            ))),
+            Some(Ok(d)) => {
+                let mut v = hartkit::json::JsonVisitor::with_words();
+                d.describe(&mut v);
+                to_py(py, &v.finish()).map(Some)
+            }
+        }
+    }
+
+    /// The whole frame as a dict: the fields `hartkit frame decode --json` prints
+    /// (docs/frame-json.md), with `decoded` in words.
+    fn to_dict(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        let f = self.parsed();
+        let mut j = hartkit::json::frame(&f);
+        if let Some(Ok(d)) = hartkit::decode_body(&f) {
+            let mut v = hartkit::json::JsonVisitor::with_words();
+            d.describe(&mut v);
+            j["decoded"] = v.finish();
+        }
+        to_py(py, &j)
+    }
+
+    /// The annotated view of `hartkit frame decode`: every byte explained.
+    fn explain(&self) -> String {
+        hartkit::annotate::frame(&self.parsed())
+    }
+
+    fn __bytes__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        self.to_bytes(py)
+    }
+
+    fn __repr__(&self) -> String {
+        let f = self.parsed();
+        let addr = match f.address {
+            hart_proto::Address::Short(s) => format!("poll {}", s.polling_address),
+            hart_proto::Address::Long(l) => format!("unique ID {}", l.id),
+        };
+        format!(
+            "<Frame {} command {} {} {}>",
+            f.frame_type().name(),
+            f.command,
+            addr,
+            hartkit::hex::compact(f.pdu)
+        )
+    }
+}
+
+/// Decodes the data of a reply to `command` (after the status bytes) into a dict;
+/// None for a command hartkit does not type.
+#[pyfunction]
+fn decode_reply(py: Python<'_>, command: u16, data: &[u8]) -> PyResult<Option<Py<PyAny>>> {
+    decode(
+        py,
+        command,
+        hart_proto::command::decode_response(command, data)
+            .map(|r| r.map(hartkit::Decoded::Response)),
+    )
+}
+
+/// Decodes the data of a request for `command` into a dict; None for a command hartkit
+/// does not type.
+#[pyfunction]
+fn decode_request(py: Python<'_>, command: u16, data: &[u8]) -> PyResult<Option<Py<PyAny>>> {
+    decode(
+        py,
+        command,
+        hart_proto::command::decode_request(command, data)
+            .map(|r| r.map(hartkit::Decoded::Request)),
+    )
+}
+
+fn decode(
+    py: Python<'_>,
+    command: u16,
+    d: Option<Result<hartkit::Decoded, hart_proto::wire::DecodeError>>,
+) -> PyResult<Option<Py<PyAny>>> {
+    match d {
+        None => Ok(None),
+        Some(Err(e)) => Err(FrameError::new_err(format!("command {command} data: {e}"))),
+        Some(Ok(d)) => {
+            let mut v = hartkit::json::JsonVisitor::with_words();
+            d.describe(&mut v);
+            to_py(py, &v.finish()).map(Some)
+        }
+    }
+}
+
+/// Every command hartkit types: (number, name, title, kind, writes).
+#[pyfunction]
+fn command_table() -> Vec<(u16, &'static str, &'static str, &'static str, bool)> {
+    hart_proto::command::COMMANDS
+        .iter()
+        .map(|c| {
+            let kind = match c.kind {
+                hart_proto::command::CommandKind::Universal => "universal",
+                hart_proto::command::CommandKind::CommonPractice => "common-practice",
+                hart_proto::command::CommandKind::Burst => "burst",
+            };
+            (c.number, c.name, c.title, kind, c.writes)
+        })
+        .collect()
+}
+
+/// An engineering unit code (Common Table 2): (symbol, name), or None when unknown.
+#[pyfunction]
+fn unit(code: u8) -> Option<(&'static str, &'static str)> {
+    hart_proto::tables::unit(code).map(|u| (u.symbol, u.name))
+}
+
+/// The meaning of a response code for `command` ("Success", "Invalid selection", ...).
+#[pyfunction]
+#[pyo3(signature = (code, command = 0))]
+fn response_code_name(code: u8, command: u16) -> Option<&'static str> {
+    hart_proto::tables::response_code_name(command, code)
+}
+
+/// Runs the network simulation (`hartkit sim bench`): returns the dict `--json` prints.
+#[pyfunction]
+#[pyo3(signature = (*, devices = 15, duration = 60.0, secondary = false, burst = false, burst_period = 1.0, command = 3, ber = 0.0, seed = 1, analog = false, cable_m = 0.0))]
+#[allow(clippy::too_many_arguments)]
+fn sim_bench(
+    py: Python<'_>,
+    devices: u8,
+    duration: f64,
+    secondary: bool,
+    burst: bool,
+    burst_period: f64,
+    command: u16,
+    ber: f64,
+    seed: u64,
+    analog: bool,
+    cable_m: f64,
+) -> PyResult<Py<PyAny>> {
+    if !(1..=63).contains(&devices) {
+        return Err(PyValueError::new_err("devices: 1 to 63"));
+    }
+    if !(duration > 0.0 && duration <= 86_400.0) {
+        return Err(PyValueError::new_err(
+            "duration: more than 0, at most 86400 s",
+        ));
+    }
+    if !(0.0..=0.5).contains(&ber) {
+        return Err(PyValueError::new_err("ber: 0 to 0.5"));
+    }
+    if !(0.0..=100_000.0).contains(&cable_m) {
+        return Err(PyValueError::new_err("cable_m: 0 to 100000"));
+    }
+    let cfg = hart_sim::SimConfig {
+        devices,
+        secondary,
+        burst_period: burst.then_some((burst_period.clamp(0.05, 3600.0) * 1e6) as u64),
+        command,
+        duration: (duration * 1e6) as u64,
+        ber,
+        seed,
+        medium: if analog {
+            hart_sim::Medium::Analog {
+                model: hart_sim::LoopModel {
+                    cable_length_m: cable_m,
+                    ..hart_sim::LoopModel::default()
+                },
+                options: hart_sim::LineOptions {
+                    seed,
+                    ..hart_sim::LineOptions::default()
+                },
+            }
+        } else {
+            hart_sim::Medium::Digital
+        },
+        ..hart_sim::SimConfig::default()
+    };
+    let (report, wall) = py.detach(|| {
+        let t = std::time::Instant::now();
+        let r = hart_sim::run(&cfg);
+        (r, t.elapsed().as_secs_f64())
+    });
+    to_py(py, &hartkit::sim::report_json(&cfg, &report, wall))
+}
+
+/// The `hartkit._native` module.
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add_class::<Frame>()?;
+    m.add_class::<host::NativeLoop>()?;
+    m.add_function(wrap_pyfunction!(decode_reply, m)?)?;
+    m.add_function(wrap_pyfunction!(decode_request, m)?)?;
+    m.add_function(wrap_pyfunction!(command_table, m)?)?;
+    m.add_function(wrap_pyfunction!(unit, m)?)?;
+    m.add_function(wrap_pyfunction!(response_code_name, m)?)?;
+    m.add_function(wrap_pyfunction!(sim_bench, m)?)?;
+    m.add_function(wrap_pyfunction!(host::open_loop, m)?)?;
+    m.add("HartError", py.get_type::<HartError>())?;
+    m.add("FrameError", py.get_type::<FrameError>())?;
+    m.add("DeviceError", py.get_type::<DeviceError>())?;
+    m.add("NoReplyError", py.get_type::<NoReplyError>())?;
+    m.add("TargetError", py.get_type::<TargetError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
