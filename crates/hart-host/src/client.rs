@@ -164,6 +164,11 @@ pub struct Client<T: Transport> {
     carrier_since: Option<Micros>,
     /// When the last character arrived.
     last_rx: Micros,
+    /// Over HART-IP: cuts what arrives into frames, so that published burst frames go
+    /// to the burst queue and never into the master's view of a line (there is none:
+    /// a burst message may arrive while a request waits for its reply, which on a
+    /// real loop cannot happen and would make the master start over).
+    ip_frames: Option<hart_proto::deframer::Deframer>,
 }
 
 /// A sub-device as command 84 (read sub-device identity summary) describes it: index
@@ -213,6 +218,7 @@ impl<T: Transport> Client<T> {
     pub fn with_role(transport: T, kind: MasterKind) -> Self {
         let policy = RetryPolicy::default();
         let master = Master::new(kind, transport.profile(), policy, transport.now());
+        let over_ip = transport.profile() == hart_link::TimingProfile::hart_ip();
         Client {
             transport,
             master,
@@ -224,6 +230,7 @@ impl<T: Transport> Client<T> {
             known: vec![],
             carrier_since: None,
             last_rx: 0,
+            ip_frames: over_ip.then(hart_proto::deframer::Deframer::default),
         }
     }
 
@@ -289,8 +296,30 @@ impl<T: Transport> Client<T> {
         if let Some(last) = chars.last() {
             let raw: Vec<u8> = chars.iter().map(|c| c.byte).collect();
             self.log(Direction::Rx, &raw, last.at);
-            for c in chars {
-                self.master.receive(c.byte, c.flags, c.at);
+            if let Some(d) = self.ip_frames.as_mut() {
+                let mut frames: Vec<(bool, Vec<u8>)> = vec![];
+                d.feed(&raw, |e| {
+                    if let hart_proto::deframer::DeframerEvent::Frame(f) = e {
+                        frames.push((
+                            f.frame_type() == hart_proto::frame::FrameType::Back,
+                            f.pdu.to_vec(),
+                        ));
+                    }
+                });
+                for (burst, pdu) in frames {
+                    if burst {
+                        self.bursts.push_back(pdu);
+                    } else {
+                        for &b in [0xFF, 0xFF].iter().chain(&pdu) {
+                            self.master
+                                .receive(b, hart_proto::deframer::UartFlags::OK, last.at);
+                        }
+                    }
+                }
+            } else {
+                for c in chars {
+                    self.master.receive(c.byte, c.flags, c.at);
+                }
             }
             self.last_rx = last.at;
         }

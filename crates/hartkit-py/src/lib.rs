@@ -17,6 +17,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyBytes;
 
 mod host;
+mod pyvisit;
 
 create_exception!(
     _native,
@@ -260,9 +261,9 @@ impl Frame {
                 self.command()
             ))),
             Some(Ok(d)) => {
-                let mut v = hartkit::json::JsonVisitor::with_words();
+                let mut v = pyvisit::PyVisitor::new(py);
                 d.describe(&mut v);
-                to_py(py, &v.finish()).map(Some)
+                v.finish().map(|d| Some(d.into_any().unbind()))
             }
         }
     }
@@ -338,10 +339,61 @@ fn decode(
         None => Ok(None),
         Some(Err(e)) => Err(FrameError::new_err(format!("command {command} data: {e}"))),
         Some(Ok(d)) => {
-            let mut v = hartkit::json::JsonVisitor::with_words();
+            let mut v = pyvisit::PyVisitor::new(py);
             d.describe(&mut v);
-            to_py(py, &v.finish()).map(Some)
+            v.finish().map(|d| Some(d.into_any().unbind()))
         }
+    }
+}
+
+/// A byte stream cut into frames, as a receiver does: feed it what a serial port or a
+/// capture gives, in pieces of any size; it finds the preambles, follows each frame
+/// to its check byte, resynchronises after garbage, and keeps count of what was
+/// damaged.
+#[pyclass(module = "hartkit._native")]
+pub struct Deframer {
+    inner: hart_proto::deframer::Deframer,
+}
+
+#[pymethods]
+impl Deframer {
+    #[new]
+    fn new() -> Self {
+        Deframer {
+            inner: hart_proto::deframer::Deframer::default(),
+        }
+    }
+
+    /// The frames completed by `data` (with a good check byte and no errors).
+    fn feed(&mut self, data: &[u8]) -> Vec<Frame> {
+        let mut out = Vec::new();
+        self.inner.feed(data, |e| {
+            if let hart_proto::deframer::DeframerEvent::Frame(f) = e {
+                out.push(Frame {
+                    bytes: f.pdu.to_vec(),
+                    preambles: 0,
+                });
+            }
+        });
+        out
+    }
+
+    /// Good frames so far.
+    #[getter]
+    fn frames(&self) -> u64 {
+        self.inner.stats().frames
+    }
+
+    /// Damaged frames so far (wrong check byte, UART errors, overflow).
+    #[getter]
+    fn damaged(&self) -> u64 {
+        self.inner.stats().damaged
+    }
+
+    /// Structurally invalid frames so far.
+    #[getter]
+    fn invalid(&self) -> u64 {
+        self.inner.stats().invalid
     }
 }
 
@@ -442,6 +494,7 @@ fn sim_bench(
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add_class::<Frame>()?;
+    m.add_class::<Deframer>()?;
     m.add_class::<host::NativeLoop>()?;
     m.add_function(wrap_pyfunction!(decode_reply, m)?)?;
     m.add_function(wrap_pyfunction!(decode_request, m)?)?;

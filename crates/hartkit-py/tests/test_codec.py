@@ -40,6 +40,9 @@ def test_every_public_vector_decodes_as_its_source_says(vectors):
         expect = dict(v.get("expect", {}))
         subset(expect, d, f"{v['name']}: ")
         assert f.to_bytes() == raw, v["name"]
+        # The direct decoder and the JSON view agree.
+        if "decoded" in d:
+            assert f.decoded == d["decoded"], v["name"]
         assert f.frame_type == expect.get("frame_type", f.frame_type)
         assert f.command == expect.get("command", f.command)
 
@@ -105,3 +108,19 @@ def test_explain_is_the_cli_view():
     text = f.explain()
     assert "delimiter" in text and "Read Unique Identifier" in text
     assert "STX" in repr(f)
+
+
+def test_a_stream_in_pieces_with_garbage_between():
+    frames = [hartkit.Frame.request(p, 1) for p in range(1, 6)]
+    stream = b"\x00\x13garbage" + b"".join(f.to_bytes() for f in frames)
+    # A frame with a wrong check byte in the middle.
+    bad = bytearray(hartkit.Frame.request(9, 1).to_bytes())
+    bad[-1] ^= 0xFF
+    stream += bytes(bad) + hartkit.Frame.reply(1, 1, bytes(5)).to_bytes()
+    d = hartkit.Deframer()
+    got = []
+    for i in range(0, len(stream), 7):
+        got += d.feed(stream[i : i + 7])
+    assert [f.polling_address for f in got] == [1, 2, 3, 4, 5, 1]
+    assert got[-1].frame_type == "ACK"
+    assert (d.frames, d.damaged) == (6, 1)

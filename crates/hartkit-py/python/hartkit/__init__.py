@@ -17,6 +17,7 @@ never holds the GIL.
 """
 
 from ._native import (
+    Deframer,
     DeviceError,
     Frame,
     FrameError,
@@ -33,6 +34,7 @@ from . import commands, sim
 from ._host import Device, DeviceInfo, Loop, Reply, connect
 
 __all__ = [
+    "Deframer",
     "Device",
     "DeviceError",
     "DeviceInfo",
