@@ -14,6 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+mod common;
+use common::Kill;
+
 /// The bound on the server's resident memory during the flood, KiB.
 const RSS_BOUND_KIB: u64 = 64 * 1024;
 
@@ -141,16 +144,6 @@ fn flood(ip: &'static str, server: String, stop: Arc<AtomicBool>) -> std::thread
         }
         sent
     })
-}
-
-/// Kills the server when the test ends, passed or not.
-struct Kill(std::process::Child);
-
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 #[test]

@@ -7,17 +7,10 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
+mod common;
+use common::Kill;
+
 const FRAMES: [&str; 2] = ["0280000082", "82A606BC614E0100B0"];
-
-/// A child process killed and reaped when dropped.
-struct Killed(std::process::Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 #[test]
 fn frames_from_the_default_sound_card_input() {
@@ -43,7 +36,7 @@ fn frames_from_the_default_sound_card_input() {
     .unwrap();
     // The null device never ends: the guard kills the decoder whatever happens here,
     // a failed assertion included.
-    let mut child = Killed(
+    let mut child = Kill(
         Command::new(bin)
             .args(["modem", "rx", "--sound-card", "default", "--json"])
             .env("XDG_CONFIG_HOME", &dir)

@@ -3,6 +3,17 @@
 
 use serde_json::Value;
 
+/// A child process killed and reaped when dropped, whatever happens in the test (a
+/// failed assertion included).
+pub struct Kill(pub std::process::Child);
+
+impl Drop for Kill {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// `hartkit serve --hart-ip 127.0.0.1:0 ...` on a free port; killed when dropped. `.1`
 /// is the port (UDP and TCP), read from the first line the server prints.
 pub struct Server(pub std::process::Child, pub u16);
