@@ -18,6 +18,7 @@ use pyo3::types::PyBytes;
 
 mod host;
 mod pyvisit;
+mod sim;
 
 create_exception!(
     _native,
@@ -496,6 +497,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Frame>()?;
     m.add_class::<Deframer>()?;
     m.add_class::<host::NativeLoop>()?;
+    m.add_class::<sim::SimServer>()?;
+    m.add_function(wrap_pyfunction!(sim::serve_hart_ip, m)?)?;
     m.add_function(wrap_pyfunction!(decode_reply, m)?)?;
     m.add_function(wrap_pyfunction!(decode_request, m)?)?;
     m.add_function(wrap_pyfunction!(command_table, m)?)?;

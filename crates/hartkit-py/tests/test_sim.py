@@ -4,6 +4,7 @@ import json
 import subprocess
 
 import hartkit
+import hartkit.sync
 
 
 def test_bench_matches_the_command_line(hartkit_bin):
@@ -24,3 +25,36 @@ def test_bench_on_the_analog_loop():
     r = hartkit.sim.bench(devices=2, duration=20, analog=True, cable_m=1000)
     assert r["medium"]["kind"] == "analog"
     assert r["frames_sent"] > 10 and r["frame_error_rate"] == 0
+
+
+def test_devices_served_from_python_are_read_by_the_cli(hartkit_bin):
+    with hartkit.sim.serve_hart_ip(["pressure", "valve"]) as server:
+        assert server.target.startswith("udp://127.0.0.1:") and server.port
+        out = subprocess.run(
+            [hartkit_bin, "read", "-p", server.target, "--poll", "2", "pv", "--json"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        assert json.loads(out.stdout)["units_symbol"] == "%"
+        # And by this package, over TCP.
+        with hartkit.sync.connect(server.tcp_target) as loop:
+            assert [d.polling_address for d in loop.scan(1, 3)] == [1, 2]
+    # Closed: nobody answers any more.
+    gone = subprocess.run(
+        [hartkit_bin, "read", "-p", server.target, "--poll", "1", "pv"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert gone.returncode != 0
+
+
+def test_serving_explains_what_is_wrong():
+    import pytest
+
+    with pytest.raises(hartkit.TargetError) as e:
+        hartkit.sim.serve_hart_ip(["no-such-profile"])
+    assert "no-such-profile" in str(e.value)
+    with pytest.raises(ValueError):
+        hartkit.sim.serve_hart_ip(address="nowhere")

@@ -1,0 +1,130 @@
+//! Simulated devices served from Python: a plant of device profiles behind a HART-IP
+//! server (`hartkit serve --sim --instant`), on a thread of its own, for testing hosts.
+
+use std::net::SocketAddr;
+
+use pyo3::prelude::*;
+use tokio::sync::oneshot;
+
+use crate::TargetError;
+
+/// A running HART-IP server with simulated devices behind it; stops when closed or
+/// dropped.
+#[pyclass(module = "hartkit._native")]
+pub struct SimServer {
+    stop: Option<oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    udp: Option<SocketAddr>,
+    tcp: Option<SocketAddr>,
+}
+
+#[pymethods]
+impl SimServer {
+    /// `udp://HOST:PORT` of the server, for `hartkit.connect` or `hartkit -p`.
+    #[getter]
+    fn target(&self) -> Option<String> {
+        self.udp.map(|a| format!("udp://{a}"))
+    }
+
+    /// `tcp://HOST:PORT` of the server.
+    #[getter]
+    fn tcp_target(&self) -> Option<String> {
+        self.tcp.map(|a| format!("tcp://{a}"))
+    }
+
+    /// The port (UDP and TCP).
+    #[getter]
+    fn port(&self) -> Option<u16> {
+        self.udp.or(self.tcp).map(|a| a.port())
+    }
+
+    /// Stops the server and waits for its thread (with the GIL released).
+    fn close(&mut self, py: Python<'_>) {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            py.detach(|| {
+                let _ = t.join();
+            });
+        }
+    }
+}
+
+impl Drop for SimServer {
+    fn drop(&mut self) {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+    }
+}
+
+/// Serves `profiles` (built-in names such as "pressure", or profile files) at polling
+/// addresses 1, 2, ... behind a HART-IP server bound to `address` (port 0: a free
+/// one), the devices answering at once. Returns once the server listens.
+#[pyfunction]
+#[pyo3(signature = (profiles, address = "127.0.0.1:0".to_string()))]
+pub fn serve_hart_ip(
+    py: Python<'_>,
+    profiles: Vec<String>,
+    address: String,
+) -> PyResult<SimServer> {
+    let bind: SocketAddr = address.parse().map_err(|e| {
+        pyo3::exceptions::PyValueError::new_err(format!("address {address:?}: {e} (HOST:PORT)"))
+    })?;
+    let devices = hart_host::transport::Plant::from_profiles(&profiles)
+        .and_then(|p| p.devices())
+        .map_err(TargetError::new_err)?;
+    let (ready_tx, ready_rx) =
+        oneshot::channel::<Result<(Option<SocketAddr>, Option<SocketAddr>), String>>();
+    let (stop_tx, stop_rx) = oneshot::channel::<()>();
+    let thread = std::thread::Builder::new()
+        .name("hartkit sim server".into())
+        .spawn(move || {
+            let rt = match tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            {
+                Ok(rt) => rt,
+                Err(e) => {
+                    let _ = ready_tx.send(Err(format!("cannot start the runtime: {e}")));
+                    return;
+                }
+            };
+            let local = tokio::task::LocalSet::new();
+            local.block_on(&rt, async move {
+                let config = hart_ip_server::Config {
+                    bind,
+                    ..hart_ip_server::Config::default()
+                };
+                match hart_ip_server::start_in_memory(config, devices).await {
+                    Ok(server) => {
+                        let _ = ready_tx.send(Ok((server.udp_addr, server.tcp_addr)));
+                        let _ = stop_rx.await;
+                        server.stop();
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(format!(
+                            "cannot serve HART-IP on {bind}: {e}; is the port taken?"
+                        )));
+                    }
+                }
+            });
+        })
+        .map_err(|e| TargetError::new_err(format!("cannot start a thread: {e}")))?;
+    match py.detach(|| ready_rx.blocking_recv()) {
+        Ok(Ok((udp, tcp))) => Ok(SimServer {
+            stop: Some(stop_tx),
+            thread: Some(thread),
+            udp,
+            tcp,
+        }),
+        Ok(Err(m)) => {
+            let _ = thread.join();
+            Err(TargetError::new_err(m))
+        }
+        Err(_) => Err(TargetError::new_err(
+            "the server's thread ended while starting",
+        )),
+    }
+}
