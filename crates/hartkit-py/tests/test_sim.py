@@ -58,3 +58,34 @@ def test_serving_explains_what_is_wrong():
     assert "no-such-profile" in str(e.value)
     with pytest.raises(ValueError):
         hartkit.sim.serve_hart_ip(address="nowhere")
+
+
+def test_a_python_device_handler_answers_the_cli(hartkit_bin):
+    import struct
+
+    def read_pv(data):
+        return bytes([12]) + struct.pack(">f", 42.5)
+
+    def refuse(data):
+        return (5, b"")  # too few data bytes
+
+    with hartkit.sim.PythonDevice({1: read_pv, 6: refuse}, poll=0) as dev:
+        out = subprocess.run(
+            [hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert out.returncode == 0, out.stderr
+        pv = json.loads(out.stdout)
+        assert pv["pv"] == 42.5 and pv["units_symbol"] == "kPa"
+        # Command 0 (short frame) found it, command 1 went in a long frame.
+        assert [f.command for f in dev.requests] == [0, 1]
+        assert dev.requests[1].unique_id == dev.unique_id
+        refused = subprocess.run(
+            [hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "6", "00"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert refused.returncode != 0 and "5" in refused.stderr

@@ -1,11 +1,18 @@
 """Simulation from Python: simulated devices behind a HART-IP server, for testing a
 host (``serve_hart_ip``), and the network simulation (``bench``)."""
 
-from typing import Any, Dict, Sequence
+import os
+import threading
+import tty
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 
-from ._native import SimServer, serve_hart_ip as _serve_hart_ip, sim_bench as _sim_bench
+from ._native import Deframer, Frame, SimServer, serve_hart_ip as _serve_hart_ip, sim_bench as _sim_bench
 
-__all__ = ["SimServer", "bench", "serve_hart_ip"]
+__all__ = ["PythonDevice", "SimServer", "bench", "serve_hart_ip"]
+
+#: What a command handler returns: the reply data (response code 0), or
+#: (response code, reply data).
+HandlerResult = Union[bytes, Tuple[int, bytes]]
 
 
 class _Served:
@@ -71,3 +78,119 @@ def bench(
         analog=analog,
         cable_m=cable_m,
     )
+
+
+class PythonDevice:
+    """A field device whose commands are answered by Python callables, on a
+    pseudo-terminal that a host opens as its serial port (``hartkit read -p
+    serial:PATH``, or ``hartkit.connect(path)``): for testing hosts with exactly the
+    replies a test needs.
+
+        def read_pv(data):                       # command 1: units (kPa), value
+            return bytes([12]) + struct.pack(">f", 42.0)
+
+        with hartkit.sim.PythonDevice({1: read_pv}) as dev:
+            ...  # hartkit read -p dev.path --poll 0 pv
+
+    ``handlers`` maps a command number to a function of the request data returning the
+    reply data (response code 0) or (response code, data); an exception in it answers
+    response code 6 (device-specific command error). Command 0 answers with a HART 7
+    identity for ``unique_id`` unless a handler is given for it; other commands answer
+    64 (not implemented). The device answers its polling address ``poll`` in short
+    frames and its unique ID in long frames; ``device_status`` goes in every reply.
+    ``requests`` lists every request it answered, as Frames."""
+
+    def __init__(
+        self,
+        handlers: Dict[int, Callable[[bytes], HandlerResult]],
+        *,
+        poll: int = 0,
+        unique_id: str = "26F1ABCDEF",
+        device_status: int = 0,
+    ):
+        if len(unique_id) != 10:
+            raise ValueError("unique_id: 10 hex digits (expanded device type, device ID)")
+        self.handlers = dict(handlers)
+        self.poll = poll
+        self.unique_id = unique_id.upper()
+        self.device_status = device_status
+        self.requests: list = []
+        self._master, slave = os.openpty()
+        tty.setraw(self._master)
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        self._slave = slave
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="hartkit PythonDevice", daemon=True)
+        self._thread.start()
+
+    def _identity(self) -> bytes:
+        uid = bytes.fromhex(self.unique_id)
+        edt = ((uid[0] & 0x3F) << 8) | uid[1]
+        # Byte 0 254, expanded device type, 5 request preambles, HART 7, device rev 1,
+        # software 1, hardware 1 / Bell 202, flags 0, device ID, 5 reply preambles, 1
+        # device variable, change counter 0, extended status 0, manufacturer 0x00F0,
+        # private label 0x00F0, device profile 1 (process automation).
+        return (
+            bytes([254]) + edt.to_bytes(2, "big") + bytes([5, 7, 1, 1, 0x08, 0]) + uid[2:]
+            + bytes([5, 1, 0, 0, 0]) + (0xF0).to_bytes(2, "big") + (0xF0).to_bytes(2, "big") + bytes([1])
+        )
+
+    def _mine(self, f: Frame) -> bool:
+        if f.frame_type != "STX":
+            return False
+        if f.polling_address is not None:
+            return f.polling_address == self.poll and f.command == 0
+        return f.unique_id == self.unique_id
+
+    def _answer(self, f: Frame) -> Frame:
+        handler = self.handlers.get(f.command)
+        rc, data = 0, b""
+        if handler is None and f.command == 0:
+            data = self._identity()
+        elif handler is None:
+            rc = 64
+        else:
+            try:
+                out = handler(f.data)
+                rc, data = out if isinstance(out, tuple) else (0, out)
+            except Exception:  # a test's handler failing is the device's failure
+                rc = 6
+        address: Union[int, str] = f.polling_address if f.polling_address is not None else self.unique_id
+        return Frame.reply(
+            address,
+            f.command,
+            bytes(data),
+            response_code=rc,
+            device_status=self.device_status,
+            secondary=f.master == "secondary",
+        )
+
+    def _serve(self) -> None:
+        d = Deframer()
+        while not self._stop.is_set():
+            try:
+                chunk = os.read(self._master, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            for f in d.feed(chunk):
+                if self._mine(f):
+                    self.requests.append(f)
+                    os.write(self._master, self._answer(f).to_bytes())
+
+    def close(self) -> None:
+        """Stops answering and closes the pseudo-terminal."""
+        self._stop.set()
+        for fd in (self._slave, self._master):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> "PythonDevice":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
