@@ -431,6 +431,15 @@ impl Transport for HartIpTransport {
             if now >= deadline {
                 return Ok(vec![]);
             }
+            // A deadline nearer than the timer's 1 ms resolution (the master waits two
+            // "characters", 20 µs, of quiet before its next request): a timed wait would
+            // oversleep it by up to a millisecond, every transaction. Let the other
+            // tasks run and the caller ask again; what arrives meanwhile stays in the
+            // socket for the next call.
+            if deadline - now < 1_000 {
+                tokio::task::yield_now().await;
+                return Ok(vec![]);
+            }
             // Keep the session alive well before the inactivity timer runs out.
             if self.last_tx.elapsed() >= Duration::from_millis(u64::from(self.timer_ms) / 3) {
                 self.send_message(MessageId::KeepAlive, &[]).await?;
