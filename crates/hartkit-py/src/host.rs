@@ -450,13 +450,10 @@ pub fn open_loop(
     std::thread::Builder::new()
         .name(format!("hartkit {target}"))
         .spawn(move || {
-            let rt = match tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-            {
+            let rt = match crate::thread_runtime() {
                 Ok(rt) => rt,
                 Err(e) => {
-                    let _ = opened_tx.send(Err(format!("cannot start the runtime: {e}")));
+                    let _ = opened_tx.send(Err(e));
                     return;
                 }
             };

@@ -51,6 +51,14 @@ create_exception!(
     "The target cannot be opened, or the connection is closed."
 );
 
+/// A single-threaded tokio runtime for a connection's or a server's own thread.
+pub(crate) fn thread_runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the runtime: {e}"))
+}
+
 /// JSON (as hartkit builds it) to Python objects.
 pub(crate) fn to_py(py: Python<'_>, v: &serde_json::Value) -> PyResult<Py<PyAny>> {
     pythonize::pythonize(py, v)

@@ -81,13 +81,10 @@ pub fn serve_hart_ip(
     let thread = std::thread::Builder::new()
         .name("hartkit sim server".into())
         .spawn(move || {
-            let rt = match tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-            {
+            let rt = match crate::thread_runtime() {
                 Ok(rt) => rt,
                 Err(e) => {
-                    let _ = ready_tx.send(Err(format!("cannot start the runtime: {e}")));
+                    let _ = ready_tx.send(Err(e));
                     return;
                 }
             };
