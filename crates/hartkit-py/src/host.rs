@@ -10,6 +10,7 @@ use hart_host::target::AnyTransport;
 use hart_host::{Client, DeviceInfo, DeviceRef, HostError};
 use hart_proto::wire::Wire;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 use serde_json::{json, Value};
 use tokio::sync::{mpsc, oneshot};
 
@@ -280,6 +281,39 @@ impl NativeLoop {
     }
 }
 
+/// An operation from its name and Python arguments (see [`NativeLoop::call`]).
+fn parse_op(op: &str, args: &Bound<'_, PyTuple>) -> PyResult<Op> {
+    let bad = || {
+        pyo3::exceptions::PyValueError::new_err(format!(
+            "{op}{args}: expected scan(first, last), resolve(kind, value), command(unique_id, command, data), write(unique_id, what, values) or listen(seconds)"
+        ))
+    };
+    Ok(match (op, args.len()) {
+        ("scan", 2) => Op::Scan {
+            first: args.get_item(0)?.extract()?,
+            last: args.get_item(1)?.extract()?,
+        },
+        ("resolve", 2) => {
+            let kind: String = args.get_item(0)?.extract()?;
+            Op::Resolve(device_ref(&kind, &args.get_item(1)?)?)
+        }
+        ("command", 3) => Op::Command {
+            unique_id: args.get_item(0)?.extract()?,
+            command: args.get_item(1)?.extract()?,
+            data: args.get_item(2)?.extract()?,
+        },
+        ("write", 3) => Op::Write {
+            unique_id: args.get_item(0)?.extract()?,
+            what: args.get_item(1)?.extract()?,
+            args: args.get_item(2)?.extract()?,
+        },
+        ("listen", 1) => Op::Listen {
+            seconds: args.get_item(0)?.extract()?,
+        },
+        _ => return Err(bad()),
+    })
+}
+
 fn device_ref(kind: &str, value: &Bound<'_, PyAny>) -> PyResult<DeviceRef> {
     Ok(match kind {
         "poll" => DeviceRef::Poll(value.extract()?),
@@ -307,121 +341,36 @@ impl NativeLoop {
         &self.description
     }
 
-    /// Scans polling addresses `first..=last`: awaitable of a list of device dicts.
-    fn scan<'py>(&self, py: Python<'py>, first: u8, last: u8) -> PyResult<Bound<'py, PyAny>> {
-        self.later(py, Op::Scan { first, last })
-    }
-
-    /// Blocking `scan`.
-    fn scan_blocking(&self, py: Python<'_>, first: u8, last: u8) -> PyResult<Py<PyAny>> {
-        self.now(py, Op::Scan { first, last })
-    }
-
-    /// Finds a device by `kind` ("poll", "tag", "long_tag", "unique_id"): awaitable of
-    /// its dict.
-    fn resolve<'py>(
+    /// Runs operation `op` with `args`, as an awaitable of its result:
+    ///
+    /// * `"scan", (first, last)`: the devices at polling addresses `first..=last`
+    ///   (a list of device dicts);
+    /// * `"resolve", (kind, value)`: the device by `kind` "poll", "tag", "long_tag" or
+    ///   "unique_id" (a device dict);
+    /// * `"command", (unique_id, command, data)`: the reply dict;
+    /// * `"write", (unique_id, what, [values])`: as `hartkit write WHAT VALUES`
+    ///   (tag, long-tag, descriptor, message, date, range, units, damping, ...):
+    ///   {"reply", "read_back"};
+    /// * `"listen", (seconds,)`: the burst frames heard (PDUs as hex).
+    fn call<'py>(
         &self,
         py: Python<'py>,
-        kind: &str,
-        value: &Bound<'py, PyAny>,
+        op: &str,
+        args: &Bound<'py, PyTuple>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let r = device_ref(kind, value)?;
-        self.later(py, Op::Resolve(r))
+        let op = parse_op(op, args)?;
+        self.later(py, op)
     }
 
-    /// Blocking `resolve`.
-    fn resolve_blocking(
+    /// `call`, blocking (the GIL released while it waits).
+    fn call_blocking(
         &self,
         py: Python<'_>,
-        kind: &str,
-        value: &Bound<'_, PyAny>,
+        op: &str,
+        args: &Bound<'_, PyTuple>,
     ) -> PyResult<Py<PyAny>> {
-        let r = device_ref(kind, value)?;
-        self.now(py, Op::Resolve(r))
-    }
-
-    /// Sends `command` with `data` to the device with `unique_id`: awaitable of the
-    /// reply dict.
-    fn command<'py>(
-        &self,
-        py: Python<'py>,
-        unique_id: String,
-        command: u16,
-        data: Vec<u8>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        self.later(
-            py,
-            Op::Command {
-                unique_id,
-                command,
-                data,
-            },
-        )
-    }
-
-    /// Blocking `command`.
-    fn command_blocking(
-        &self,
-        py: Python<'_>,
-        unique_id: String,
-        command: u16,
-        data: Vec<u8>,
-    ) -> PyResult<Py<PyAny>> {
-        self.now(
-            py,
-            Op::Command {
-                unique_id,
-                command,
-                data,
-            },
-        )
-    }
-
-    /// Writes as `hartkit write WHAT ARGS...` does (tag, long-tag, descriptor, message,
-    /// date, range, units, damping, ...): awaitable of {"reply", "read_back"}.
-    fn write<'py>(
-        &self,
-        py: Python<'py>,
-        unique_id: String,
-        what: String,
-        args: Vec<String>,
-    ) -> PyResult<Bound<'py, PyAny>> {
-        self.later(
-            py,
-            Op::Write {
-                unique_id,
-                what,
-                args,
-            },
-        )
-    }
-
-    /// Blocking `write`.
-    fn write_blocking(
-        &self,
-        py: Python<'_>,
-        unique_id: String,
-        what: String,
-        args: Vec<String>,
-    ) -> PyResult<Py<PyAny>> {
-        self.now(
-            py,
-            Op::Write {
-                unique_id,
-                what,
-                args,
-            },
-        )
-    }
-
-    /// Listens for `seconds`: awaitable of the burst frames heard (PDUs as hex).
-    fn listen<'py>(&self, py: Python<'py>, seconds: f64) -> PyResult<Bound<'py, PyAny>> {
-        self.later(py, Op::Listen { seconds })
-    }
-
-    /// Blocking `listen`.
-    fn listen_blocking(&self, py: Python<'_>, seconds: f64) -> PyResult<Py<PyAny>> {
-        self.now(py, Op::Listen { seconds })
+        let op = parse_op(op, args)?;
+        self.now(py, op)
     }
 
     /// Closes the connection (the thread ends once the operation in progress is done).

@@ -203,7 +203,7 @@ class Device(_DeviceOps):
     """A device on a loop (asyncio): every method is a coroutine."""
 
     async def _run(self, op: str, args: tuple, conv: Any) -> Any:
-        return conv(await getattr(self.loop._native, op)(*args))
+        return conv(await self.loop._native.call(op, args))
 
 
 class Loop(_LoopOps):
@@ -212,7 +212,7 @@ class Loop(_LoopOps):
     _device_class = Device
 
     async def _run(self, op: str, args: tuple, conv: Any) -> Any:
-        return conv(await getattr(self._native, op)(*args))
+        return conv(await self._native.call(op, args))
 
     async def bursts(self, every: float = 0.5) -> AsyncIterator[Frame]:
         """Burst frames as they come (listening ``every`` seconds at a time), for

@@ -21,7 +21,7 @@ class Device(_DeviceOps):
     """A device on a loop; every method blocks until the answer is in."""
 
     def _run(self, op: str, args: tuple, conv: Any) -> Any:
-        return conv(getattr(self.loop._native, op + "_blocking")(*args))
+        return conv(self.loop._native.call_blocking(op, args))
 
 
 class Loop(_LoopOps):
@@ -30,7 +30,7 @@ class Loop(_LoopOps):
     _device_class = Device
 
     def _run(self, op: str, args: tuple, conv: Any) -> Any:
-        return conv(getattr(self._native, op + "_blocking")(*args))
+        return conv(self._native.call_blocking(op, args))
 
     def bursts(self, every: float = 0.5) -> Iterator[Frame]:
         """Burst frames as they come (listening ``every`` seconds at a time)."""
