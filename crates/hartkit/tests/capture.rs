@@ -8,7 +8,7 @@
 use std::process::Command;
 
 mod common;
-use common::hartkit;
+use common::{capture_read, hartkit};
 
 fn tshark() -> bool {
     let ok = Command::new("tshark").arg("--version").output().is_ok();
@@ -70,18 +70,13 @@ fn monitor_writes_a_capture_that_wireshark_decodes() {
     let shown = listing.lines().filter(|l| l.contains("BACK")).count();
     assert!(shown >= 2, "{listing}");
     // Read back: the same frames.
-    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
-    assert_eq!(code, 0, "{err}");
-    let frames: Vec<serde_json::Value> = out
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert_eq!(frames.len(), shown, "{out}");
+    let frames = capture_read(&file);
+    assert_eq!(frames.len(), shown, "{frames:?}");
     assert!(
         frames
             .iter()
             .all(|f| f["command"] == 3 && f["direction"] == "burst"),
-        "{out}"
+        "{frames:?}"
     );
     assert!(frames[0]["comment"]
         .as_str()
@@ -272,14 +267,10 @@ fn link_errors_from_the_analog_loop_reach_the_capture() {
     assert_eq!(code, 0, "{err}");
     assert!(listing.contains("BACK"), "{listing}");
     assert!(listing.contains("damaged frame"), "{listing}");
-    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
-    assert_eq!(code, 0, "{err}");
-    let damaged: Vec<serde_json::Value> = out
-        .lines()
-        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
-        .filter(|v| v.get("damaged").is_some())
-        .collect();
-    assert!(!damaged.is_empty(), "{out}");
+    let all = capture_read(&file);
+    let damaged: Vec<&serde_json::Value> =
+        all.iter().filter(|v| v.get("damaged").is_some()).collect();
+    assert!(!damaged.is_empty(), "{all:?}");
     for d in &damaged {
         let comment = d["comment"].as_str().unwrap();
         assert!(
@@ -364,10 +355,8 @@ fn a_capture_killed_mid_run_keeps_its_frames() {
     std::thread::sleep(std::time::Duration::from_millis(5_500));
     child.kill().unwrap(); // SIGKILL
     let _ = child.wait();
-    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
-    assert_eq!(code, 0, "{err}");
-    let frames = out.lines().count();
-    assert!(frames >= 2, "{out}");
+    let frames = capture_read(&file).len();
+    assert!(frames >= 2, "{frames}");
     if tshark() {
         let (rows, bad) = tshark_fields(&file, &["hart_ip.pt.command"]);
         assert!(bad.is_empty(), "malformed: {bad:?}");

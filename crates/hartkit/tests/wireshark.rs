@@ -10,7 +10,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 mod common;
-use common::hartkit;
+use common::{capture_read, hartkit};
 
 #[test]
 fn wireshark_decodes_our_hart_ip_traffic() {
@@ -205,23 +205,18 @@ fn wireshark_decodes_our_hart_ip_traffic() {
     );
     // `hartkit capture read` reads the capture tshark wrote (Ethernet frames on the
     // loopback interface, UDP and TCP): the token-passing frames with their directions.
-    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
-    assert_eq!(code, 0, "{err}");
-    let frames: Vec<serde_json::Value> = out
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let frames = capture_read(&file);
     let seen = |dir: &str, cmd: u64| {
         frames
             .iter()
             .any(|f| f["direction"] == dir && f["command"] == cmd)
     };
-    assert!(seen("primary->device", 3), "command 3 request: {out}");
-    assert!(seen("device->primary", 3), "command 3 reply: {out}");
-    assert!(seen("device->primary", 84), "command 84 reply: {out}");
+    assert!(seen("primary->device", 3), "command 3 request: {frames:?}");
+    assert!(seen("device->primary", 3), "command 3 reply: {frames:?}");
+    assert!(seen("device->primary", 84), "command 84 reply: {frames:?}");
     assert!(
         seen("burst", 3) || seen("burst", 1),
-        "a publish message: {out}"
+        "a publish message: {frames:?}"
     );
     // The capture as a replay source: the same read answered from the recording.
     let replay = format!("replay:{}", file.display());

@@ -3,6 +3,15 @@
 
 use serde_json::Value;
 
+/// `hartkit capture read FILE --json`, which must succeed: one object per frame.
+pub fn capture_read(file: &std::path::Path) -> Vec<Value> {
+    let (code, out, err) = hartkit(&["capture", "read", file.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    out.lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
 /// A child process killed and reaped when dropped, whatever happens in the test (a
 /// failed assertion included).
 pub struct Kill(pub std::process::Child);
