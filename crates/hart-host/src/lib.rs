@@ -14,6 +14,7 @@ pub mod load;
 pub mod replay;
 pub mod target;
 pub mod transport;
+mod write;
 
 pub use client::{Client, DeviceInfo, DeviceRef, Reply, ScanEvent};
 pub use error::HostError;

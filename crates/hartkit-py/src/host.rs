@@ -207,10 +207,7 @@ impl Worker {
                 args,
             } => {
                 let d = self.device(&unique_id).await?;
-                let (command, data, confirm) =
-                    hartkit::host::write_request(&mut self.client, &d, &what, &args)
-                        .await
-                        .map_err(|(m, _)| Failure::Other(m))?;
+                let (command, data, confirm) = self.client.write_request(&d, &what, &args).await?;
                 let r = self.client.command(&d, command, &data).await?;
                 let back = self.client.command(&d, confirm, &[]).await?;
                 Ok(json!({
