@@ -70,9 +70,8 @@ pub(crate) fn to_py(py: Python<'_>, v: &serde_json::Value) -> PyResult<Py<PyAny>
 #[pyclass(module = "hartkit._native", frozen, eq)]
 #[derive(PartialEq)]
 pub struct Frame {
-    /// Preambles through check byte (and anything after it).
+    /// Preambles through check byte (and anything after it), checked to parse.
     bytes: Vec<u8>,
-    preambles: usize,
 }
 
 impl Frame {
@@ -82,10 +81,8 @@ impl Frame {
     }
 
     fn make(bytes: Vec<u8>) -> PyResult<Self> {
-        let preambles = hart_proto::Frame::parse(&bytes)
-            .map_err(|e| FrameError::new_err(e.to_string()))?
-            .preambles;
-        Ok(Frame { bytes, preambles })
+        hart_proto::Frame::parse(&bytes).map_err(|e| FrameError::new_err(e.to_string()))?;
+        Ok(Frame { bytes })
     }
 
     fn build(spec: &hart_proto::FrameSpec<'_>) -> PyResult<Self> {
@@ -195,7 +192,7 @@ impl Frame {
     /// Preamble bytes before the delimiter.
     #[getter]
     fn preambles(&self) -> usize {
-        self.preambles
+        self.parsed().preambles
     }
 
     /// "STX" (request), "ACK" (reply) or "BACK" (burst).
@@ -380,7 +377,6 @@ impl Deframer {
             if let hart_proto::deframer::DeframerEvent::Frame(f) = e {
                 out.push(Frame {
                     bytes: f.pdu.to_vec(),
-                    preambles: 0,
                 });
             }
         });
