@@ -89,3 +89,17 @@ def test_a_python_device_handler_answers_the_cli(hartkit_bin):
             timeout=60,
         )
         assert refused.returncode != 0 and "5" in refused.stderr
+
+
+def test_a_server_that_vanishes_mid_session_is_an_error_that_explains():
+    import pytest
+
+    server = hartkit.sim.serve_hart_ip(["pressure"])
+    loop = hartkit.sync.connect(server.target)
+    dev = loop.device(poll=1)
+    assert dev.read_pv().response_code == 0
+    server.close()
+    with pytest.raises(hartkit.HartError) as e:
+        dev.read_pv()
+    assert "stopped answering" in str(e.value) or "no reply" in str(e.value).lower(), str(e.value)
+    loop.close()
