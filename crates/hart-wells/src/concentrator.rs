@@ -1,0 +1,493 @@
+//! The data concentrator, sans-IO: master to its sensors (what to send next on the
+//! bus, what a reply or a time-out means), slave on its uplink (a request in, a reply
+//! out). The caller moves the bytes and the time; the same core runs on serial ports
+//! and in the virtual-time simulation.
+
+use tracing::{error, info, warn};
+
+use crate::calibration::{Segment, Sensor, Table};
+use crate::proto::{
+    decode_transfer_request, Diagnosis, Groups, Message, Record, SegmentRequest, SensorStatus,
+    Station, CALIBRATION, DIAGNOSTICS, NO_VALUE, RC_NOT_IMPLEMENTED, RC_OUT_OF_ORDER,
+    RC_TABLE_REFUSED, RC_TOO_FEW_BYTES, READ_VALUES, SEGMENT_TAKEN, STATE_NOT_ANSWERING,
+    STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL, VALID_LEVEL_SENSOR_TEMPERATURE,
+    VALID_TEMPERATURE,
+};
+use crate::sensor::body_celsius;
+use crate::store::{PollOutcome, Store, StoreError};
+use crate::Millis;
+
+/// Response code the concentrator answers when its store fails (device-specific
+/// command error).
+pub const RC_STORE_FAILED: u8 = 6;
+
+/// How a concentrator is set up.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConcentratorConfig {
+    /// Its well (1-15).
+    pub well: u8,
+    /// Its sensors: bus address and what each measures (one of each kind).
+    pub sensors: Vec<(u8, Sensor)>,
+    /// Time between polls.
+    pub poll_interval: Millis,
+    /// Retries of a request that got no reply.
+    pub retries: u8,
+}
+
+impl ConcentratorConfig {
+    /// The reference deployment: water temperature at 1, level at 2, polled every 3
+    /// minutes, two retries.
+    pub fn reference(well: u8) -> Self {
+        ConcentratorConfig {
+            well,
+            sensors: vec![(1, Sensor::Temperature), (2, Sensor::Level)],
+            poll_interval: 180_000,
+            retries: 2,
+        }
+    }
+}
+
+/// One sensor as the concentrator knows it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorView {
+    /// Its status (address, kind, state, last good minute).
+    pub status: SensorStatus,
+    /// Its latest value in engineering units.
+    pub latest: Option<f64>,
+}
+
+#[derive(Debug, Clone)]
+struct Cycle {
+    /// The minute in progress when the poll began: the groups are the three before.
+    minute: u32,
+    /// The sensor being asked.
+    index: usize,
+    /// The command being asked.
+    command: u8,
+    /// Tries of that command so far.
+    tries: u8,
+    /// Groups received per sensor.
+    groups: Vec<Option<Groups>>,
+    /// A request is out.
+    outstanding: bool,
+}
+
+/// The data concentrator.
+pub struct Concentrator {
+    cfg: ConcentratorConfig,
+    store: Store,
+    tables: [Table; 2],
+    sensors: Vec<SensorView>,
+    next_poll: Millis,
+    cycle: Option<Cycle>,
+    pending_table: Option<(Sensor, Vec<Segment>)>,
+    /// Records a failed commit could not write: tried again with the next poll.
+    unsaved: Vec<Record>,
+    /// Polls completed.
+    pub polls: u64,
+    /// Bus requests that got no reply.
+    pub bus_timeouts: u64,
+    /// Uplink requests answered.
+    pub uplink_answered: u64,
+}
+
+fn kind_index(s: Sensor) -> usize {
+    match s {
+        Sensor::Temperature => 0,
+        Sensor::Level => 1,
+    }
+}
+
+impl Concentrator {
+    /// A concentrator on `store`, first polling at the first poll time after `now`.
+    pub fn new(cfg: ConcentratorConfig, store: Store, now: Millis) -> Result<Self, StoreError> {
+        let tables = [
+            store
+                .calibration(Sensor::Temperature)?
+                .unwrap_or_else(|| Table::builtin(Sensor::Temperature)),
+            store
+                .calibration(Sensor::Level)?
+                .unwrap_or_else(|| Table::builtin(Sensor::Level)),
+        ];
+        let known = store.sensors()?;
+        let sensors = cfg
+            .sensors
+            .iter()
+            .map(|&(address, kind)| {
+                let old = known.iter().find(|s| s.address == address);
+                SensorView {
+                    status: SensorStatus {
+                        address,
+                        kind,
+                        state: old.map_or(0, |s| s.state),
+                        last_good: old.map_or(0, |s| s.last_good),
+                    },
+                    latest: None,
+                }
+            })
+            .collect();
+        let mut c = Concentrator {
+            cfg,
+            store,
+            tables,
+            sensors,
+            next_poll: 0,
+            cycle: None,
+            pending_table: None,
+            unsaved: Vec::new(),
+            polls: 0,
+            bus_timeouts: 0,
+            uplink_answered: 0,
+        };
+        c.next_poll = c.poll_time_after(now);
+        Ok(c)
+    }
+
+    /// Its configuration.
+    pub fn config(&self) -> &ConcentratorConfig {
+        &self.cfg
+    }
+
+    /// Its store.
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// Its station address on the uplink.
+    pub fn station(&self) -> Station {
+        Station::concentrator(self.cfg.well)
+    }
+
+    /// The sensors as last seen.
+    pub fn sensors(&self) -> &[SensorView] {
+        &self.sensors
+    }
+
+    /// The table in force for `sensor`.
+    pub fn table(&self, sensor: Sensor) -> &Table {
+        &self.tables[kind_index(sensor)]
+    }
+
+    /// Polls start on multiples of the interval, 10 s after (or a quarter of an
+    /// interval under 40 s), so the sensors have closed the minute.
+    fn poll_time_after(&self, now: Millis) -> Millis {
+        let i = self.cfg.poll_interval.max(1);
+        let offset = (i / 4).min(10_000);
+        let base = (now.saturating_sub(offset) / i + 1) * i + offset;
+        if base <= now {
+            base + i
+        } else {
+            base
+        }
+    }
+
+    /// When the bus next needs the caller: the next poll, or now while a poll is in
+    /// progress.
+    pub fn next_deadline(&self) -> Millis {
+        match &self.cycle {
+            Some(_) => 0,
+            None => self.next_poll,
+        }
+    }
+
+    /// Whether a poll is in progress.
+    pub fn polling(&self) -> bool {
+        self.cycle.is_some()
+    }
+
+    /// What to send on the bus now, if anything: a poll that is due starts; the
+    /// request in progress is sent (again). The caller sends it and reports the
+    /// reply or the time-out with [`Concentrator::bus_result`].
+    pub fn bus_request(&mut self, now: Millis) -> Option<Message> {
+        if self.cycle.is_none() {
+            if now < self.next_poll || self.sensors.is_empty() {
+                return None;
+            }
+            self.cycle = Some(Cycle {
+                minute: (now / 60_000) as u32,
+                index: 0,
+                command: READ_VALUES,
+                tries: 0,
+                groups: vec![None; self.sensors.len()],
+                outstanding: false,
+            });
+        }
+        let c = self.cycle.as_mut()?;
+        if c.outstanding {
+            return None;
+        }
+        c.outstanding = true;
+        c.tries += 1;
+        let addr = self.sensors[c.index].status.address;
+        Some(Message::request(Station::sensor(addr), c.command, vec![]))
+    }
+
+    /// The outcome of the request [`Concentrator::bus_request`] gave: its reply, or
+    /// `None` after the reply time-out. Returns what the poll stored when this
+    /// completed it.
+    pub fn bus_result(
+        &mut self,
+        now: Millis,
+        reply: Option<&Message>,
+    ) -> Option<Result<PollOutcome, StoreError>> {
+        let c = self.cycle.as_mut()?;
+        if !c.outstanding {
+            return None;
+        }
+        c.outstanding = false;
+        let sensor = &mut self.sensors[c.index];
+        let addr = sensor.status.address;
+        let reply = reply
+            .filter(|m| m.reply && m.station == Station::sensor(addr) && m.command == c.command);
+        let mut next = false;
+        match (c.command, reply) {
+            (_, None) => {
+                self.bus_timeouts += 1;
+                if c.tries > self.cfg.retries {
+                    if sensor.status.state != STATE_NOT_ANSWERING {
+                        warn!(well = self.cfg.well, "sensor {addr} does not answer");
+                    }
+                    sensor.status.state = STATE_NOT_ANSWERING;
+                    next = true;
+                }
+            }
+            (READ_VALUES, Some(m)) => {
+                let status = m.status.unwrap_or([0xFF, 0xFF]);
+                match Groups::decode(status, &m.data) {
+                    Ok(g) => {
+                        let normal = g.status == STATUS_NORMAL;
+                        c.groups[c.index] = Some(g);
+                        if normal {
+                            sensor.status.state = 0;
+                            next = true;
+                        } else {
+                            c.command = DIAGNOSTICS;
+                            c.tries = 0;
+                        }
+                    }
+                    Err(e) => {
+                        warn!(well = self.cfg.well, "sensor {addr}: {e}");
+                        if c.tries > self.cfg.retries {
+                            next = true;
+                        }
+                    }
+                }
+            }
+            (_, Some(m)) => {
+                let code = m.status.map_or(0, |s| s[1]);
+                if Diagnosis::from_code(code) != Some(Diagnosis::Healthy)
+                    && sensor.status.state != code
+                {
+                    warn!(
+                        well = self.cfg.well,
+                        "sensor {addr}: {}",
+                        crate::proto::state_name(code)
+                    );
+                }
+                sensor.status.state = code;
+                next = true;
+            }
+        }
+        if !next {
+            return None;
+        }
+        c.index += 1;
+        c.command = READ_VALUES;
+        c.tries = 0;
+        if c.index < self.sensors.len() {
+            return None;
+        }
+        let cycle = self.cycle.take()?;
+        self.next_poll = self.poll_time_after(now);
+        Some(self.commit(cycle, now))
+    }
+
+    fn commit(&mut self, cycle: Cycle, now: Millis) -> Result<PollOutcome, StoreError> {
+        let mut records: Vec<Record> = (1..=3)
+            .rev()
+            .map(|k| Record::empty(cycle.minute.saturating_sub(k)))
+            .collect();
+        for (view, groups) in self.sensors.iter_mut().zip(&cycle.groups) {
+            let Some(g) = groups else { continue };
+            let table = &self.tables[kind_index(view.status.kind)];
+            for (r, v) in records.iter_mut().zip(g.groups) {
+                if v[0] == NO_VALUE {
+                    continue;
+                }
+                let x = table.eval(v[0]);
+                match view.status.kind {
+                    Sensor::Temperature => {
+                        r.valid |= VALID_TEMPERATURE;
+                        r.t_raw = v[0];
+                        r.temperature = x;
+                    }
+                    Sensor::Level => {
+                        r.valid |= VALID_LEVEL;
+                        r.l_raw = v[0];
+                        r.level = x;
+                        if v[1] != NO_VALUE {
+                            r.valid |= VALID_LEVEL_SENSOR_TEMPERATURE;
+                            r.ls_raw = v[1];
+                        }
+                    }
+                }
+                view.status.last_good = view.status.last_good.max(r.minute);
+                view.latest = Some(x);
+            }
+        }
+        let mut all = std::mem::take(&mut self.unsaved);
+        all.extend(records);
+        let statuses: Vec<SensorStatus> = self.sensors.iter().map(|s| s.status).collect();
+        let minute = (now / 60_000) as u32;
+        match self.store.commit_poll(&all, &statuses, minute) {
+            Ok(o) => {
+                self.polls += 1;
+                if o.dropped_unsent > 0 {
+                    error!(
+                        well = self.cfg.well,
+                        "store full: {} minutes dropped before they were handed over; collect the data",
+                        o.dropped_unsent
+                    );
+                }
+                Ok(o)
+            }
+            Err(e) => {
+                error!(
+                    well = self.cfg.well,
+                    "{e}; the poll is kept in memory and written with the next one"
+                );
+                all.retain(|r| r.valid != 0);
+                // Keep at most a day in memory.
+                let keep = all.len().saturating_sub(1440);
+                all.drain(..keep);
+                self.unsaved = all;
+                Err(e)
+            }
+        }
+    }
+
+    /// The latest values in engineering units: water temperature (°C), level (m),
+    /// the level sensor's temperature (°C), from the newest stored minute.
+    pub fn latest(&self) -> Result<Option<Record>, StoreError> {
+        let (_, _, newest) = self.store.counts()?;
+        self.store.get(newest)
+    }
+
+    /// Answers a request on the uplink (`None`: not for this concentrator, or not a
+    /// request).
+    pub fn uplink(&mut self, msg: &Message, now: Millis) -> Option<Message> {
+        if msg.reply || msg.station != self.station() {
+            return None;
+        }
+        self.uplink_answered += 1;
+        let minute = (now / 60_000) as u32;
+        let st = self.station();
+        let reply = |rc: u8, data: Vec<u8>| Message::reply(st, msg.command, [rc, 0], data);
+        Some(match msg.command {
+            READ_VALUES => match self.latest() {
+                Ok(r) => {
+                    let mut d = Vec::new();
+                    if let Some(r) = r {
+                        r.encode(&mut d);
+                    }
+                    reply(0, d)
+                }
+                Err(e) => {
+                    error!("{e}");
+                    reply(RC_STORE_FAILED, vec![])
+                }
+            },
+            DIAGNOSTICS => {
+                let sensors = self.sensors.iter().map(|s| s.status).collect();
+                match self.store.status(minute, sensors) {
+                    Ok(s) => {
+                        let (status, d) = s.encode();
+                        Message::reply(st, DIAGNOSTICS, status, d)
+                    }
+                    Err(e) => {
+                        error!("{e}");
+                        reply(RC_STORE_FAILED, vec![])
+                    }
+                }
+            }
+            TRANSFER => match decode_transfer_request(&msg.data) {
+                Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
+                Ok(ack) => match self.store.transfer(ack, minute) {
+                    Ok(b) => reply(0, b.encode()),
+                    Err(e) => {
+                        error!("{e}");
+                        reply(RC_STORE_FAILED, vec![])
+                    }
+                },
+            },
+            CALIBRATION => match SegmentRequest::decode(&msg.data) {
+                Err((rc, e)) => {
+                    warn!(well = self.cfg.well, "{e}");
+                    reply(rc, vec![])
+                }
+                Ok(seg) => {
+                    let (rc, state) = self.take_segment(seg);
+                    let d = if rc == 0 {
+                        vec![seg.sensor.code(), seg.number, state]
+                    } else {
+                        vec![]
+                    };
+                    reply(rc, d)
+                }
+            },
+            _ => reply(RC_NOT_IMPLEMENTED, vec![]),
+        })
+    }
+
+    /// Takes one calibration segment; the response code and the state byte.
+    fn take_segment(&mut self, seg: SegmentRequest) -> (u8, u8) {
+        if seg.number == 1 {
+            self.pending_table = Some((seg.sensor, vec![]));
+        }
+        let Some((sensor, segs)) = self.pending_table.as_mut() else {
+            return (RC_OUT_OF_ORDER, 0);
+        };
+        if *sensor != seg.sensor || segs.len() + 1 != seg.number as usize {
+            // A repeated segment (its reply was lost) is taken again.
+            if *sensor == seg.sensor && segs.len() == seg.number as usize {
+                segs.pop();
+            } else {
+                return (RC_OUT_OF_ORDER, 0);
+            }
+        }
+        segs.push(seg.segment);
+        if segs.len() < crate::calibration::SEGMENTS {
+            return (0, SEGMENT_TAKEN);
+        }
+        let (sensor, segs) = self.pending_table.take().unwrap_or((seg.sensor, vec![]));
+        match Table::new(segs) {
+            Ok(t) => match self.store.set_calibration(sensor, &t) {
+                Ok(()) => {
+                    info!(
+                        well = self.cfg.well,
+                        "new {} calibration table in force",
+                        sensor.name()
+                    );
+                    self.tables[kind_index(sensor)] = t;
+                    (0, TABLE_IN_FORCE)
+                }
+                Err(e) => {
+                    error!("{e}; the old table stays in force");
+                    (RC_STORE_FAILED, 0)
+                }
+            },
+            Err(e) => {
+                warn!(
+                    well = self.cfg.well,
+                    "calibration table refused, the old one stays in force: {e}"
+                );
+                (RC_TABLE_REFUSED, 0)
+            }
+        }
+    }
+
+    /// Engineering value of a level sensor's own temperature counts.
+    pub fn body_temperature(raw: u32) -> f64 {
+        body_celsius(raw)
+    }
+}

@@ -1,0 +1,700 @@
+//! The concentrator's store: SQLite in WAL mode, one transaction per poll, a ring of
+//! minutes that never drops data not handed over while there is room.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use rusqlite::{params, Connection, OptionalExtension, Transaction};
+
+use crate::calibration::{Segment, Sensor, Table};
+use crate::proto::{Batch, Record, SensorStatus, StationStatus, BATCH_RECORDS, NO_VALUE};
+
+/// How hard the store works to survive power loss.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Durability {
+    /// Every commit is on disk before it returns (`synchronous=FULL`): a power cut
+    /// loses at most the poll in progress.
+    Full,
+    /// Commits survive the process being killed, not necessarily the machine losing
+    /// power (`synchronous=NORMAL`): for simulation.
+    Process,
+}
+
+/// A store that could not be opened or written.
+#[derive(Debug)]
+pub struct StoreError {
+    /// The file.
+    pub path: PathBuf,
+    /// What happened.
+    pub what: String,
+}
+
+impl fmt::Display for StoreError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "store {}: {}", self.path.display(), self.what)
+    }
+}
+
+impl std::error::Error for StoreError {}
+
+/// Opens an SQLite file for one of the network's stores: WAL, the durability asked,
+/// a busy timeout (another process reading it, such as a report, does not fail a
+/// poll).
+pub(crate) fn open_db(path: &Path, durability: Durability) -> Result<Connection, StoreError> {
+    let err = |e: rusqlite::Error| {
+        StoreError {
+        path: path.to_path_buf(),
+        what: format!("{e}; check that the file is an SQLite database this program wrote and that the directory is writable"),
+    }
+    };
+    let c = Connection::open(path).map_err(err)?;
+    c.busy_timeout(std::time::Duration::from_secs(5))
+        .map_err(err)?;
+    let mode: String = c
+        .query_row("PRAGMA journal_mode=WAL", [], |r| r.get(0))
+        .map_err(err)?;
+    if mode != "wal" && path != Path::new(":memory:") {
+        return Err(StoreError {
+            path: path.to_path_buf(),
+            what: format!("cannot use write-ahead logging (journal mode {mode}); put the store on a local file system"),
+        });
+    }
+    c.execute_batch(match durability {
+        Durability::Full => "PRAGMA synchronous=FULL",
+        Durability::Process => "PRAGMA synchronous=NORMAL",
+    })
+    .map_err(err)?;
+    Ok(c)
+}
+
+/// What one poll's commit did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PollOutcome {
+    /// Minutes stored for the first time.
+    pub new_minutes: u32,
+    /// Minutes that gained a quantity missing before.
+    pub completed: u32,
+    /// Handed-over minutes removed to make room.
+    pub evicted: u32,
+    /// Minutes not handed over removed because nothing else was left to remove.
+    pub dropped_unsent: u32,
+}
+
+/// The concentrator's store.
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+    capacity: u32,
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS minutes(
+    minute INTEGER PRIMARY KEY, valid INTEGER NOT NULL,
+    t_raw INTEGER NOT NULL, l_raw INTEGER NOT NULL, ls_raw INTEGER NOT NULL,
+    temperature REAL, level REAL);
+CREATE TABLE IF NOT EXISTS calibration(
+    sensor TEXT NOT NULL, segment INTEGER NOT NULL, raw_from INTEGER NOT NULL,
+    raw_to INTEGER NOT NULL, a0 REAL NOT NULL, a1 REAL NOT NULL, a2 REAL NOT NULL,
+    PRIMARY KEY(sensor, segment));
+CREATE TABLE IF NOT EXISTS sensors(
+    address INTEGER PRIMARY KEY, kind TEXT NOT NULL, state INTEGER NOT NULL,
+    last_good INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS events(at INTEGER NOT NULL, severity TEXT NOT NULL, text TEXT NOT NULL);
+";
+
+/// Minutes in a day.
+pub const DAY_MINUTES: u32 = 1440;
+
+fn nan_null(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+pub(crate) fn record_from_row(r: &rusqlite::Row<'_>, at: usize) -> rusqlite::Result<Record> {
+    Ok(Record {
+        minute: r.get(at)?,
+        valid: r.get(at + 1)?,
+        t_raw: r.get(at + 2)?,
+        l_raw: r.get(at + 3)?,
+        ls_raw: r.get(at + 4)?,
+        temperature: r.get::<_, Option<f64>>(at + 5)?.unwrap_or(f64::NAN),
+        level: r.get::<_, Option<f64>>(at + 6)?.unwrap_or(f64::NAN),
+    })
+}
+
+impl Store {
+    /// Opens (or creates) the store of `well` with room for `capacity` minutes (at
+    /// least 7 days).
+    pub fn open(
+        path: &Path,
+        well: u8,
+        capacity: u32,
+        durability: Durability,
+    ) -> Result<Self, StoreError> {
+        let conn = open_db(path, durability)?;
+        let s = Store {
+            conn,
+            path: path.to_path_buf(),
+            capacity: capacity.max(7 * DAY_MINUTES),
+        };
+        s.conn.execute_batch(SCHEMA).map_err(|e| s.err(e))?;
+        match s.meta("well")? {
+            None => s.set_meta("well", well as i64)?,
+            Some(w) if w != well as i64 => return Err(StoreError {
+                path: path.to_path_buf(),
+                what: format!(
+                    "this store belongs to well {w}, not well {well}; give each well its own file"
+                ),
+            }),
+            Some(_) => {}
+        }
+        Ok(s)
+    }
+
+    fn err(&self, e: rusqlite::Error) -> StoreError {
+        StoreError {
+            path: self.path.clone(),
+            what: e.to_string(),
+        }
+    }
+
+    fn meta(&self, key: &str) -> Result<Option<i64>, StoreError> {
+        self.conn
+            .query_row("SELECT value FROM meta WHERE key=?1", [key], |r| r.get(0))
+            .optional()
+            .map_err(|e| self.err(e))
+    }
+
+    fn set_meta(&self, key: &str, v: i64) -> Result<(), StoreError> {
+        set_meta(&self.conn, key, v).map_err(|e| self.err(e))
+    }
+
+    /// Room, in minutes.
+    pub fn capacity(&self) -> u32 {
+        self.capacity
+    }
+
+    /// The handed-over mark: every minute up to it has been handed over.
+    pub fn handed_over(&self) -> Result<u32, StoreError> {
+        Ok(self.meta("handed_over")?.unwrap_or(0) as u32)
+    }
+
+    /// Minutes stored, minutes not handed over, the newest minute.
+    pub fn counts(&self) -> Result<(u32, u32, u32), StoreError> {
+        let ho = self.handed_over()?;
+        self.conn
+            .query_row(
+                "SELECT count(*), coalesce(sum(minute > ?1), 0), coalesce(max(minute), 0) FROM minutes",
+                [ho],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .map_err(|e| self.err(e))
+    }
+
+    /// Minutes dropped before they were handed over, over the store's life.
+    pub fn dropped_unsent(&self) -> Result<u32, StoreError> {
+        Ok(self.meta("dropped_unsent")?.unwrap_or(0) as u32)
+    }
+
+    /// The record of `minute`, if stored.
+    pub fn get(&self, minute: u32) -> Result<Option<Record>, StoreError> {
+        self.conn
+            .query_row(
+                "SELECT minute, valid, t_raw, l_raw, ls_raw, temperature, level FROM minutes WHERE minute=?1",
+                [minute],
+                |r| record_from_row(r, 0),
+            )
+            .optional()
+            .map_err(|e| self.err(e))
+    }
+
+    /// Records with minutes in `from..=to`, oldest first.
+    pub fn range(&self, from: u32, to: u32) -> Result<Vec<Record>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT minute, valid, t_raw, l_raw, ls_raw, temperature, level FROM minutes \
+                 WHERE minute BETWEEN ?1 AND ?2 ORDER BY minute",
+            )
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([from, to], |r| record_from_row(r, 0))
+            .map_err(|e| self.err(e))?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(|e| self.err(e))
+    }
+
+    /// Stores one poll in one transaction: each record's minute if new; a minute not
+    /// yet handed over gains the quantities it lacked; then the ring is kept within
+    /// its capacity, and the sensors' states are written.
+    pub fn commit_poll(
+        &mut self,
+        records: &[Record],
+        sensors: &[SensorStatus],
+        now_minute: u32,
+    ) -> Result<PollOutcome, StoreError> {
+        let path = self.path.clone();
+        let capacity = self.capacity;
+        let e = |e: rusqlite::Error| StoreError {
+            path: path.clone(),
+            what: e.to_string(),
+        };
+        let tx = self.conn.transaction().map_err(e)?;
+        let mut out = PollOutcome::default();
+        let ho: u32 = get_meta(&tx, "handed_over").map_err(e)?.unwrap_or(0) as u32;
+        for r in records.iter().filter(|r| r.valid != 0) {
+            let old: Option<u8> = tx
+                .query_row(
+                    "SELECT valid FROM minutes WHERE minute=?1",
+                    [r.minute],
+                    |x| x.get(0),
+                )
+                .optional()
+                .map_err(e)?;
+            match old {
+                None => {
+                    tx.execute(
+                        "INSERT INTO minutes VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                        params![
+                            r.minute,
+                            r.valid,
+                            r.t_raw,
+                            r.l_raw,
+                            r.ls_raw,
+                            nan_null(r.temperature),
+                            nan_null(r.level)
+                        ],
+                    )
+                    .map_err(e)?;
+                    out.new_minutes += 1;
+                }
+                Some(v) if r.minute > ho && r.valid & !v != 0 => {
+                    let gain = r.valid & !v;
+                    if gain & crate::proto::VALID_TEMPERATURE != 0 {
+                        tx.execute(
+                            "UPDATE minutes SET t_raw=?2, temperature=?3 WHERE minute=?1",
+                            params![r.minute, r.t_raw, nan_null(r.temperature)],
+                        )
+                        .map_err(e)?;
+                    }
+                    if gain & crate::proto::VALID_LEVEL != 0 {
+                        tx.execute(
+                            "UPDATE minutes SET l_raw=?2, level=?3 WHERE minute=?1",
+                            params![r.minute, r.l_raw, nan_null(r.level)],
+                        )
+                        .map_err(e)?;
+                    }
+                    if gain & crate::proto::VALID_LEVEL_SENSOR_TEMPERATURE != 0 {
+                        tx.execute(
+                            "UPDATE minutes SET ls_raw=?2 WHERE minute=?1",
+                            params![r.minute, r.ls_raw],
+                        )
+                        .map_err(e)?;
+                    }
+                    tx.execute(
+                        "UPDATE minutes SET valid=?2 WHERE minute=?1",
+                        params![r.minute, v | r.valid],
+                    )
+                    .map_err(e)?;
+                    out.completed += 1;
+                }
+                Some(_) => {}
+            }
+        }
+        let count: u32 = tx
+            .query_row("SELECT count(*) FROM minutes", [], |x| x.get(0))
+            .map_err(e)?;
+        if count > capacity {
+            let excess = count - capacity;
+            out.evicted = tx
+                .execute(
+                    "DELETE FROM minutes WHERE minute IN \
+                     (SELECT minute FROM minutes WHERE minute <= ?1 ORDER BY minute LIMIT ?2)",
+                    params![ho, excess],
+                )
+                .map_err(e)? as u32;
+            let left = excess - out.evicted;
+            if left > 0 {
+                out.dropped_unsent = tx
+                    .execute(
+                        "DELETE FROM minutes WHERE minute IN \
+                         (SELECT minute FROM minutes ORDER BY minute LIMIT ?1)",
+                        [left],
+                    )
+                    .map_err(e)? as u32;
+                let total = get_meta(&tx, "dropped_unsent").map_err(e)?.unwrap_or(0)
+                    + out.dropped_unsent as i64;
+                set_meta(&tx, "dropped_unsent", total).map_err(e)?;
+                tx.execute(
+                    "INSERT INTO events VALUES (?1, 'error', ?2)",
+                    params![
+                        now_minute,
+                        format!(
+                            "store full: {} minutes dropped before they were handed over ({total} in all); \
+                             collect the data (handheld or telephone) or give the store more room",
+                            out.dropped_unsent
+                        )
+                    ],
+                )
+                .map_err(e)?;
+            }
+        }
+        for s in sensors {
+            tx.execute(
+                "INSERT OR REPLACE INTO sensors VALUES (?1, ?2, ?3, ?4)",
+                params![s.address, s.kind.name(), s.state, s.last_good],
+            )
+            .map_err(e)?;
+        }
+        tx.commit().map_err(e)?;
+        Ok(out)
+    }
+
+    /// Answers command 144: moves the handed-over mark to `ack` (never backwards,
+    /// never past the newest minute) and returns the next batch after the mark, in
+    /// one transaction.
+    pub fn transfer(&mut self, ack: u32, now_minute: u32) -> Result<Batch, StoreError> {
+        let path = self.path.clone();
+        let e = |e: rusqlite::Error| StoreError {
+            path: path.clone(),
+            what: e.to_string(),
+        };
+        let tx = self.conn.transaction().map_err(e)?;
+        let batch = transfer_in(&tx, ack, now_minute, "minutes", "", &[]).map_err(e)?;
+        tx.commit().map_err(e)?;
+        Ok(batch)
+    }
+
+    /// The sensors' states as last stored.
+    pub fn sensors(&self) -> Result<Vec<SensorStatus>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare("SELECT address, kind, state, last_good FROM sensors ORDER BY address")
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([], |r| {
+                let kind: String = r.get(1)?;
+                Ok(SensorStatus {
+                    address: r.get(0)?,
+                    kind: Sensor::from_name(&kind).unwrap_or(Sensor::Temperature),
+                    state: r.get(2)?,
+                    last_good: r.get(3)?,
+                })
+            })
+            .map_err(|e| self.err(e))?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(|e| self.err(e))
+    }
+
+    /// The status command 14 reports (the summary is left to the caller's sensors).
+    pub fn status(
+        &self,
+        clock: u32,
+        sensors: Vec<SensorStatus>,
+    ) -> Result<StationStatus, StoreError> {
+        let (stored, unsent, _) = self.counts()?;
+        let dropped = self.dropped_unsent()?;
+        let faulty = sensors.iter().any(|s| s.state != 0);
+        Ok(StationStatus {
+            summary: if dropped > 0 {
+                2
+            } else if faulty {
+                1
+            } else {
+                0
+            },
+            clock,
+            stored,
+            unsent,
+            fill_permille: ((stored as u64 * 1000) / self.capacity.max(1) as u64).min(1000) as u16,
+            dropped_unsent: dropped,
+            sensors,
+        })
+    }
+
+    /// When the last transfer happened (minute) and how many minutes it has handed
+    /// over in all.
+    pub fn last_transfer(&self) -> Result<Option<(u32, u32)>, StoreError> {
+        let at = self.meta("last_transfer_at")?;
+        let n = self.meta("transferred")?.unwrap_or(0);
+        Ok(at.map(|a| (a as u32, n as u32)))
+    }
+
+    /// The calibration table stored for `sensor`, if one was downloaded.
+    pub fn calibration(&self, sensor: Sensor) -> Result<Option<Table>, StoreError> {
+        load_table(&self.conn, "calibration", "", &[], sensor).map_err(|e| self.err(e))
+    }
+
+    /// Puts `table` in force for `sensor` (one transaction: the old table stays if
+    /// anything fails).
+    pub fn set_calibration(&mut self, sensor: Sensor, table: &Table) -> Result<(), StoreError> {
+        let path = self.path.clone();
+        let e = |e: rusqlite::Error| StoreError {
+            path: path.clone(),
+            what: e.to_string(),
+        };
+        let tx = self.conn.transaction().map_err(e)?;
+        save_table(&tx, "calibration", "", &[], sensor, table).map_err(e)?;
+        tx.commit().map_err(e)
+    }
+
+    /// Writes an event to the store's log.
+    pub fn event(&self, minute: u32, severity: &str, text: &str) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "INSERT INTO events VALUES (?1, ?2, ?3)",
+                params![minute, severity, text],
+            )
+            .map(|_| ())
+            .map_err(|e| self.err(e))
+    }
+
+    /// The newest events, newest first.
+    pub fn events(&self, n: usize) -> Result<Vec<(u32, String, String)>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare("SELECT at, severity, text FROM events ORDER BY rowid DESC LIMIT ?1")
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([n as i64], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .map_err(|e| self.err(e))?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(|e| self.err(e))
+    }
+}
+
+pub(crate) fn get_meta(c: &Connection, key: &str) -> rusqlite::Result<Option<i64>> {
+    c.query_row("SELECT value FROM meta WHERE key=?1", [key], |r| r.get(0))
+        .optional()
+}
+
+pub(crate) fn set_meta(c: &Connection, key: &str, v: i64) -> rusqlite::Result<()> {
+    c.execute(
+        "INSERT OR REPLACE INTO meta VALUES (?1, ?2)",
+        params![key, v],
+    )
+    .map(|_| ())
+}
+
+/// The command-144 logic on any table of records: `table` with an optional `scope`
+/// condition (e.g. `well=?`) and its parameters; the mark lives in `meta` under
+/// `handed_over{scope_key}`.
+pub(crate) fn transfer_in(
+    tx: &Transaction<'_>,
+    ack: u32,
+    now_minute: u32,
+    table: &str,
+    scope_key: &str,
+    scope: &[(&str, i64)],
+) -> rusqlite::Result<Batch> {
+    let where_scope: String = scope.iter().map(|(c, v)| format!(" AND {c}={v}")).collect();
+    let key = format!("handed_over{scope_key}");
+    let mark = get_meta(tx, &key)?.unwrap_or(0) as u32;
+    let newest: u32 = tx.query_row(
+        &format!("SELECT coalesce(max(minute), 0) FROM {table} WHERE 1=1{where_scope}"),
+        [],
+        |r| r.get(0),
+    )?;
+    let new_mark = mark.max(ack.min(newest));
+    if new_mark != mark {
+        let before: u32 = tx.query_row(
+            &format!(
+                "SELECT count(*) FROM {table} WHERE minute > ?1 AND minute <= ?2{where_scope}"
+            ),
+            params![mark, new_mark],
+            |r| r.get(0),
+        )?;
+        set_meta(tx, &key, new_mark as i64)?;
+        let total = get_meta(tx, &format!("transferred{scope_key}"))?.unwrap_or(0) + before as i64;
+        set_meta(tx, &format!("transferred{scope_key}"), total)?;
+        set_meta(
+            tx,
+            &format!("last_transfer_at{scope_key}"),
+            now_minute as i64,
+        )?;
+    }
+    let mut st = tx.prepare_cached(&format!(
+        "SELECT minute, valid, t_raw, l_raw, ls_raw, temperature, level FROM {table} \
+         WHERE minute > ?1{where_scope} ORDER BY minute LIMIT ?2"
+    ))?;
+    let records = st
+        .query_map(params![new_mark, BATCH_RECORDS as i64], |r| {
+            record_from_row(r, 0)
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    let after = records.last().map_or(new_mark, |r| r.minute);
+    let remaining: u32 = tx.query_row(
+        &format!("SELECT count(*) FROM {table} WHERE minute > ?1{where_scope}"),
+        [after],
+        |r| r.get(0),
+    )?;
+    Ok(Batch { remaining, records })
+}
+
+pub(crate) fn load_table(
+    c: &Connection,
+    table: &str,
+    where_scope: &str,
+    _scope: &[i64],
+    sensor: Sensor,
+) -> rusqlite::Result<Option<Table>> {
+    let mut st = c.prepare(&format!(
+        "SELECT raw_from, raw_to, a0, a1, a2 FROM {table} WHERE sensor=?1{where_scope} ORDER BY segment"
+    ))?;
+    let segs = st
+        .query_map([sensor.name()], |r| {
+            Ok(Segment {
+                raw_from: r.get(0)?,
+                raw_to: r.get(1)?,
+                a0: r.get(2)?,
+                a1: r.get(3)?,
+                a2: r.get(4)?,
+            })
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    if segs.is_empty() {
+        return Ok(None);
+    }
+    Ok(Table::new(segs).ok())
+}
+
+pub(crate) fn save_table(
+    c: &Connection,
+    table: &str,
+    scope_cols: &str,
+    scope: &[i64],
+    sensor: Sensor,
+    t: &Table,
+) -> rusqlite::Result<()> {
+    let where_scope: String = scope_cols
+        .split(',')
+        .filter(|s| !s.is_empty())
+        .zip(scope)
+        .map(|(c, v)| format!(" AND {c}={v}"))
+        .collect();
+    c.execute(
+        &format!("DELETE FROM {table} WHERE sensor=?1{where_scope}"),
+        [sensor.name()],
+    )?;
+    let cols = if scope_cols.is_empty() {
+        String::new()
+    } else {
+        format!("{scope_cols}, ")
+    };
+    let vals: String = scope.iter().map(|v| format!("{v}, ")).collect();
+    for (i, s) in t.segments().iter().enumerate() {
+        c.execute(
+            &format!(
+                "INSERT INTO {table} ({cols}sensor, segment, raw_from, raw_to, a0, a1, a2) \
+                 VALUES ({vals}?1, ?2, ?3, ?4, ?5, ?6, ?7)"
+            ),
+            params![
+                sensor.name(),
+                i as i64 + 1,
+                s.raw_from,
+                s.raw_to,
+                s.a0,
+                s.a1,
+                s.a2
+            ],
+        )?;
+    }
+    Ok(())
+}
+
+/// A record's raw counts, `NO_VALUE` where not valid (a helper for the roles).
+pub fn raw_or_none(valid: bool, v: u32) -> u32 {
+    if valid {
+        v
+    } else {
+        NO_VALUE
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(minute: u32, valid: u8) -> Record {
+        Record {
+            minute,
+            valid,
+            t_raw: if valid & 1 != 0 { 100 } else { NO_VALUE },
+            l_raw: if valid & 2 != 0 { 200 } else { NO_VALUE },
+            ls_raw: NO_VALUE,
+            temperature: if valid & 1 != 0 { 15.0 } else { f64::NAN },
+            level: if valid & 2 != 0 { 10.0 } else { f64::NAN },
+        }
+    }
+
+    fn store(dir: &tempfile::TempDir) -> Store {
+        Store::open(&dir.path().join("c.db"), 1, 0, Durability::Process).unwrap()
+    }
+
+    #[test]
+    fn a_minute_is_stored_once_and_completed_until_handed_over() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        let o = s.commit_poll(&[rec(10, 1), rec(11, 3)], &[], 12).unwrap();
+        assert_eq!(o.new_minutes, 2);
+        let o = s.commit_poll(&[rec(10, 3), rec(11, 3)], &[], 12).unwrap();
+        assert_eq!((o.new_minutes, o.completed), (0, 1));
+        assert_eq!(s.get(10).unwrap().unwrap().valid, 3);
+        // Once handed over, a minute does not change.
+        let b = s.transfer(0, 12).unwrap();
+        assert_eq!(b.records.len(), 2);
+        let b = s.transfer(11, 12).unwrap();
+        assert!(b.records.is_empty());
+        s.commit_poll(&[rec(12, 1)], &[], 13).unwrap();
+        let o = s.commit_poll(&[rec(11, 7), rec(12, 3)], &[], 13).unwrap();
+        assert_eq!(o.completed, 1);
+        assert_eq!(s.get(11).unwrap().unwrap().valid, 3);
+    }
+
+    #[test]
+    fn transfer_acks_move_forward_only_and_not_past_the_newest() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        let recs: Vec<_> = (100..130).map(|m| rec(m, 3)).collect();
+        s.commit_poll(&recs, &[], 200).unwrap();
+        let b = s.transfer(0, 200).unwrap();
+        assert_eq!((b.records.len(), b.remaining), (11, 19));
+        // Repeating the same request (the reply was lost) gives the same batch.
+        assert_eq!(s.transfer(0, 200).unwrap(), b);
+        let b2 = s.transfer(110, 200).unwrap();
+        assert_eq!(b2.records[0].minute, 111);
+        // An older ack does not move the mark back.
+        assert_eq!(s.transfer(50, 200).unwrap(), b2);
+        // An ack from the future stops at the newest minute.
+        let b3 = s.transfer(5000, 200).unwrap();
+        assert!(b3.records.is_empty());
+        assert_eq!(s.handed_over().unwrap(), 129);
+    }
+
+    #[test]
+    fn the_ring_drops_handed_over_minutes_first_and_unsent_ones_loudly() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        let cap = s.capacity();
+        let recs: Vec<_> = (1..=cap).map(|m| rec(m, 3)).collect();
+        s.commit_poll(&recs, &[], cap).unwrap();
+        s.transfer(100, cap).unwrap();
+        let o = s
+            .commit_poll(&[rec(cap + 1, 3), rec(cap + 2, 3)], &[], cap + 2)
+            .unwrap();
+        assert_eq!((o.evicted, o.dropped_unsent), (2, 0));
+        // Everything handed over is gone: the next ones are unsent.
+        let more: Vec<_> = (cap + 3..cap + 103).map(|m| rec(m, 3)).collect();
+        let o = s.commit_poll(&more, &[], cap + 103).unwrap();
+        assert_eq!((o.evicted, o.dropped_unsent), (98, 2));
+        assert_eq!(s.dropped_unsent().unwrap(), 2);
+        assert!(s.events(1).unwrap()[0].2.contains("store full"));
+    }
+
+    #[test]
+    fn a_store_is_for_one_well() {
+        let d = tempfile::tempdir().unwrap();
+        drop(store(&d));
+        let e = Store::open(&d.path().join("c.db"), 2, 0, Durability::Process)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("belongs to well 1"), "{e}");
+    }
+}
