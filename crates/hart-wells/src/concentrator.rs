@@ -5,13 +5,12 @@
 
 use tracing::{error, info, warn};
 
-use crate::calibration::{Segment, Sensor, Table};
+use crate::calibration::{Sensor, Table};
 use crate::proto::{
-    decode_transfer_request, Diagnosis, Groups, Message, Record, SegmentRequest, SensorStatus,
-    Station, CALIBRATION, DIAGNOSTICS, NO_VALUE, RC_NOT_IMPLEMENTED, RC_OUT_OF_ORDER,
-    RC_TABLE_REFUSED, RC_TOO_FEW_BYTES, READ_VALUES, SEGMENT_TAKEN, STATE_NOT_ANSWERING,
-    STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL, VALID_LEVEL_SENSOR_TEMPERATURE,
-    VALID_TEMPERATURE,
+    decode_transfer_request, Assembled, Diagnosis, Groups, Message, Record, SegmentRequest,
+    SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS, NO_VALUE, RC_NOT_IMPLEMENTED,
+    RC_TOO_FEW_BYTES, READ_VALUES, SEGMENT_TAKEN, STATE_NOT_ANSWERING, STATUS_NORMAL,
+    TABLE_IN_FORCE, TRANSFER, VALID_LEVEL, VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
 };
 use crate::sensor::body_celsius;
 use crate::store::{PollOutcome, Store, StoreError};
@@ -80,7 +79,7 @@ pub struct Concentrator {
     sensors: Vec<SensorView>,
     next_poll: Millis,
     cycle: Option<Cycle>,
-    pending_table: Option<(Sensor, Vec<Segment>)>,
+    assembler: TableAssembler,
     /// Records a failed commit could not write: tried again with the next poll.
     unsaved: Vec<Record>,
     /// Polls completed.
@@ -133,7 +132,7 @@ impl Concentrator {
             sensors,
             next_poll: 0,
             cycle: None,
-            pending_table: None,
+            assembler: TableAssembler::default(),
             unsaved: Vec::new(),
             polls: 0,
             bus_timeouts: 0,
@@ -441,34 +440,23 @@ impl Concentrator {
 
     /// Takes one calibration segment; the response code and the state byte.
     fn take_segment(&mut self, seg: SegmentRequest) -> (u8, u8) {
-        if seg.number == 1 {
-            self.pending_table = Some((seg.sensor, vec![]));
-        }
-        let Some((sensor, segs)) = self.pending_table.as_mut() else {
-            return (RC_OUT_OF_ORDER, 0);
-        };
-        if *sensor != seg.sensor || segs.len() + 1 != seg.number as usize {
-            // A repeated segment (its reply was lost) is taken again.
-            if *sensor == seg.sensor && segs.len() == seg.number as usize {
-                segs.pop();
-            } else {
-                return (RC_OUT_OF_ORDER, 0);
+        match self.assembler.take(seg) {
+            Assembled::Taken => (0, SEGMENT_TAKEN),
+            Assembled::Refused(rc, why) => {
+                warn!(
+                    well = self.cfg.well,
+                    "calibration refused, the old table stays in force: {why}"
+                );
+                (rc, 0)
             }
-        }
-        segs.push(seg.segment);
-        if segs.len() < crate::calibration::SEGMENTS {
-            return (0, SEGMENT_TAKEN);
-        }
-        let (sensor, segs) = self.pending_table.take().unwrap_or((seg.sensor, vec![]));
-        match Table::new(segs) {
-            Ok(t) => match self.store.set_calibration(sensor, &t) {
+            Assembled::Table(sensor, t) => match self.store.set_calibration(sensor, &t) {
                 Ok(()) => {
                     info!(
                         well = self.cfg.well,
                         "new {} calibration table in force",
                         sensor.name()
                     );
-                    self.tables[kind_index(sensor)] = t;
+                    self.tables[kind_index(sensor)] = *t;
                     (0, TABLE_IN_FORCE)
                 }
                 Err(e) => {
@@ -476,13 +464,6 @@ impl Concentrator {
                     (RC_STORE_FAILED, 0)
                 }
             },
-            Err(e) => {
-                warn!(
-                    well = self.cfg.well,
-                    "calibration table refused, the old one stays in force: {e}"
-                );
-                (RC_TABLE_REFUSED, 0)
-            }
         }
     }
 

@@ -6,14 +6,23 @@
 //! * [`calibration`]: the 10-segment piecewise quadratic tables and their CSV file.
 //! * [`sensor`]: a simulated sensor (signal, clipped mean, faults, its answers).
 //! * [`store`]: the concentrator's SQLite ring.
+//! * [`archive`]: what the PC and the handheld keep, and the requester side of
+//!   commands 144 and 160.
 //! * [`concentrator`]: the concentrator, master on its bus and slave on its uplink.
+//! * [`handheld`]: the handheld as a station serving the PC.
+//! * [`sim`]: the whole network in virtual time.
+//! * [`run`]: the roles in real time on serial ports and pseudo-terminals.
 
 #![warn(missing_docs)]
 
+pub mod archive;
 pub mod calibration;
 pub mod concentrator;
+pub mod handheld;
 pub mod proto;
+pub mod run;
 pub mod sensor;
+pub mod sim;
 pub mod store;
 
 /// Time: milliseconds since the Unix epoch (UTC), real or virtual.

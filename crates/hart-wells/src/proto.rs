@@ -741,6 +741,66 @@ pub const SEGMENT_TAKEN: u8 = 0;
 /// Command-160 reply state: the table is complete and in force.
 pub const TABLE_IN_FORCE: u8 = 1;
 
+/// Puts a table together from command-160 segments: segment 1 starts a table, each
+/// next segment must follow, a repeated segment (its reply was lost) is taken again,
+/// and the tenth makes the table if it checks out.
+#[derive(Debug, Clone, Default)]
+pub struct TableAssembler {
+    pending: Option<(Sensor, Vec<Segment>)>,
+}
+
+/// What a segment did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Assembled {
+    /// Taken; more to come.
+    Taken,
+    /// The table is complete and checks out.
+    Table(Sensor, Box<crate::calibration::Table>),
+    /// Refused: the response code and why.
+    Refused(u8, String),
+}
+
+impl TableAssembler {
+    /// Takes one segment.
+    pub fn take(&mut self, seg: SegmentRequest) -> Assembled {
+        if seg.number == 1 {
+            self.pending = Some((seg.sensor, vec![]));
+        }
+        let Some((sensor, segs)) = self.pending.as_mut() else {
+            return Assembled::Refused(
+                RC_OUT_OF_ORDER,
+                format!("segment {} before segment 1", seg.number),
+            );
+        };
+        if *sensor == seg.sensor && segs.len() == seg.number as usize {
+            segs.pop();
+        }
+        if *sensor != seg.sensor || segs.len() + 1 != seg.number as usize {
+            return Assembled::Refused(
+                RC_OUT_OF_ORDER,
+                format!(
+                    "segment {} of the {} table where segment {} of the {} table was next",
+                    seg.number,
+                    seg.sensor.name(),
+                    segs.len() + 1,
+                    sensor.name()
+                ),
+            );
+        }
+        segs.push(seg.segment);
+        if segs.len() < crate::calibration::SEGMENTS {
+            return Assembled::Taken;
+        }
+        let Some((sensor, segs)) = self.pending.take() else {
+            return Assembled::Taken;
+        };
+        match crate::calibration::Table::new(segs) {
+            Ok(t) => Assembled::Table(sensor, Box::new(t)),
+            Err(e) => Assembled::Refused(RC_TABLE_REFUSED, e.to_string()),
+        }
+    }
+}
+
 /// One sensor's line in a concentrator's status (uplink command 14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SensorStatus {

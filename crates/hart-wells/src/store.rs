@@ -85,6 +85,9 @@ pub struct Store {
     conn: Connection,
     path: PathBuf,
     capacity: u32,
+    /// Minutes stored (counted once at open, then kept by the commits: only this
+    /// store's owner writes it).
+    rows: u32,
 }
 
 const SCHEMA: &str = "
@@ -132,20 +135,27 @@ impl Store {
         durability: Durability,
     ) -> Result<Self, StoreError> {
         let conn = open_db(path, durability)?;
-        let s = Store {
+        let mut s = Store {
             conn,
             path: path.to_path_buf(),
             capacity: capacity.max(7 * DAY_MINUTES),
+            rows: 0,
         };
         s.conn.execute_batch(SCHEMA).map_err(|e| s.err(e))?;
+        s.rows = s
+            .conn
+            .query_row("SELECT count(*) FROM minutes", [], |r| r.get(0))
+            .map_err(|e| s.err(e))?;
         match s.meta("well")? {
             None => s.set_meta("well", well as i64)?,
-            Some(w) if w != well as i64 => return Err(StoreError {
-                path: path.to_path_buf(),
-                what: format!(
+            Some(w) if w != well as i64 => {
+                return Err(StoreError {
+                    path: path.to_path_buf(),
+                    what: format!(
                     "this store belongs to well {w}, not well {well}; give each well its own file"
                 ),
-            }),
+                })
+            }
             Some(_) => {}
         }
         Ok(s)
@@ -182,13 +192,15 @@ impl Store {
     /// Minutes stored, minutes not handed over, the newest minute.
     pub fn counts(&self) -> Result<(u32, u32, u32), StoreError> {
         let ho = self.handed_over()?;
-        self.conn
+        let (unsent, newest) = self
+            .conn
             .query_row(
-                "SELECT count(*), coalesce(sum(minute > ?1), 0), coalesce(max(minute), 0) FROM minutes",
+                "SELECT count(*), (SELECT coalesce(max(minute), 0) FROM minutes) FROM minutes WHERE minute > ?1",
                 [ho],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+                |r| Ok((r.get(0)?, r.get(1)?)),
             )
-            .map_err(|e| self.err(e))
+            .map_err(|e| self.err(e))?;
+        Ok((self.rows, unsent, newest))
     }
 
     /// Minutes dropped before they were handed over, over the store's life.
@@ -300,9 +312,7 @@ impl Store {
                 Some(_) => {}
             }
         }
-        let count: u32 = tx
-            .query_row("SELECT count(*) FROM minutes", [], |x| x.get(0))
-            .map_err(e)?;
+        let count = self.rows + out.new_minutes;
         if count > capacity {
             let excess = count - capacity;
             out.evicted = tx
@@ -346,6 +356,7 @@ impl Store {
             .map_err(e)?;
         }
         tx.commit().map_err(e)?;
+        self.rows = count - out.evicted - out.dropped_unsent;
         Ok(out)
     }
 
@@ -420,7 +431,7 @@ impl Store {
 
     /// The calibration table stored for `sensor`, if one was downloaded.
     pub fn calibration(&self, sensor: Sensor) -> Result<Option<Table>, StoreError> {
-        load_table(&self.conn, "calibration", "", &[], sensor).map_err(|e| self.err(e))
+        load_table(&self.conn, "calibration", "", sensor).map_err(|e| self.err(e))
     }
 
     /// Puts `table` in force for `sensor` (one transaction: the old table stays if
@@ -532,7 +543,6 @@ pub(crate) fn load_table(
     c: &Connection,
     table: &str,
     where_scope: &str,
-    _scope: &[i64],
     sensor: Sensor,
 ) -> rusqlite::Result<Option<Table>> {
     let mut st = c.prepare(&format!(

@@ -274,7 +274,8 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
     })
 }
 
-fn init_log() {
+/// Logs to standard error, filtered by `HARTKIT_LOG` (default `info`).
+pub(crate) fn init_log() {
     let _ = tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_target(false)

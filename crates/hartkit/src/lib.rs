@@ -15,6 +15,7 @@ pub mod modem_bench;
 pub mod serve;
 pub mod sim;
 pub mod sound;
+pub mod wells;
 
 use hart_proto::frame::{Frame, FrameType};
 use hart_proto::tables::{response_class, ResponseClass};

@@ -25,6 +25,10 @@ enum Top {
     /// Simulate a HART network in virtual time.
     #[command(subcommand)]
     Sim(SimCmd),
+    /// The remote well-monitoring network: sensors, data concentrators, the
+    /// handheld and the bureau's PC over RS-485 and telephone lines (docs/wells.md).
+    #[command(subcommand)]
+    Wells(hartkit::wells::WellsCmd),
     /// Find devices: command 0 in short frames over a polling-address range.
     Scan {
         #[command(flatten)]
@@ -1280,6 +1284,7 @@ fn main() -> ExitCode {
         Top::Sim(SimCmd::Serve(a)) => sim_serve(a).map(|_| String::new()),
         Top::Modem(cmd) => modem(cmd),
         Top::Loop(cmd) => loop_cmd(cmd),
+        Top::Wells(cmd) => hartkit::wells::run(cmd),
         _ => unreachable!("host commands are handled above"),
     };
     match result {

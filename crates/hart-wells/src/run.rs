@@ -1,0 +1,423 @@
+//! The roles in real time, on any `hart_host::Transport` (a serial port, RS-485, a
+//! pseudo-terminal): the sans-IO cores with the bytes moved and the time read from a
+//! [`Clock`].
+
+use std::cell::RefCell;
+use std::io;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use hart_host::transport::Transport;
+use tracing::{info, warn};
+
+use crate::archive::{Archive, CalibrationSender, Collector, PullLog, Step, TransferError};
+use crate::calibration::Sensor;
+use crate::concentrator::Concentrator;
+use crate::handheld::HandheldStation;
+use crate::proto::{Message, Received, Receiver, Station, StationStatus, DIAGNOSTICS};
+use crate::sensor::SimSensor;
+use crate::Millis;
+
+/// The time the roles see: the system clock (UTC), optionally running faster from
+/// the moment it starts (`--speed`, for demonstrations and tests).
+#[derive(Debug, Clone, Copy)]
+pub struct Clock {
+    start: Instant,
+    start_ms: Millis,
+    speed: f64,
+}
+
+impl Clock {
+    /// The system clock, `speed` times as fast from now on (1 for real time).
+    pub fn new(speed: f64) -> Self {
+        let start_ms = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as Millis);
+        Clock {
+            start: Instant::now(),
+            start_ms,
+            speed: if speed.is_finite() && speed > 0.0 {
+                speed
+            } else {
+                1.0
+            },
+        }
+    }
+
+    /// Now, ms since the Unix epoch.
+    pub fn now(&self) -> Millis {
+        self.start_ms + (self.start.elapsed().as_secs_f64() * 1000.0 * self.speed) as Millis
+    }
+
+    /// Real time until the clock shows `t`.
+    pub fn until(&self, t: Millis) -> Duration {
+        let now = self.now();
+        Duration::from_secs_f64(t.saturating_sub(now) as f64 / 1000.0 / self.speed)
+    }
+}
+
+/// Waits for the next frame on `t` until `timeout` of real time has passed; damaged
+/// frames are counted and skipped.
+pub async fn next_message<T: Transport>(
+    t: &mut T,
+    rx: &mut Receiver,
+    pending: &mut Vec<Message>,
+    timeout: Duration,
+) -> io::Result<Option<Message>> {
+    if !pending.is_empty() {
+        return Ok(Some(pending.remove(0)));
+    }
+    let deadline = t.now() + timeout.as_micros() as u64;
+    loop {
+        let chars = t.recv_flagged(deadline).await?;
+        if chars.is_empty() {
+            rx.reset();
+            return Ok(None);
+        }
+        let flagged: Vec<_> = chars.iter().map(|c| (c.byte, c.flags)).collect();
+        for r in rx.push(&flagged) {
+            match r {
+                Received::Message(m) => pending.push(m),
+                Received::Damaged { errors } => {
+                    warn!("damaged frame ignored (errors 0x{errors:02X})")
+                }
+            }
+        }
+        if !pending.is_empty() {
+            return Ok(Some(pending.remove(0)));
+        }
+    }
+}
+
+/// A simulated sensor on a line: answers every request to its address until the
+/// line fails.
+pub async fn run_sensor<T: Transport>(
+    mut t: T,
+    mut sensor: SimSensor,
+    clock: Clock,
+) -> io::Result<()> {
+    let mut rx = Receiver::new();
+    let mut pending = Vec::new();
+    info!("{} answering on {}", sensor.station(), t.describe());
+    loop {
+        let Some(m) =
+            next_message(&mut t, &mut rx, &mut pending, Duration::from_secs(3600)).await?
+        else {
+            continue;
+        };
+        if let Some(r) = sensor.handle(&m, clock.now()) {
+            t.send(&r.to_bytes()).await?;
+        }
+    }
+}
+
+/// What the concentrator shows after each poll and transfer.
+pub type View<'a> = &'a dyn Fn(&Concentrator);
+
+/// The concentrator: polls its sensors on `bus` and serves `uplink` at the same
+/// time, until a line fails.
+pub async fn run_concentrator<B: Transport, U: Transport>(
+    mut bus: B,
+    uplink: Option<U>,
+    conc: Concentrator,
+    clock: Clock,
+    reply_timeout: Duration,
+    view: View<'_>,
+) -> io::Result<()> {
+    let conc = RefCell::new(conc);
+    let bus_loop = async {
+        let mut rx = Receiver::new();
+        let mut pending = Vec::new();
+        loop {
+            let req = conc.borrow_mut().bus_request(clock.now());
+            let Some(req) = req else {
+                let next = conc.borrow().next_deadline();
+                tokio::time::sleep(clock.until(next).min(Duration::from_secs(1))).await;
+                continue;
+            };
+            pending.clear();
+            rx.reset();
+            bus.send(&req.to_bytes()).await?;
+            let reply = loop {
+                match next_message(&mut bus, &mut rx, &mut pending, reply_timeout).await? {
+                    None => break None,
+                    Some(m) if m.reply && m.station == req.station => break Some(m),
+                    Some(_) => continue,
+                }
+            };
+            let done = conc.borrow_mut().bus_result(clock.now(), reply.as_ref());
+            if let Some(r) = done {
+                match r {
+                    Ok(o) => info!(
+                        "poll: {} new minutes, {} completed{}",
+                        o.new_minutes,
+                        o.completed,
+                        if o.dropped_unsent > 0 {
+                            format!(", {} UNSENT MINUTES DROPPED (store full)", o.dropped_unsent)
+                        } else {
+                            String::new()
+                        }
+                    ),
+                    Err(e) => warn!("{e}"),
+                }
+                view(&conc.borrow());
+            }
+        }
+        #[allow(unreachable_code)]
+        Ok::<(), io::Error>(())
+    };
+    let uplink_loop = async {
+        let Some(mut up) = uplink else {
+            std::future::pending::<()>().await;
+            return Ok(());
+        };
+        let mut rx = Receiver::new();
+        let mut pending = Vec::new();
+        loop {
+            let Some(m) =
+                next_message(&mut up, &mut rx, &mut pending, Duration::from_secs(3600)).await?
+            else {
+                continue;
+            };
+            let reply = conc.borrow_mut().uplink(&m, clock.now());
+            if let Some(r) = reply {
+                up.send(&r.to_bytes()).await?;
+                if m.command == crate::proto::TRANSFER {
+                    view(&conc.borrow());
+                }
+            }
+        }
+        #[allow(unreachable_code)]
+        Ok::<(), io::Error>(())
+    };
+    tokio::try_join!(bus_loop, uplink_loop).map(|_| ())
+}
+
+/// Why a pull or a collection failed.
+#[derive(Debug)]
+pub enum PullError {
+    /// The line failed.
+    Io(io::Error),
+    /// No reply after the retries.
+    NoReply {
+        /// The station.
+        station: Station,
+        /// Tries made.
+        tries: u32,
+    },
+    /// The station refused, or its reply or the archive failed.
+    Transfer(TransferError),
+}
+
+impl std::fmt::Display for PullError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PullError::Io(e) => write!(f, "{e}"),
+            PullError::NoReply { station, tries } => write!(
+                f,
+                "no reply from the {station} after {tries} tries; check the cable or the \
+                 telephone connection, the port's bit rate and the well number"
+            ),
+            PullError::Transfer(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for PullError {}
+
+impl From<io::Error> for PullError {
+    fn from(e: io::Error) -> Self {
+        PullError::Io(e)
+    }
+}
+
+/// Settings of a requester on a line.
+#[derive(Debug, Clone, Copy)]
+pub struct Requester {
+    /// Time for a reply to arrive.
+    pub timeout: Duration,
+    /// Tries of each request.
+    pub tries: u32,
+}
+
+impl Default for Requester {
+    fn default() -> Self {
+        Requester {
+            timeout: Duration::from_secs(2),
+            tries: 3,
+        }
+    }
+}
+
+/// Sends `req` and waits for its reply, trying again on time-out.
+pub async fn exchange<T: Transport>(
+    t: &mut T,
+    req: &Message,
+    r: Requester,
+) -> Result<Message, PullError> {
+    let mut rx = Receiver::new();
+    let mut pending = Vec::new();
+    for _ in 0..r.tries.max(1) {
+        pending.clear();
+        t.send(&req.to_bytes()).await?;
+        let deadline = Instant::now() + r.timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match next_message(t, &mut rx, &mut pending, left).await? {
+                None => break,
+                Some(m) if m.reply && m.station == req.station && m.command == req.command => {
+                    return Ok(m)
+                }
+                Some(_) => continue,
+            }
+        }
+    }
+    Err(PullError::NoReply {
+        station: req.station,
+        tries: r.tries.max(1),
+    })
+}
+
+/// What a pull brought.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct PullSummary {
+    /// The station.
+    pub station: u8,
+    /// The well.
+    pub well: u8,
+    /// Batches received.
+    pub batches: u32,
+    /// Minutes new to the archive.
+    pub new_minutes: u32,
+    /// Minutes the archive had already.
+    pub duplicated: u32,
+    /// The station's status (concentrators), when it answered command 14.
+    pub status: Option<serde_json::Value>,
+    /// Calibration tables downloaded on the way (handheld visits).
+    pub calibration_downloaded: Vec<String>,
+}
+
+/// Pulls everything `station` holds into `archive`: its status (a concentrator's
+/// command 14), any calibration table waiting for it (the handheld), then command
+/// 144 until a batch comes back empty. Each batch is stored before it is
+/// acknowledged, so a pull cut at any point goes on where it stopped.
+pub async fn pull<T: Transport>(
+    t: &mut T,
+    archive: &mut Archive,
+    station: Station,
+    r: Requester,
+    clock: Clock,
+    download_calibration: bool,
+) -> Result<PullSummary, PullError> {
+    let well = station.number();
+    let mut summary = PullSummary {
+        station: station.0,
+        well,
+        batches: 0,
+        new_minutes: 0,
+        duplicated: 0,
+        status: None,
+        calibration_downloaded: vec![],
+    };
+    if station.role() == crate::proto::Role::Concentrator {
+        let m = exchange(t, &Message::request(station, DIAGNOSTICS, vec![]), r).await?;
+        if let Ok(s) = StationStatus::decode(m.status.unwrap_or([0, 0]), &m.data) {
+            let _ = archive.log_status(well, crate::minute_of(clock.now()), &s);
+            summary.status = Some(status_json(&s));
+        }
+        if download_calibration {
+            for sensor in Sensor::ALL {
+                let Ok(Some(table)) = archive.pending_calibration(well, sensor) else {
+                    continue;
+                };
+                let mut s = CalibrationSender::new(station, sensor, table);
+                loop {
+                    let m = exchange(t, &s.request(), r).await?;
+                    match s.on_reply(&m).map_err(PullError::Transfer)? {
+                        Step::More => continue,
+                        Step::Done => break,
+                    }
+                }
+                let _ = archive.clear_pending_calibration(well, sensor);
+                info!(
+                    "{} calibration table downloaded to the {station}",
+                    sensor.name()
+                );
+                summary
+                    .calibration_downloaded
+                    .push(sensor.name().to_string());
+            }
+        }
+    }
+    let mut col = Collector::new(archive, station)
+        .map_err(|e| PullError::Transfer(TransferError::Store(e)))?;
+    let result = loop {
+        let m = match exchange(t, &col.request(), r).await {
+            Ok(m) => m,
+            Err(e) => break Err(e),
+        };
+        match col.on_reply(&m, archive, crate::minute_of(clock.now())) {
+            Ok(Step::More) => {
+                info!("batch {}: {} minutes remain", col.batches, col.remaining);
+            }
+            Ok(Step::Done) => break Ok(()),
+            Err(e) => break Err(PullError::Transfer(e)),
+        }
+    };
+    summary.batches = col.batches;
+    summary.new_minutes = col.new;
+    summary.duplicated = col.duplicated;
+    let _ = archive.log_pull(&PullLog {
+        at: crate::minute_of(clock.now()),
+        well,
+        via: crate::archive::Via::of(station),
+        outcome: if result.is_ok() { "ok" } else { "cut" }.into(),
+        records: col.new,
+        batches: col.batches,
+        detail: result
+            .as_ref()
+            .err()
+            .map_or(String::new(), |e| e.to_string()),
+    });
+    result.map(|_| summary)
+}
+
+/// A station's status as JSON.
+pub fn status_json(s: &StationStatus) -> serde_json::Value {
+    serde_json::json!({
+        "summary": match s.summary { 0 => "ok", 1 => "sensor fault", _ => "store dropped unsent minutes" },
+        "clock_minute": s.clock,
+        "stored": s.stored,
+        "unsent": s.unsent,
+        "store_fill": s.fill_permille as f64 / 1000.0,
+        "dropped_unsent": s.dropped_unsent,
+        "sensors": s.sensors.iter().map(|x| serde_json::json!({
+            "address": x.address,
+            "kind": x.kind.name(),
+            "state": crate::proto::state_name(x.state),
+            "last_good_minute": x.last_good,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// The handheld at the bureau: answers the PC for every well it holds, until the
+/// line fails.
+pub async fn run_handheld_station<T: Transport>(
+    mut t: T,
+    mut archive: Archive,
+    clock: Clock,
+) -> io::Result<()> {
+    let mut station = HandheldStation::new();
+    let mut rx = Receiver::new();
+    let mut pending = Vec::new();
+    info!("handheld answering on {}", t.describe());
+    loop {
+        let Some(m) =
+            next_message(&mut t, &mut rx, &mut pending, Duration::from_secs(3600)).await?
+        else {
+            continue;
+        };
+        if let Some(r) = station.answer(&mut archive, &m, clock.now()) {
+            t.send(&r.to_bytes()).await?;
+        }
+    }
+}

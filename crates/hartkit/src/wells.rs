@@ -1,0 +1,577 @@
+//! `hartkit wells`: the well-monitoring network's roles (docs/wells.md). Options are
+//! read here; the work is hart-wells'.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::{Args, Subcommand};
+use hart_host::transport::{Rts, SerialOptions, SerialTransport};
+use hart_wells::archive::Archive;
+use hart_wells::calibration::{CalibrationFile, Sensor};
+use hart_wells::concentrator::{Concentrator, ConcentratorConfig};
+use hart_wells::proto::{state_name, Station};
+use hart_wells::run::{self, Clock, Requester};
+use hart_wells::sensor::{Fault, SensorConfig, SimSensor};
+use hart_wells::sim::SimConfig;
+use hart_wells::store::{Durability, Store, DAY_MINUTES};
+
+/// `hartkit wells ...`.
+#[derive(Subcommand)]
+pub enum WellsCmd {
+    /// A simulated sensor on a serial port or pseudo-terminal, answering commands 1
+    /// and 14.
+    Sensor(SensorArgs),
+    /// The data concentrator: polls its sensors on --bus, serves the handheld and
+    /// the PC on --uplink, keeps the minutes in --store.
+    Concentrator(ConcentratorArgs),
+    /// The handheld: collect from a concentrator on site, serve the PC at the bureau.
+    #[command(subcommand)]
+    Handheld(HandheldCmd),
+    /// The bureau's PC.
+    #[command(subcommand)]
+    Pc(PcCmd),
+    /// The whole network in virtual time: sensors, concentrators, telephone lines that
+    /// fail, handheld trips, the PC's schedule; reports what was lost (nothing).
+    Sim(WellsSimArgs),
+}
+
+/// The serial line options every role has.
+#[derive(Args, Clone)]
+pub struct LineArgs {
+    /// Bit rate (11-bit characters: 8 data bits, odd parity, 1 stop bit).
+    #[arg(long, default_value_t = 1200)]
+    pub baud: u32,
+    /// Two-wire RS-485: drop our own transmission read back (the network's bus is
+    /// four-wire, where nothing comes back).
+    #[arg(long)]
+    pub two_wire: bool,
+}
+
+/// `wells sensor`.
+#[derive(Args)]
+pub struct SensorArgs {
+    /// The bus: a serial port or pseudo-terminal.
+    #[arg(long, value_name = "PORT")]
+    pub bus: PathBuf,
+    /// Address on the bus, 1-15.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub address: u8,
+    /// What it measures.
+    #[arg(long, value_parser = ["temperature", "level"])]
+    pub kind: String,
+    /// A fault for its self-diagnosis to find.
+    #[arg(long, default_value = "none", value_parser = ["none", "element", "adc", "power"])]
+    pub fault: String,
+    /// Seed of its noise and of its well's water.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Run the clock this many times as fast (demonstrations and tests; use the same
+    /// value for the concentrator).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// `wells concentrator`.
+#[derive(Args)]
+pub struct ConcentratorArgs {
+    /// Its well, 1-15 (it answers 0x80 + well on the uplink).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    /// The sensors' bus.
+    #[arg(long, value_name = "PORT")]
+    pub bus: PathBuf,
+    /// The uplink (telephone modem or cable) to the handheld and the PC.
+    #[arg(long, value_name = "PORT")]
+    pub uplink: Option<PathBuf>,
+    /// The store (SQLite; created if missing).
+    #[arg(long, value_name = "FILE")]
+    pub store: PathBuf,
+    /// Time between polls: 3m (default), 1m; seconds for tests (10s, 2s).
+    #[arg(long, default_value = "3m", value_name = "DURATION", value_parser = parse_duration)]
+    pub poll_interval: Duration,
+    /// Calibration tables to put in force (CSV, docs/wells.md).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Room in the store, days (at least 7).
+    #[arg(long, default_value_t = 14, value_parser = clap::value_parser!(u32).range(7..=3650))]
+    pub capacity_days: u32,
+    /// Show the concentrator's state (latest values, sensors, store, last transfer)
+    /// after each poll and transfer.
+    #[arg(long)]
+    pub view: bool,
+    /// Run the clock this many times as fast (as the sensors).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Time a sensor has to answer, ms.
+    #[arg(long, default_value_t = 700)]
+    pub reply_timeout_ms: u64,
+    /// Bit rate of the uplink (default: --baud).
+    #[arg(long)]
+    pub uplink_baud: Option<u32>,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// `wells handheld ...`.
+#[derive(Subcommand)]
+pub enum HandheldCmd {
+    /// Collect everything a concentrator has not handed over yet (command 144 in
+    /// batches), and download calibration tables waiting for it.
+    Collect(CollectArgs),
+    /// At the bureau: answer the PC at 0xC0 + well for each well held.
+    Serve(ServeArgs),
+}
+
+/// `wells handheld collect`.
+#[derive(Args)]
+pub struct CollectArgs {
+    /// The cable to the concentrator.
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The well.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    /// The handheld's store.
+    #[arg(long, value_name = "FILE")]
+    pub store: PathBuf,
+    /// Print the result as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// `wells handheld serve`.
+#[derive(Args)]
+pub struct ServeArgs {
+    /// The cable to the PC.
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The handheld's store.
+    #[arg(long, value_name = "FILE")]
+    pub store: PathBuf,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// Requester timing.
+#[derive(Args, Clone)]
+pub struct ReqArgs {
+    /// Time for a reply, ms.
+    #[arg(long, default_value_t = 2000)]
+    pub timeout_ms: u64,
+    /// Tries of each request.
+    #[arg(long, default_value_t = 3)]
+    pub tries: u32,
+}
+
+/// `wells pc ...`.
+#[derive(Subcommand)]
+pub enum PcCmd {
+    /// Pull a well's data into the PC's database: from its concentrator (0x80 + well)
+    /// or, with --handheld, from the handheld (0xC0 + well).
+    Pull(PullArgs),
+}
+
+/// `wells pc pull`.
+#[derive(Args)]
+pub struct PullArgs {
+    /// The line (a cable, or a telephone modem already connected).
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The well.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    /// The PC's database (SQLite; created if missing).
+    #[arg(long, value_name = "FILE")]
+    pub db: PathBuf,
+    /// Pull from the handheld instead of the concentrator.
+    #[arg(long)]
+    pub handheld: bool,
+    /// Print the result as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// `wells sim`.
+#[derive(Args)]
+pub struct WellsSimArgs {
+    /// Wells, 1-15.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub wells: u8,
+    /// Days of virtual time.
+    #[arg(long, default_value_t = 30.0)]
+    pub days: f64,
+    /// Telephone outages per well per day.
+    #[arg(long, default_value_t = 0.1, value_name = "R")]
+    pub phone_outage_rate: f64,
+    /// Mean length of an outage, days.
+    #[arg(long, default_value_t = 2.0)]
+    pub outage_mean_days: f64,
+    /// Days between the handheld's checks for wells in a long outage (a day or more).
+    #[arg(long, default_value_t = 3.0, value_name = "DAYS")]
+    pub handheld_every: f64,
+    /// Hours between the PC's scheduled rounds.
+    #[arg(long, default_value_t = 6.0)]
+    pub pull_every_hours: f64,
+    /// Probability that a frame on a working telephone line is lost.
+    #[arg(long, default_value_t = 0.002)]
+    pub frame_loss: f64,
+    /// Power losses per concentrator per day.
+    #[arg(long, default_value_t = 0.05)]
+    pub restart_rate: f64,
+    /// Room in each concentrator's store, days.
+    #[arg(long, default_value_t = 14)]
+    pub capacity_days: u32,
+    /// Seconds between polls.
+    #[arg(long, default_value_t = 180)]
+    pub poll_interval_s: u64,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Keep the stores here (default: a temporary directory, removed).
+    #[arg(long, value_name = "DIR")]
+    pub dir: Option<PathBuf>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Parses `3m`, `180s`, `180`, `1h`, `500ms`.
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let s = s.trim();
+    let (num, unit) = s
+        .find(|c: char| c.is_ascii_alphabetic())
+        .map_or((s, "s"), |i| (&s[..i], &s[i..]));
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?}: a duration such as 3m, 180s or 1h"))?;
+    let secs = match unit {
+        "ms" => v / 1000.0,
+        "s" => v,
+        "m" | "min" => v * 60.0,
+        "h" => v * 3600.0,
+        _ => return Err(format!("{s:?}: unit {unit:?}; use ms, s, m or h")),
+    };
+    if !(secs.is_finite() && secs > 0.0) {
+        return Err(format!("{s:?}: must be more than 0"));
+    }
+    Ok(Duration::from_secs_f64(secs))
+}
+
+fn open_line(
+    path: &std::path::Path,
+    line: &LineArgs,
+    baud: Option<u32>,
+) -> Result<SerialTransport, String> {
+    SerialTransport::open(SerialOptions {
+        path: path.to_path_buf(),
+        baud: baud.unwrap_or(line.baud),
+        rts: Rts::None,
+        rts_pre: Duration::ZERO,
+        rts_post: Duration::ZERO,
+        rs485: line.two_wire,
+        carrier_detect: false,
+    })
+    .map_err(|e| e.to_string())
+}
+
+/// Runs a `wells` command.
+pub fn run(cmd: &WellsCmd) -> Result<String, String> {
+    match cmd {
+        WellsCmd::Sim(a) => sim(a),
+        WellsCmd::Sensor(a) => sensor(a),
+        WellsCmd::Concentrator(a) => concentrator(a),
+        WellsCmd::Handheld(HandheldCmd::Collect(a)) => {
+            crate::gateway::init_log();
+            let mut archive =
+                Archive::open(&a.store, Durability::Full).map_err(|e| e.to_string())?;
+            let mut t = open_line(&a.port, &a.line, None)?;
+            let s = crate::host::block_on(run::pull(
+                &mut t,
+                &mut archive,
+                Station::concentrator(a.well),
+                requester(&a.req),
+                Clock::new(1.0),
+                true,
+            ))
+            .map_err(|e| e.to_string())?;
+            summary(&s, a.json)
+        }
+        WellsCmd::Handheld(HandheldCmd::Serve(a)) => {
+            crate::gateway::init_log();
+            let archive = Archive::open(&a.store, Durability::Full).map_err(|e| e.to_string())?;
+            let t = open_line(&a.port, &a.line, None)?;
+            crate::host::block_on(run::run_handheld_station(t, archive, Clock::new(1.0)))
+                .map_err(|e| e.to_string())?;
+            Ok(String::new())
+        }
+        WellsCmd::Pc(PcCmd::Pull(a)) => {
+            crate::gateway::init_log();
+            let mut archive = Archive::open(&a.db, Durability::Full).map_err(|e| e.to_string())?;
+            let mut t = open_line(&a.port, &a.line, None)?;
+            let station = if a.handheld {
+                Station::handheld(a.well)
+            } else {
+                Station::concentrator(a.well)
+            };
+            let s = crate::host::block_on(run::pull(
+                &mut t,
+                &mut archive,
+                station,
+                requester(&a.req),
+                Clock::new(1.0),
+                false,
+            ))
+            .map_err(|e| e.to_string())?;
+            summary(&s, a.json)
+        }
+    }
+}
+
+fn requester(a: &ReqArgs) -> Requester {
+    Requester {
+        timeout: Duration::from_millis(a.timeout_ms.max(1)),
+        tries: a.tries.max(1),
+    }
+}
+
+fn summary(s: &run::PullSummary, json: bool) -> Result<String, String> {
+    if json {
+        return serde_json::to_string_pretty(s).map_err(|e| e.to_string());
+    }
+    let mut out = format!(
+        "well {}: {} new minutes in {} batches{}",
+        s.well,
+        s.new_minutes,
+        s.batches,
+        if s.duplicated > 0 {
+            format!(", {} already held", s.duplicated)
+        } else {
+            String::new()
+        }
+    );
+    if let Some(st) = &s.status {
+        out.push_str(&format!("\nstatus: {st}"));
+    }
+    for c in &s.calibration_downloaded {
+        out.push_str(&format!("\n{c} calibration table downloaded"));
+    }
+    Ok(out)
+}
+
+fn sim(a: &WellsSimArgs) -> Result<String, String> {
+    let r = hart_wells::sim::run(SimConfig {
+        wells: a.wells,
+        days: a.days,
+        phone_outage_rate: a.phone_outage_rate,
+        outage_mean_days: a.outage_mean_days,
+        handheld_every: a.handheld_every,
+        pull_every_hours: a.pull_every_hours,
+        frame_loss: a.frame_loss,
+        restart_rate: a.restart_rate,
+        capacity_days: a.capacity_days,
+        poll_interval_s: a.poll_interval_s,
+        uplink_baud: 1200,
+        seed: a.seed,
+        dir: a.dir.clone(),
+    })
+    .map_err(|e| e.to_string())?;
+    if a.json {
+        return serde_json::to_string_pretty(&r).map_err(|e| e.to_string());
+    }
+    Ok(format!(
+        "{} wells, {} days: {} minutes sampled, {} at the PC, {} lost, {} duplicated\n\
+         store fill at most {:.1} %, {} minutes pending at the end (drained)\n\
+         {} outages ({:.1} well-days without a line), {} restarts, {} handheld trips ({} minutes via the handheld)\n\
+         {} pulls: {} complete, {} cut, {} rounds unreachable; {} batches\n\
+         values checked against the stores: {} ({} different); {:.2} s",
+        r.wells,
+        r.days,
+        r.minutes_sampled,
+        r.minutes_at_pc,
+        r.lost,
+        r.duplicated,
+        r.max_store_fill * 100.0,
+        r.pending_at_end,
+        r.outages,
+        r.outage_days,
+        r.restarts,
+        r.handheld_trips,
+        r.minutes_via_handheld,
+        r.pulls,
+        r.pulls_complete,
+        r.pulls_cut,
+        r.unreachable.len(),
+        r.batches,
+        r.values_checked,
+        r.values_mismatched,
+        r.elapsed_s
+    ))
+}
+
+fn sensor(a: &SensorArgs) -> Result<String, String> {
+    crate::gateway::init_log();
+    let kind = Sensor::from_name(&a.kind).ok_or("--kind: temperature or level")?;
+    let fault = Fault::from_name(&a.fault).ok_or("--fault: none, element, adc or power")?;
+    let t = open_line(&a.bus, &a.line, None)?;
+    let s = SimSensor::new(SensorConfig {
+        address: a.address,
+        kind,
+        fault,
+        seed: a.seed,
+    });
+    crate::host::block_on(run::run_sensor(t, s, Clock::new(a.speed))).map_err(|e| e.to_string())?;
+    Ok(String::new())
+}
+
+fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
+    crate::gateway::init_log();
+    let mut store = Store::open(
+        &a.store,
+        a.well,
+        a.capacity_days * DAY_MINUTES,
+        Durability::Full,
+    )
+    .map_err(|e| e.to_string())?;
+    if let Some(p) = &a.calibration {
+        let file = CalibrationFile::read(p).map_err(|e| format!("--calibration: {e}"))?;
+        for s in Sensor::ALL {
+            if let Some(t) = file.table(s) {
+                store.set_calibration(s, t).map_err(|e| e.to_string())?;
+            }
+        }
+    }
+    let clock = Clock::new(a.speed);
+    let mut cfg = ConcentratorConfig::reference(a.well);
+    cfg.poll_interval = a.poll_interval.as_millis().max(1) as u64;
+    let conc = Concentrator::new(cfg, store, clock.now()).map_err(|e| e.to_string())?;
+    let bus = open_line(&a.bus, &a.line, None)?;
+    let uplink = match &a.uplink {
+        Some(p) => Some(open_line(p, &a.line, a.uplink_baud)?),
+        None => None,
+    };
+    let tty = std::io::stdout().is_terminal();
+    let show = |c: &Concentrator| {
+        if a.view {
+            let text = view(c);
+            if tty {
+                print!("\x1b[2J\x1b[H{text}");
+            } else {
+                println!("{text}");
+            }
+        }
+    };
+    crate::host::block_on(run::run_concentrator(
+        bus,
+        uplink,
+        conc,
+        clock,
+        Duration::from_millis(a.reply_timeout_ms),
+        &show,
+    ))
+    .map_err(|e| e.to_string())?;
+    Ok(String::new())
+}
+
+/// The concentrator's terminal view.
+pub fn view(c: &Concentrator) -> String {
+    let mut out = format!("well {} concentrator\n", c.config().well);
+    match c.latest() {
+        Ok(Some(r)) => {
+            let t = |v: f64, d: usize| {
+                if v.is_finite() {
+                    format!("{v:.d$}")
+                } else {
+                    "-".into()
+                }
+            };
+            out.push_str(&format!(
+                "  minute {}: water {} °C, level {} m, level sensor {} °C\n",
+                iso_minute(r.minute),
+                t(r.temperature, 3),
+                t(r.level, 3),
+                if r.valid & 4 != 0 {
+                    format!("{:.1}", hart_wells::sensor::body_celsius(r.ls_raw))
+                } else {
+                    "-".into()
+                }
+            ));
+        }
+        _ => out.push_str("  no values yet\n"),
+    }
+    for s in c.sensors() {
+        out.push_str(&format!(
+            "  sensor {} ({}): {}\n",
+            s.status.address,
+            s.status.kind.name(),
+            state_name(s.status.state)
+        ));
+    }
+    let st = c.store();
+    if let (Ok((stored, unsent, _)), Ok(dropped)) = (st.counts(), st.dropped_unsent()) {
+        out.push_str(&format!(
+            "  store: {stored} minutes ({:.1} % of {} days), {unsent} not handed over{}\n",
+            stored as f64 * 100.0 / st.capacity() as f64,
+            st.capacity() / DAY_MINUTES,
+            if dropped > 0 {
+                format!(", {dropped} DROPPED BEFORE HAND-OVER")
+            } else {
+                String::new()
+            }
+        ));
+    }
+    match st.last_transfer() {
+        Ok(Some((at, n))) => out.push_str(&format!(
+            "  last transfer: {} ({n} minutes handed over in all)\n",
+            iso_minute(at)
+        )),
+        _ => out.push_str("  last transfer: never\n"),
+    }
+    out
+}
+
+/// A minute as `YYYY-MM-DD HH:MM` UTC.
+pub fn iso_minute(m: u32) -> String {
+    let days = (m / 1440) as i64;
+    let (y, mo, d) = civil_from_days(days);
+    format!("{y:04}-{mo:02}-{d:02} {:02}:{:02}", (m % 1440) / 60, m % 60)
+}
+
+/// The proleptic Gregorian date of a day count from 1970-01-01.
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + (m <= 2) as i64, m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_and_dates() {
+        assert_eq!(parse_duration("3m").unwrap(), Duration::from_secs(180));
+        assert_eq!(parse_duration("2").unwrap(), Duration::from_secs(2));
+        assert_eq!(parse_duration("500ms").unwrap(), Duration::from_millis(500));
+        assert!(parse_duration("3x").is_err());
+        assert!(parse_duration("0s").is_err());
+        assert_eq!(iso_minute(1_772_323_200 / 60), "2026-03-01 00:00");
+    }
+}
