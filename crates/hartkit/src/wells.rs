@@ -296,44 +296,53 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
             crate::gateway::init_log();
             let mut archive =
                 Archive::open(&a.store, Durability::Full).map_err(|e| e.to_string())?;
-            let mut t = open_line(&a.port, &a.line, None)?;
-            let s = crate::host::block_on(run::pull(
-                &mut t,
-                &mut archive,
-                Station::concentrator(a.well),
-                requester(&a.req),
-                Clock::new(1.0),
-                true,
-            ))
-            .map_err(|e| e.to_string())?;
+            let s = crate::host::block_on(async {
+                let mut t = open_line(&a.port, &a.line, None)?;
+                run::pull(
+                    &mut t,
+                    &mut archive,
+                    Station::concentrator(a.well),
+                    requester(&a.req),
+                    Clock::new(1.0),
+                    true,
+                )
+                .await
+                .map_err(|e| e.to_string())
+            })?;
             summary(&s, a.json)
         }
         WellsCmd::Handheld(HandheldCmd::Serve(a)) => {
             crate::gateway::init_log();
             let archive = Archive::open(&a.store, Durability::Full).map_err(|e| e.to_string())?;
-            let t = open_line(&a.port, &a.line, None)?;
-            crate::host::block_on(run::run_handheld_station(t, archive, Clock::new(1.0)))
-                .map_err(|e| e.to_string())?;
+            crate::host::block_on(async {
+                let t = open_line(&a.port, &a.line, None)?;
+                run::run_handheld_station(t, archive, Clock::new(1.0))
+                    .await
+                    .map_err(|e| e.to_string())
+            })?;
             Ok(String::new())
         }
         WellsCmd::Pc(PcCmd::Pull(a)) => {
             crate::gateway::init_log();
             let mut archive = Archive::open(&a.db, Durability::Full).map_err(|e| e.to_string())?;
-            let mut t = open_line(&a.port, &a.line, None)?;
             let station = if a.handheld {
                 Station::handheld(a.well)
             } else {
                 Station::concentrator(a.well)
             };
-            let s = crate::host::block_on(run::pull(
-                &mut t,
-                &mut archive,
-                station,
-                requester(&a.req),
-                Clock::new(1.0),
-                false,
-            ))
-            .map_err(|e| e.to_string())?;
+            let s = crate::host::block_on(async {
+                let mut t = open_line(&a.port, &a.line, None)?;
+                run::pull(
+                    &mut t,
+                    &mut archive,
+                    station,
+                    requester(&a.req),
+                    Clock::new(1.0),
+                    false,
+                )
+                .await
+                .map_err(|e| e.to_string())
+            })?;
             summary(&s, a.json)
         }
     }
@@ -424,14 +433,18 @@ fn sensor(a: &SensorArgs) -> Result<String, String> {
     crate::gateway::init_log();
     let kind = Sensor::from_name(&a.kind).ok_or("--kind: temperature or level")?;
     let fault = Fault::from_name(&a.fault).ok_or("--fault: none, element, adc or power")?;
-    let t = open_line(&a.bus, &a.line, None)?;
     let s = SimSensor::new(SensorConfig {
         address: a.address,
         kind,
         fault,
         seed: a.seed,
     });
-    crate::host::block_on(run::run_sensor(t, s, Clock::new(a.speed))).map_err(|e| e.to_string())?;
+    crate::host::block_on(async {
+        let t = open_line(&a.bus, &a.line, None)?;
+        run::run_sensor(t, s, Clock::new(a.speed))
+            .await
+            .map_err(|e| e.to_string())
+    })?;
     Ok(String::new())
 }
 
@@ -456,11 +469,6 @@ fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
     let mut cfg = ConcentratorConfig::reference(a.well);
     cfg.poll_interval = a.poll_interval.as_millis().max(1) as u64;
     let conc = Concentrator::new(cfg, store, clock.now()).map_err(|e| e.to_string())?;
-    let bus = open_line(&a.bus, &a.line, None)?;
-    let uplink = match &a.uplink {
-        Some(p) => Some(open_line(p, &a.line, a.uplink_baud)?),
-        None => None,
-    };
     let tty = std::io::stdout().is_terminal();
     let show = |c: &Concentrator| {
         if a.view {
@@ -472,15 +480,23 @@ fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
             }
         }
     };
-    crate::host::block_on(run::run_concentrator(
-        bus,
-        uplink,
-        conc,
-        clock,
-        Duration::from_millis(a.reply_timeout_ms),
-        &show,
-    ))
-    .map_err(|e| e.to_string())?;
+    crate::host::block_on(async {
+        let bus = open_line(&a.bus, &a.line, None)?;
+        let uplink = match &a.uplink {
+            Some(p) => Some(open_line(p, &a.line, a.uplink_baud)?),
+            None => None,
+        };
+        run::run_concentrator(
+            bus,
+            uplink,
+            conc,
+            clock,
+            Duration::from_millis(a.reply_timeout_ms),
+            &show,
+        )
+        .await
+        .map_err(|e| e.to_string())
+    })?;
     Ok(String::new())
 }
 

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command};
 
 mod common;
-use common::{gateway, hartkit, workspace};
+use common::{gateway, hartkit, pty_pair, workspace};
 
 fn python() -> Option<PathBuf> {
     common::interop_python("pymodbus")
@@ -248,45 +248,6 @@ fn with_no_front_end_the_gateway_shows_the_devices() {
     assert!(lines.len() >= 4, "{out}");
     let last: Vec<_> = lines.iter().rev().take(4).collect();
     assert!(last.iter().all(|l| l["quality"] == "good"), "{out}");
-}
-
-/// A pseudo-terminal pair joined by socat (an outside program, run as a process): the
-/// gateway on one end, pymodbus's RTU master on the other. Killed when dropped.
-struct PtyPair(Child, PathBuf, PathBuf);
-
-impl Drop for PtyPair {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn pty_pair() -> Option<PtyPair> {
-    if Command::new("socat").arg("-V").output().is_err() {
-        assert!(
-            std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
-            "socat is not installed although HARTKIT_REQUIRE_INTEROP=1 (apt-get install socat)"
-        );
-        eprintln!("socat not installed; skipping the Modbus RTU check");
-        return None;
-    }
-    let dir = std::env::temp_dir().join(format!("hartkit-rtu-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let (a, b) = (dir.join("gateway"), dir.join("master"));
-    let child = Command::new("socat")
-        .arg(format!("pty,raw,echo=0,link={}", a.display()))
-        .arg(format!("pty,raw,echo=0,link={}", b.display()))
-        .spawn()
-        .unwrap();
-    let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
-    while !(a.exists() && b.exists()) {
-        assert!(
-            std::time::Instant::now() < end,
-            "socat made no pseudo-terminals"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    Some(PtyPair(child, a, b))
 }
 
 #[test]
