@@ -962,6 +962,21 @@ mod tests {
         assert_eq!(Groups::decode(m.status.unwrap(), &m.data).unwrap(), l);
     }
 
+    /// The example reply in docs/wells.md, decoded: 15.200, 15.201, 15.201 °C.
+    #[test]
+    fn the_documented_reply_decodes() {
+        let bytes = hex("FF FF 06 01 01 0B 00 00 82 0C A9 82 0D B5 82 0D 2F B0");
+        let Received::Message(m) = Receiver::new().feed(&bytes).remove(0) else {
+            panic!("the example does not parse")
+        };
+        let g = Groups::decode(m.status.unwrap(), &m.data).unwrap();
+        let t = crate::calibration::Table::builtin(Sensor::Temperature);
+        let c: Vec<f64> = g.groups.iter().map(|v| t.eval(v[0])).collect();
+        for (got, want) in c.iter().zip([15.2003, 15.2011, 15.2007]) {
+            assert!((got - want).abs() < 1e-5, "{c:?}");
+        }
+    }
+
     #[test]
     fn addresses_round_trip_through_hart_proto() {
         for b in 0..=255u8 {

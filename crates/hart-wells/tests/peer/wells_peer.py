@@ -26,7 +26,9 @@ Frames (HART short frames, docs/wells.md "The line"):
   The receiver accepts 2 or more FF before a delimiter and skips any other byte
   (logged as "garbage"); a frame whose check byte is wrong is logged as "bad_frame"
   and never answered; the search then resumes one byte after its delimiter. A frame
-  left incomplete for 0.5 s is dropped the same way.
+  left incomplete for 0.5 s is dropped the same way. On a real port a character
+  with a parity error is discarded by the driver (IGNPAR|INPCK), so its frame fails
+  the length/check test and is not answered either.
 
 Output: one JSON object per line on stdout, each with "event" and "time" (Unix
 seconds). Bytes are upper-case hex separated by spaces ("FF FF 02 01 01 00 02").
@@ -61,22 +63,83 @@ WHAT `sensors` SENDS (deterministic, so a test can predict it):
     any other command: status 40 00 (response code 64), byte count 02, no data.
     requests for another address, for a --silent address, reply frames and frames
     with a bad check byte: not answered (logged as "ignored" / "bad_frame").
-  Every answer is logged:
+  Every answer is logged (summary on SIGTERM/SIGINT or after --run-for:
+  {"event":"summary","role":"sensors","ok":true,"answered":N,"ignored":N,
+   "bad_frames":N[,"stopped_by_signal":true]}):
   {"event":"answered","address":A,"command":C,"kind":"temperature"|"level",
    "status":[S1,S2],"minutes":[m0,m1,m2]|null,"groups":[...]|null}
   groups: temperature [c0,c1,c2], level [[l0,ls0],[l1,ls1],[l2,ls2]].
+
+`poll-sensor` events (exit 1 on a reply with another address or command, a byte
+  count other than 0B/14 for command 1 or 02 for command 14, a command 1 status other
+  than 00 00 / FF FF, a response code, a command 14 status byte 1 other than 0E or a
+  diagnosis above 03; exit 2 when no reply comes within --timeout after --retries):
+  {"event":"reading","index":k,"address":A,"command":1,"kind":"temperature"|"level",
+   "status":[S1,S2],"abnormal":bool,"groups":[c0,c1,c2] | [[l0,ls0],[l1,ls1],[l2,ls2]]}
+     (oldest first; FF FF FF shows as 16777215; a byte count 02 reply with status
+      FF FF is accepted as "abnormal, no values": kind null, groups null)
+  {"event":"diagnostics","index":k,"address":A,"command":14,"status":[14,D],"diag":D,
+   "meaning":"healthy"|"element"|"adc"|"power"}
+  summary: {"event":"summary","role":"poll-sensor","ok":..,"address":A,"command":C,
+            "replies":K,"bad_frames":N[,"error":E,"timeout":true]}
+
+`pull` (request data: the 4-byte ack; first ack --ack, default 0, then the last minute
+  of the newest non-empty batch). It stops when a reply has n = 0 (that request
+  acknowledged everything before it), or after --stop-after B replies without sending
+  the request that would acknowledge the last one. A timed-out request is sent again
+  up to --retries (default 3) times. Exit 1 on: response code (status byte 1 != 0),
+  byte count != 8 + 22*n, n > 11, more-flag (flags bit 0) != (remaining > 0), n = 0
+  with the more-flag set, a record minute not after the ack sent / not increasing,
+  a valid bit that disagrees with its counts (FF FF FF iff not valid) or float (NaN
+  iff not valid; bit 0 temperature, bit 1 level, bit 2 counts only).
+  {"event":"record","minute":M,"valid":V,"t_raw":T,"l_raw":L,"ls_raw":LS,
+   "temperature":float|null,"level":float|null}   (floats: the float32 value, exact)
+  {"event":"batch","index":i,"ack_sent":A,"status":[S1,S2],"flags":F,"more":bool,
+   "remaining":R,"n":n,"first":M|null,"last":M|null}
+  {"event":"retry","attempt":k,"address":A,"command":144}
+  {"event":"stopped","batches":B,"unacknowledged_last":M}   (--stop-after only)
+  summary: {"event":"summary","role":"pull","ok":..,"address":A,"batches":B,
+            "records":N,"complete":bool,"last_ack":M,"last_stored":M|null,
+            "bad_frames":N}
+     last_ack: the ack carried by the last request sent (what the station was told;
+     pass it as --ack to resume with the unacknowledged batch sent again);
+     last_stored: the newest minute received (pass it to acknowledge everything).
 
 WHAT `concentrator` SERVES: minutes START .. START+COUNT-1, each record
   valid 7, temperature counts 8000000 + minute % 1000, level counts 4000000 +
   minute % 1000, level sensor temperature counts 3000000, temperature float32
   15.0 + (minute % 1000) / 1000, level float32 10.0 + (minute % 1000) / 10000;
   a minute given with --invalid has valid 0, counts FF FF FF and NaN floats.
-  Command 144: handed-over mark starts at 0; mark = max(mark, min(ack, newest));
-  the reply carries the (at most 11) minutes after the mark, status 00 00.
-  Command 14: status 0E 00, data: clock, stored, not handed over, fill per mille of
-  a 14-day ring, dropped 0, 2 sensors (1 temperature, 2 level, state 0, newest minute).
-  Command 160: segment bookkeeping per docs/wells.md, reply [sensor, segment, 0|1]
-  with status 00 00; errors as response codes 2, 5, 9, 10 with no data.
+  Command 144: handed-over mark starts at 0; mark = max(mark, min(ack, newest))
+  (with COUNT 0 it never moves); the reply, status 00 00, carries the (at most 11)
+  minutes after the mark, flags bit 0 = remaining > 0. Fewer than 4 data bytes:
+  response code 5.
+  Command 14: status 0E 00, data (big-endian): clock (4) = floor(time/60), stored (4)
+  = COUNT, not handed over (4), fill (2) = COUNT*1000 // 20160 (14-day ring), dropped
+  (4) = 0, k (1) = 2, then per sensor 7 bytes (address, kind, state, minute (4) -- the
+  doc says 6*k but lists 7 bytes): 01 00 00 newest, 02 01 00 newest.
+  Command 160: fewer than 35 data bytes: code 5; sensor not 0/1 or segment not 1-10:
+  code 2; segment 1 starts a new table for that sensor, segment k > 1 must follow
+  segment k-1 of the table being received, else code 9; at segment 10 the table is
+  checked (coefficients finite, raw_from <= raw_to, raw_from of k+1 = raw_to of k + 1;
+  full 0..FFFFFF coverage is NOT required) and refused with code 10 (reason logged),
+  or put in force. Reply status 00 00, data [sensor, segment, 0 taken | 1 in force];
+  error replies carry the response code in status byte 1, 00, and no data.
+  Any other command: code 64. Other addresses and reply frames: ignored.
+  Events: {"event":"ack","ack":A,"mark_before":M,"mark":M,"moved":bool}
+          {"event":"batch_sent","n":n,"remaining":R,"first":M|null,"last":M|null}
+          {"event":"status_sent","clock":C,"stored":S,"not_handed_over":N,"fill":F}
+          {"event":"calibration_segment","sensor":S,"reserved":H,"segment":k,
+           "raw_from":F,"raw_to":T,"a0":x,"a1":x,"a2":x}
+          {"event":"calibration_in_force","sensor":S,"raw_from":F,"raw_to":T}
+          {"event":"calibration_refused","sensor":S,"reason":R}
+          {"event":"error_reply","command":C,"code":RC,"reason":R}
+  summary (on SIGTERM/SIGINT or after --run-for): {"event":"summary",
+    "role":"concentrator","ok":true,"address":A,"requests":N,"acks":[A,...],
+    "last_ack":M|null,"mark":M,"bad_frames":N[,"stopped_by_signal":true]}
+
+`raw` events: {"event":"tx_raw","hex":H}, then rx / bad_frame / garbage;
+  summary {"event":"summary","role":"raw","ok":true,"frames":N,"bad_frames":N}.
 """
 
 import argparse
@@ -195,6 +258,7 @@ class Deframer:
     def __init__(self):
         self.buf = bytearray()
         self.last_rx = 0.0
+        self.quiet = 0  # leading bytes of buf already reported inside a bad frame
 
     def feed(self, data, now):
         self.buf += data
@@ -208,6 +272,20 @@ class Deframer:
         if self.buf and now - self.last_rx >= GAP_S:
             return self._parse(True)
         return []
+
+    def _drop(self, n):
+        """Remove n leading bytes; returns those not already reported in a bad frame."""
+        quiet = min(self.quiet, n)
+        out = bytes(self.buf[quiet:n])
+        del self.buf[:n]
+        self.quiet -= quiet
+        return out
+
+    def _bad(self, out, span, keep_from, reason):
+        """Report buf[:span] as a bad frame and resume the search at keep_from."""
+        out.append(("bad", bytes(self.buf[:span]), reason))
+        del self.buf[:keep_from]
+        self.quiet = max(0, span - keep_from)
 
     def _parse(self, final):
         out = []
@@ -225,46 +303,44 @@ class Deframer:
                     run = 0
             if p < 0:
                 keep = 0 if final else run
-                junk = bytes(buf[:len(buf) - keep])
+                junk = self._drop(len(buf) - keep)
                 if any(b != 0xFF for b in junk):
                     out.append(("garbage", junk))
-                del buf[:len(buf) - keep]
                 return out
             start = p - run
             if start > 0:
-                out.append(("garbage", bytes(buf[:start])))
-                del buf[:start]
+                junk = self._drop(start)
+                if junk:
+                    out.append(("garbage", junk))
                 p = run
+            self.quiet = 0  # a new delimiter: everything from here is reported afresh
             if len(buf) < p + 4:
                 if final:
-                    out.append(("bad", bytes(buf), "incomplete frame"))
-                    del buf[:p + 1]
+                    self._bad(out, len(buf), p + 1, "incomplete frame")
                     continue
                 return out
-            delim, addr, cmd, bc = buf[p], buf[p + 1], buf[p + 2], buf[p + 3]
+            delim, bc = buf[p], buf[p + 3]
             if delim == REPLY and bc < 2:
-                out.append(("bad", bytes(buf[:p + 4]), "reply byte count %d < 2" % bc))
-                del buf[:p + 1]
+                self._bad(out, p + 4, p + 1, "reply byte count %d < 2" % bc)
                 continue
             end = p + 4 + bc + 1
             if len(buf) < end:
                 if final:
-                    out.append(("bad", bytes(buf), "incomplete frame"))
-                    del buf[:p + 1]
+                    self._bad(out, len(buf), p + 1, "incomplete frame")
                     continue
                 return out
             body = bytes(buf[p:end - 1])
             if xor(body) != buf[end - 1]:
-                out.append(("bad", bytes(buf[:end]),
-                            "check byte %02X, computed %02X" % (buf[end - 1], xor(body))))
-                del buf[:p + 1]
+                self._bad(out, end, p + 1,
+                          "check byte %02X, computed %02X" % (buf[end - 1], xor(body)))
                 continue
             payload = body[4:]
             if delim == REPLY:
                 status, data = (payload[0], payload[1]), payload[2:]
             else:
                 status, data = None, payload
-            out.append(("frame", Frame(delim, addr, cmd, status, data, bytes(buf[:end]))))
+            out.append(("frame", Frame(delim, buf[p + 1], buf[p + 2], status, data,
+                                       bytes(buf[:end]))))
             del buf[:end]
 
 
@@ -716,7 +792,7 @@ def role_concentrator(args, summary):
     in_force = {0: None, 1: None}
     port = Port(args.path)
     summary["_port"] = port
-    summary.update(address=addr, requests=0, acks=[], mark=store.mark)
+    summary.update(address=addr, requests=0, acks=[], last_ack=None, mark=store.mark)
     stop_at = None if args.run_for is None else time.monotonic() + args.run_for
     while True:
         f = port.recv(stop_at)
@@ -740,6 +816,7 @@ def role_concentrator(args, summary):
                 after = store.move_mark(ack)
                 emit("ack", ack=ack, mark_before=before, mark=after, moved=after != before)
                 summary["acks"].append(ack)
+                summary["last_ack"] = ack
                 summary["mark"] = after
                 minutes, remaining = store.batch()
                 data = (bytes([1 if remaining > 0 else 0]) + struct.pack(">I", remaining)
