@@ -10,15 +10,21 @@
 //!   commands 144 and 160.
 //! * [`concentrator`]: the concentrator, master on its bus and slave on its uplink.
 //! * [`handheld`]: the handheld as a station serving the PC.
+//! * [`average`]: averages over minutes, hours, days, pentads, dekads and months.
+//! * [`export`]: the PC's exports (CSV, GeoJSON) and trend plots.
+//! * [`hayes`]: dialling a telephone modem with AT commands.
 //! * [`sim`]: the whole network in virtual time.
 //! * [`run`]: the roles in real time on serial ports and pseudo-terminals.
 
 #![warn(missing_docs)]
 
 pub mod archive;
+pub mod average;
 pub mod calibration;
 pub mod concentrator;
+pub mod export;
 pub mod handheld;
+pub mod hayes;
 pub mod proto;
 pub mod run;
 pub mod sensor;
