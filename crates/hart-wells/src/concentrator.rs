@@ -139,6 +139,12 @@ impl Concentrator {
             uplink_answered: 0,
         };
         c.next_poll = c.poll_time_after(now);
+        // Back after a restart with a minute missing: poll at once, while the sensors
+        // still hold it (they keep three).
+        let (_, _, newest) = c.store.counts()?;
+        if newest > 0 && newest + 1 < crate::minute_of(now) {
+            c.next_poll = now;
+        }
         Ok(c)
     }
 

@@ -17,8 +17,10 @@ use crate::proto::{Message, Received, Receiver, Station, StationStatus, DIAGNOST
 use crate::sensor::SimSensor;
 use crate::Millis;
 
-/// The time the roles see: the system clock (UTC), optionally running faster from
-/// the moment it starts (`--speed`, for demonstrations and tests).
+/// The time the roles see: the system clock (UTC), or with `speed` above 1 a clock
+/// that runs `speed` times as fast from the start of the current UTC day (for
+/// demonstrations and tests): roles started separately, and a role restarted, agree
+/// on the time as long as they have the same speed.
 #[derive(Debug, Clone, Copy)]
 pub struct Clock {
     start: Instant,
@@ -27,19 +29,22 @@ pub struct Clock {
 }
 
 impl Clock {
-    /// The system clock, `speed` times as fast from now on (1 for real time).
+    /// The system clock, `speed` times as fast (1 for real time).
     pub fn new(speed: f64) -> Self {
-        let start_ms = SystemTime::now()
+        let real = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map_or(0, |d| d.as_millis() as Millis);
+        let speed = if speed.is_finite() && speed > 0.0 {
+            speed
+        } else {
+            1.0
+        };
+        let day = real - real % 86_400_000;
+        let start_ms = day + ((real - day) as f64 * speed) as Millis;
         Clock {
             start: Instant::now(),
             start_ms,
-            speed: if speed.is_finite() && speed > 0.0 {
-                speed
-            } else {
-                1.0
-            },
+            speed,
         }
     }
 

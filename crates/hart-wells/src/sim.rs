@@ -93,6 +93,11 @@ pub struct SimReport {
     pub minutes_sampled: u64,
     /// Minutes in the PC's archive at the end.
     pub minutes_at_pc: u64,
+    /// Minutes no concentrator stored a value for (between each well's first and
+    /// last minute): the sensors keep three minutes, so a concentrator that is down
+    /// over a poll for longer than that misses minutes. Not data lost: it never
+    /// existed outside the sensor.
+    pub minutes_missed: u64,
     /// Minutes sampled that never reached the PC.
     pub lost: u64,
     /// Minutes the PC or the handheld received twice.
@@ -284,6 +289,7 @@ impl Sim {
             days: cfg.days,
             minutes_sampled: 0,
             minutes_at_pc: 0,
+            minutes_missed: 0,
             lost: 0,
             duplicated: 0,
             max_store_fill: 0.0,
@@ -843,7 +849,12 @@ impl Sim {
                     }
                 }
             }
-            self.report.minutes_at_pc += self.pc.count(well)? as u64;
+            let n = self.pc.count(well)? as u64;
+            self.report.minutes_at_pc += n;
+            let all = self.pc.range(well, 0, u32::MAX)?;
+            if let (Some(a), Some(b)) = (all.first(), all.last()) {
+                self.report.minutes_missed += (b.minute - a.minute + 1) as u64 - n;
+            }
         }
         self.report.lost = self
             .report

@@ -16,6 +16,7 @@ pub mod serve;
 pub mod sim;
 pub mod sound;
 pub mod wells;
+pub mod wells_bus;
 
 use hart_proto::frame::{Frame, FrameType};
 use hart_proto::tables::{response_class, ResponseClass};

@@ -34,6 +34,20 @@ pub enum WellsCmd {
     /// The whole network in virtual time: sensors, concentrators, telephone lines that
     /// fail, handheld trips, the PC's schedule; reports what was lost (nothing).
     Sim(WellsSimArgs),
+    /// A four-wire RS-485 bus of pseudo-terminals: a concentrator and several sensors
+    /// sharing one bus on one machine.
+    Bus(BusArgs),
+}
+
+/// `wells bus`.
+#[derive(Args)]
+pub struct BusArgs {
+    /// The concentrator's end (a link made at this path).
+    #[arg(long, value_name = "PATH")]
+    pub master: PathBuf,
+    /// A sensor's end; give one per sensor.
+    #[arg(long = "drop", value_name = "PATH", required = true)]
+    pub drops: Vec<PathBuf>,
 }
 
 /// The serial line options every role has.
@@ -66,8 +80,9 @@ pub struct SensorArgs {
     /// Seed of its noise and of its well's water.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Run the clock this many times as fast (demonstrations and tests; use the same
-    /// value for the concentrator).
+    /// Run the clock this many times as fast, counted from the start of the current
+    /// UTC day (demonstrations and tests; give every role the same value, and they
+    /// agree on the time even when started or restarted apart).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
     #[command(flatten)]
@@ -102,7 +117,8 @@ pub struct ConcentratorArgs {
     /// after each poll and transfer.
     #[arg(long)]
     pub view: bool,
-    /// Run the clock this many times as fast (as the sensors).
+    /// Run the clock this many times as fast, as the sensors do (see `wells sensor
+    /// --speed`).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
     /// Time a sensor has to answer, ms.
@@ -290,6 +306,7 @@ fn open_line(
 pub fn run(cmd: &WellsCmd) -> Result<String, String> {
     match cmd {
         WellsCmd::Sim(a) => sim(a),
+        WellsCmd::Bus(a) => crate::wells_bus::run(&a.master, &a.drops),
         WellsCmd::Sensor(a) => sensor(a),
         WellsCmd::Concentrator(a) => concentrator(a),
         WellsCmd::Handheld(HandheldCmd::Collect(a)) => {
@@ -400,7 +417,7 @@ fn sim(a: &WellsSimArgs) -> Result<String, String> {
         return serde_json::to_string_pretty(&r).map_err(|e| e.to_string());
     }
     Ok(format!(
-        "{} wells, {} days: {} minutes sampled, {} at the PC, {} lost, {} duplicated\n\
+        "{} wells, {} days: {} minutes sampled, {} at the PC, {} lost, {} duplicated ({} missed by restarts)\n\
          store fill at most {:.1} %, {} minutes pending at the end (drained)\n\
          {} outages ({:.1} well-days without a line), {} restarts, {} handheld trips ({} minutes via the handheld)\n\
          {} pulls: {} complete, {} cut, {} rounds unreachable; {} batches\n\
@@ -411,6 +428,7 @@ fn sim(a: &WellsSimArgs) -> Result<String, String> {
         r.minutes_at_pc,
         r.lost,
         r.duplicated,
+        r.minutes_missed,
         r.max_store_fill * 100.0,
         r.pending_at_end,
         r.outages,

@@ -340,3 +340,148 @@ fn the_simulated_network_loses_nothing() {
     assert!(v["minutes_sampled"].as_u64().unwrap() > 2 * 2 * 1400, "{v}");
     assert_eq!(v["minutes_sampled"], v["minutes_at_pc"]);
 }
+
+/// kill -9 of the concentrator while it polls and while it hands over (and of the
+/// PC's pull): after each restart it goes on, and in the end the PC holds every
+/// minute the store holds, once, with the same values.
+#[test]
+fn kill_9_loses_and_repeats_nothing() {
+    use hart_wells::archive::Archive;
+    use hart_wells::store::{Durability, Store};
+    let Some(up) = pty_pair() else { return };
+    let dir = tmp("kill");
+    let (m, s1, s2) = (dir.join("bus"), dir.join("s1"), dir.join("s2"));
+    let (store, pc) = (dir.join("c.db"), dir.join("pc.db"));
+    let _bus = spawn_hartkit(&[
+        "wells",
+        "bus",
+        "--master",
+        m.to_str().unwrap(),
+        "--drop",
+        s1.to_str().unwrap(),
+        "--drop",
+        s2.to_str().unwrap(),
+    ]);
+    let end = Instant::now() + Duration::from_secs(10);
+    while !(m.exists() && s1.exists() && s2.exists()) {
+        assert!(Instant::now() < end, "the bus made no pseudo-terminals");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Ten virtual minutes a second.
+    let speed = "600";
+    let _t = spawn_hartkit(&[
+        "wells",
+        "sensor",
+        "--bus",
+        s1.to_str().unwrap(),
+        "--address",
+        "1",
+        "--kind",
+        "temperature",
+        "--speed",
+        speed,
+    ]);
+    let _l = spawn_hartkit(&[
+        "wells",
+        "sensor",
+        "--bus",
+        s2.to_str().unwrap(),
+        "--address",
+        "2",
+        "--kind",
+        "level",
+        "--speed",
+        speed,
+    ]);
+    let conc_args = [
+        "wells",
+        "concentrator",
+        "--well",
+        "1",
+        "--bus",
+        m.to_str().unwrap(),
+        "--uplink",
+        up.1.to_str().unwrap(),
+        "--store",
+        store.to_str().unwrap(),
+        "--speed",
+        speed,
+    ];
+    let pull_args = [
+        "wells",
+        "pc",
+        "pull",
+        "--port",
+        up.2.to_str().unwrap(),
+        "--well",
+        "1",
+        "--db",
+        pc.to_str().unwrap(),
+        "--timeout-ms",
+        "400",
+        "--tries",
+        "2",
+    ];
+    let mut conc = spawn_hartkit(&conc_args);
+    for round in 0..8u64 {
+        // Let it poll a while, then kill it: while polling (even rounds), or while the
+        // PC is pulling (odd rounds; the pull is sometimes killed too).
+        std::thread::sleep(Duration::from_millis(400 + 97 * round));
+        if round % 2 == 1 {
+            let mut pull = spawn_hartkit(&pull_args);
+            std::thread::sleep(Duration::from_millis(5 + 7 * round));
+            if round % 4 == 3 {
+                let _ = pull.0.kill();
+            }
+            let _ = conc.0.kill();
+            let _ = conc.0.wait();
+            // Back at once (the sensors keep three minutes: 0.3 real seconds at this
+            // speed); the pull may go on with the new process.
+            conc = spawn_hartkit(&conc_args);
+            let _ = pull.0.wait();
+            continue;
+        } else {
+            let _ = conc.0.kill();
+            let _ = conc.0.wait();
+        }
+        conc = spawn_hartkit(&conc_args);
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let (code, _, err) = hartkit(&pull_args);
+    assert_eq!(code, 0, "{err}");
+    drop(conc);
+    // Nothing the store holds is missing at the PC, nothing is there twice, and the
+    // values are the store's (in the wire's single precision).
+    let st = Store::open(&store, 1, 0, Durability::Process).unwrap();
+    let a = Archive::open(&pc, Durability::Process).unwrap();
+    let held = st.range(0, u32::MAX).unwrap();
+    let at_pc = a.range(1, 0, u32::MAX).unwrap();
+    assert!(held.len() > 40, "only {} minutes stored", held.len());
+    assert_eq!(a.duplicated().unwrap(), 0);
+    let handed = st.handed_over().unwrap();
+    for r in held.iter().filter(|r| r.minute <= handed) {
+        let p = at_pc
+            .iter()
+            .find(|p| p.minute == r.minute)
+            .unwrap_or_else(|| panic!("minute {} handed over but not at the PC", r.minute));
+        let w = r.wire_rounded();
+        assert_eq!((p.t_raw, p.l_raw, p.valid), (w.t_raw, w.l_raw, w.valid));
+        assert_eq!(p.temperature.to_bits(), w.temperature.to_bits());
+    }
+    // Everything stored before the last pull was handed over; the minutes are
+    // contiguous: each restart polled at once and the sensors still held the minutes.
+    assert!(
+        at_pc.len() + 30 >= held.len(),
+        "{} at the PC of {}",
+        at_pc.len(),
+        held.len()
+    );
+    for w in held.windows(2) {
+        assert_eq!(
+            w[1].minute,
+            w[0].minute + 1,
+            "a minute is missing after {}",
+            w[0].minute
+        );
+    }
+}
