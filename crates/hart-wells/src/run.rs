@@ -426,3 +426,174 @@ pub async fn run_handheld_station<T: Transport>(
         }
     }
 }
+
+/// Sends every table of `file` to `station` with command 160, segment by segment;
+/// returns the sensors whose tables the station took. A concentrator puts each in
+/// force; the handheld keeps it for the well's next visit.
+pub async fn send_calibration<T: Transport>(
+    t: &mut T,
+    station: Station,
+    file: &crate::calibration::CalibrationFile,
+    r: Requester,
+) -> Result<Vec<Sensor>, PullError> {
+    let mut done = Vec::new();
+    for sensor in Sensor::ALL {
+        let Some(table) = file.table(sensor) else {
+            continue;
+        };
+        let mut s = CalibrationSender::new(station, sensor, table.clone());
+        loop {
+            let m = exchange(t, &s.request(), r).await?;
+            match s.on_reply(&m).map_err(PullError::Transfer)? {
+                Step::More => continue,
+                Step::Done => break,
+            }
+        }
+        done.push(sensor);
+    }
+    Ok(done)
+}
+
+/// How to reach a well: by a telephone number through a Hayes modem on the port, or
+/// straight down the line (a cable or a leased line) when `number` is `None`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Route {
+    /// The well.
+    pub well: u8,
+    /// The number to dial.
+    pub number: Option<String>,
+}
+
+/// One well's outcome in a round.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct WellOutcome {
+    /// The well.
+    pub well: u8,
+    /// Reached and pulled to the end.
+    pub ok: bool,
+    /// Attempts made.
+    pub attempts: u32,
+    /// What was pulled (the last attempt).
+    pub pull: Option<PullSummary>,
+    /// Why it failed, in words (the last attempt).
+    pub error: Option<String>,
+    /// Sensors the concentrator reported faulty or not answering.
+    pub sensor_faults: Vec<String>,
+}
+
+/// Dials (when the route has a number), pulls, hangs up (whatever happened).
+pub async fn pull_route<T: Transport>(
+    t: &mut T,
+    archive: &mut Archive,
+    route: &Route,
+    dial: &crate::hayes::DialOptions,
+    r: Requester,
+    clock: Clock,
+) -> Result<PullSummary, String> {
+    let station = Station::concentrator(route.well);
+    if let Some(n) = &route.number {
+        let opts = crate::hayes::DialOptions {
+            number: n.clone(),
+            ..dial.clone()
+        };
+        let connect = crate::hayes::dial(t, &opts)
+            .await
+            .map_err(|e| e.to_string())?;
+        info!("well {}: {connect}", route.well);
+        let result = pull(t, archive, station, r, clock, false).await;
+        if let Err(e) = crate::hayes::hang_up(t, &opts).await {
+            warn!("well {}: hanging up: {e}", route.well);
+        }
+        result.map_err(|e| e.to_string())
+    } else {
+        pull(t, archive, station, r, clock, false)
+            .await
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// What a scheduled round does.
+#[derive(Debug, Clone)]
+pub struct RoundPlan {
+    /// The wells, in order.
+    pub routes: Vec<Route>,
+    /// How to dial (the number comes from each route).
+    pub dial: crate::hayes::DialOptions,
+    /// Requester timing.
+    pub requester: Requester,
+    /// Attempts after the first, per well.
+    pub retries: u32,
+    /// Time between attempts.
+    pub retry_wait: Duration,
+}
+
+/// One scheduled round: every route in turn, each tried up to `1 + retries` times
+/// `retry_wait` apart; wells that could not be reached are logged in the archive
+/// (outcome `unreachable`) and reported.
+pub async fn round<T: Transport>(
+    t: &mut T,
+    archive: &mut Archive,
+    plan: &RoundPlan,
+    clock: Clock,
+) -> Vec<WellOutcome> {
+    let (dial, r, retries, retry_wait) =
+        (&plan.dial, plan.requester, plan.retries, plan.retry_wait);
+    let mut out = Vec::new();
+    for route in &plan.routes {
+        let mut o = WellOutcome {
+            well: route.well,
+            ok: false,
+            attempts: 0,
+            pull: None,
+            error: None,
+            sensor_faults: vec![],
+        };
+        while o.attempts <= retries {
+            if o.attempts > 0 {
+                tokio::time::sleep(retry_wait).await;
+            }
+            o.attempts += 1;
+            match pull_route(t, archive, route, dial, r, clock).await {
+                Ok(s) => {
+                    o.sensor_faults = s
+                        .status
+                        .as_ref()
+                        .and_then(|st| st["sensors"].as_array().cloned())
+                        .unwrap_or_default()
+                        .iter()
+                        .filter(|x| x["state"] != "healthy")
+                        .map(|x| {
+                            format!(
+                                "sensor {} ({}): {}",
+                                x["address"],
+                                x["kind"].as_str().unwrap_or("?"),
+                                x["state"].as_str().unwrap_or("?")
+                            )
+                        })
+                        .collect();
+                    o.ok = true;
+                    o.error = None;
+                    o.pull = Some(s);
+                    break;
+                }
+                Err(e) => {
+                    warn!("well {}: attempt {}: {e}", route.well, o.attempts);
+                    o.error = Some(e);
+                }
+            }
+        }
+        if !o.ok {
+            let _ = archive.log_pull(&PullLog {
+                at: crate::minute_of(clock.now()),
+                well: route.well,
+                via: crate::archive::Via::Concentrator,
+                outcome: "unreachable".into(),
+                records: 0,
+                batches: 0,
+                detail: o.error.clone().unwrap_or_default(),
+            });
+        }
+        out.push(o);
+    }
+    out
+}

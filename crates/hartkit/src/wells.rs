@@ -189,9 +189,38 @@ pub struct ReqArgs {
 /// `wells pc ...`.
 #[derive(Subcommand)]
 pub enum PcCmd {
-    /// Pull a well's data into the PC's database: from its concentrator (0x80 + well)
-    /// or, with --handheld, from the handheld (0xC0 + well).
+    /// Pull a well's data into the PC's database: from its concentrator (0x80 + well),
+    /// through a telephone modem with --dial, or with --handheld from the handheld
+    /// (0xC0 + well).
     Pull(PullArgs),
+    /// Pull every well on a timetable, dialling each, with retries, and report the
+    /// wells that could not be reached and the sensors in trouble.
+    Schedule(ScheduleArgs),
+    /// Download a calibration file (CSV) with command 160: to the concentrator, which
+    /// puts it in force, or with --handheld to the handheld, which downloads it on its
+    /// next visit to the well.
+    Calibrate(CalibrateArgs),
+}
+
+/// `wells pc calibrate`.
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// The line.
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The well.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    /// The calibration file (docs/wells.md); refused whole if anything in it is wrong.
+    #[arg(long, value_name = "FILE")]
+    pub file: PathBuf,
+    /// Send it to the handheld instead of the concentrator.
+    #[arg(long)]
+    pub handheld: bool,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
 }
 
 /// `wells pc pull`.
@@ -207,8 +236,14 @@ pub struct PullArgs {
     #[arg(long, value_name = "FILE")]
     pub db: PathBuf,
     /// Pull from the handheld instead of the concentrator.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "dial")]
     pub handheld: bool,
+    /// Dial this number with the Hayes modem on --port first (ATD), and hang up
+    /// (+++, ATH) after.
+    #[arg(long, value_name = "NUMBER")]
+    pub dial: Option<String>,
+    #[command(flatten)]
+    pub modem: ModemArgs,
     /// Print the result as JSON.
     #[arg(long)]
     pub json: bool,
@@ -216,6 +251,82 @@ pub struct PullArgs {
     pub req: ReqArgs,
     #[command(flatten)]
     pub line: LineArgs,
+}
+
+/// Telephone modem options.
+#[derive(Args, Clone)]
+pub struct ModemArgs {
+    /// Commands sent to the modem before dialling.
+    #[arg(long, default_value = "ATE0V1Q0", value_name = "AT...")]
+    pub modem_init: String,
+    /// Time for the other modem to answer, s.
+    #[arg(long, default_value_t = 60)]
+    pub connect_timeout_s: u64,
+}
+
+impl ModemArgs {
+    fn options(&self, number: &str) -> hart_wells::hayes::DialOptions {
+        hart_wells::hayes::DialOptions {
+            number: number.to_string(),
+            init: self.modem_init.clone(),
+            connect_timeout: Duration::from_secs(self.connect_timeout_s.max(1)),
+            ..Default::default()
+        }
+    }
+}
+
+/// `wells pc schedule`.
+#[derive(Args)]
+pub struct ScheduleArgs {
+    /// The line: a Hayes modem (wells with numbers) or a cable.
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The PC's database.
+    #[arg(long, value_name = "FILE")]
+    pub db: PathBuf,
+    /// A well to pull: `W=NUMBER` to dial, or `W` for a well on a direct line; give
+    /// one per well, in the order to call them.
+    #[arg(long = "well", value_name = "W[=NUMBER]", required = true, value_parser = parse_route)]
+    pub wells: Vec<run::Route>,
+    /// Time between rounds (the first starts at once).
+    #[arg(long, default_value = "6h", value_name = "DURATION", value_parser = parse_duration)]
+    pub every: Duration,
+    /// Attempts after the first for a well that cannot be reached.
+    #[arg(long, default_value_t = 2)]
+    pub retries: u32,
+    /// Time between attempts.
+    #[arg(long, default_value = "10m", value_name = "DURATION", value_parser = parse_duration)]
+    pub retry_wait: Duration,
+    /// Stop after this many rounds (default: run until stopped).
+    #[arg(long)]
+    pub rounds: Option<u32>,
+    #[command(flatten)]
+    pub modem: ModemArgs,
+    /// One JSON report per round instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
+/// Parses `W` or `W=NUMBER`.
+pub fn parse_route(s: &str) -> Result<run::Route, String> {
+    let (w, n) = match s.split_once('=') {
+        Some((w, n)) => (w, Some(n.trim().to_string())),
+        None => (s, None),
+    };
+    let well: u8 = w
+        .trim()
+        .parse()
+        .ok()
+        .filter(|w| (1..=15).contains(w))
+        .ok_or_else(|| format!("{s:?}: the well, 1-15, then optionally =NUMBER"))?;
+    if let Some(n) = &n {
+        hart_wells::hayes::check_number(n).map_err(|e| format!("{s:?}: {e}"))?;
+    }
+    Ok(run::Route { well, number: n })
 }
 
 /// `wells sim`.
@@ -306,6 +417,8 @@ fn open_line(
 pub fn run(cmd: &WellsCmd) -> Result<String, String> {
     match cmd {
         WellsCmd::Sim(a) => sim(a),
+        WellsCmd::Pc(PcCmd::Calibrate(a)) => calibrate(a),
+        WellsCmd::Pc(PcCmd::Schedule(a)) => schedule(a),
         WellsCmd::Bus(a) => crate::wells_bus::run(&a.master, &a.drops),
         WellsCmd::Sensor(a) => sensor(a),
         WellsCmd::Concentrator(a) => concentrator(a),
@@ -349,20 +462,139 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
             };
             let s = crate::host::block_on(async {
                 let mut t = open_line(&a.port, &a.line, None)?;
-                run::pull(
+                if a.handheld {
+                    return run::pull(
+                        &mut t,
+                        &mut archive,
+                        station,
+                        requester(&a.req),
+                        Clock::new(1.0),
+                        false,
+                    )
+                    .await
+                    .map_err(|e| e.to_string());
+                }
+                let route = run::Route {
+                    well: a.well,
+                    number: a.dial.clone(),
+                };
+                let opts = a.modem.options("");
+                run::pull_route(
                     &mut t,
                     &mut archive,
-                    station,
+                    &route,
+                    &opts,
                     requester(&a.req),
                     Clock::new(1.0),
-                    false,
                 )
                 .await
-                .map_err(|e| e.to_string())
             })?;
             summary(&s, a.json)
         }
     }
+}
+
+fn schedule(a: &ScheduleArgs) -> Result<String, String> {
+    use std::io::Write as _;
+    crate::gateway::init_log();
+    let mut archive = Archive::open(&a.db, Durability::Full).map_err(|e| e.to_string())?;
+    let plan = run::RoundPlan {
+        routes: a.wells.clone(),
+        dial: a.modem.options(""),
+        requester: requester(&a.req),
+        retries: a.retries,
+        retry_wait: a.retry_wait,
+    };
+    let clock = Clock::new(1.0);
+    let unreachable = crate::host::block_on(async {
+        let mut t = open_line(&a.port, &a.line, None)?;
+        let mut n = 0u32;
+        loop {
+            let started = std::time::Instant::now();
+            let outcomes = run::round(&mut t, &mut archive, &plan, clock).await;
+            n += 1;
+            let unreachable = outcomes.iter().filter(|o| !o.ok).count();
+            let text = if a.json {
+                serde_json::json!({
+                    "round": n,
+                    "at_minute": hart_wells::minute_of(clock.now()),
+                    "wells": outcomes,
+                    "unreachable": outcomes.iter().filter(|o| !o.ok).map(|o| o.well).collect::<Vec<_>>(),
+                })
+                .to_string()
+            } else {
+                round_text(n, &outcomes)
+            };
+            let _ = writeln!(std::io::stdout(), "{text}");
+            if a.rounds.is_some_and(|r| n >= r) {
+                break Ok::<usize, String>(unreachable);
+            }
+            tokio::time::sleep(a.every.saturating_sub(started.elapsed())).await;
+        }
+    })?;
+    if unreachable > 0 {
+        return Err(format!(
+            "{unreachable} well(s) could not be reached in the last round (see above)"
+        ));
+    }
+    Ok(String::new())
+}
+
+fn round_text(n: u32, outcomes: &[run::WellOutcome]) -> String {
+    let mut out = format!("round {n}:");
+    for o in outcomes {
+        match (&o.pull, &o.error) {
+            (Some(p), _) => out.push_str(&format!(
+                "\n  well {}: {} new minutes{}",
+                o.well,
+                p.new_minutes,
+                if o.attempts > 1 {
+                    format!(" (attempt {})", o.attempts)
+                } else {
+                    String::new()
+                }
+            )),
+            (None, e) => out.push_str(&format!(
+                "\n  well {}: UNREACHABLE after {} attempts: {}",
+                o.well,
+                o.attempts,
+                e.as_deref().unwrap_or("?")
+            )),
+        }
+        for f in &o.sensor_faults {
+            out.push_str(&format!("\n    {f}"));
+        }
+    }
+    out
+}
+
+fn calibrate(a: &CalibrateArgs) -> Result<String, String> {
+    let file = CalibrationFile::read(&a.file).map_err(|e| format!("{e}; nothing was sent"))?;
+    let station = if a.handheld {
+        Station::handheld(a.well)
+    } else {
+        Station::concentrator(a.well)
+    };
+    let done = crate::host::block_on(async {
+        let mut t = open_line(&a.port, &a.line, None)?;
+        run::send_calibration(&mut t, station, &file, requester(&a.req))
+            .await
+            .map_err(|e| e.to_string())
+    })?;
+    let names: Vec<&str> = done.iter().map(|s| s.name()).collect();
+    Ok(if a.handheld {
+        format!(
+            "{} table(s) kept by the handheld for well {}'s next visit",
+            names.join(" and "),
+            a.well
+        )
+    } else {
+        format!(
+            "{} table(s) in force at well {}",
+            names.join(" and "),
+            a.well
+        )
+    })
 }
 
 fn requester(a: &ReqArgs) -> Requester {

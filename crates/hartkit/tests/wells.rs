@@ -485,3 +485,258 @@ fn kill_9_loses_and_repeats_nothing() {
         );
     }
 }
+
+/// The PC dials through a Hayes modem (an independent fake modem on a pseudo-terminal,
+/// `tests/peer/fake_modem.py`) whose call reaches the concentrator's uplink; the
+/// schedule reports a busy well as unreachable and the faulty sensor of the other.
+#[test]
+fn the_pc_dials_pulls_and_reports_unreachable_wells_and_faulty_sensors() {
+    let Some(_) = peer() else { return };
+    let (Some(bus), Some(up), Some(modem)) = (pty_pair(), pty_pair(), pty_pair()) else {
+        return;
+    };
+    let dir = tmp("dial");
+    let (store, pc) = (dir.join("c.db"), dir.join("pc.db"));
+    // Level sensor silent: the concentrator reports it not answering.
+    let _sensors = spawn_peer(&["sensors", bus.2.to_str().unwrap(), "--silent", "2"]);
+    let _conc = spawn_hartkit(&[
+        "wells",
+        "concentrator",
+        "--well",
+        "4",
+        "--bus",
+        bus.1.to_str().unwrap(),
+        "--uplink",
+        up.1.to_str().unwrap(),
+        "--store",
+        store.to_str().unwrap(),
+        "--poll-interval",
+        "1s",
+        "--reply-timeout-ms",
+        "150",
+    ]);
+    let fake_modem = workspace().join("crates/hart-wells/tests/peer/fake_modem.py");
+    let _modem = Kill(
+        Command::new("python3")
+            .arg(&fake_modem)
+            .arg(modem.2.to_str().unwrap())
+            .arg("--connect")
+            .arg(format!("5554004={}", up.2.display()))
+            .args([
+                "--busy",
+                "5554005",
+                "--ring-seconds",
+                "0.2",
+                "--guard",
+                "0.3",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    std::thread::sleep(Duration::from_millis(2500));
+    let (code, out, err) = hartkit(&[
+        "wells",
+        "pc",
+        "pull",
+        "--port",
+        modem.1.to_str().unwrap(),
+        "--well",
+        "4",
+        "--dial",
+        "555-4004",
+        "--db",
+        pc.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
+    assert_eq!(v["status"]["sensors"][1]["state"], "not answering", "{v}");
+    let (code, out, err) = hartkit(&[
+        "wells",
+        "pc",
+        "schedule",
+        "--port",
+        modem.1.to_str().unwrap(),
+        "--db",
+        pc.to_str().unwrap(),
+        "--well",
+        "4=5554004",
+        "--well",
+        "5=5554005",
+        "--retries",
+        "1",
+        "--retry-wait",
+        "100ms",
+        "--rounds",
+        "1",
+        "--json",
+    ]);
+    assert_ne!(code, 0, "a well was unreachable: {out}");
+    assert!(err.contains("could not be reached"), "{err}");
+    let v: Value = serde_json::from_str(out.lines().next().unwrap()).unwrap();
+    assert_eq!(v["unreachable"], serde_json::json!([5]), "{v}");
+    assert_eq!(v["wells"][0]["ok"], true, "{v}");
+    assert_eq!(v["wells"][1]["attempts"], 2, "{v}");
+    assert!(
+        v["wells"][1]["error"].as_str().unwrap().contains("busy"),
+        "{v}"
+    );
+    assert!(
+        v["wells"][0]["sensor_faults"][0]
+            .as_str()
+            .unwrap()
+            .contains("not answering"),
+        "{v}"
+    );
+}
+
+/// A calibration file goes to the concentrator with command 160 and is in force; a
+/// corrupt file is refused whole before anything is sent; through the handheld, the
+/// table waits in its store for the next visit and goes down with the collection.
+#[test]
+fn calibration_tables_reach_the_concentrator_directly_and_through_the_handheld() {
+    use hart_wells::calibration::{CalibrationFile, Segment, Sensor, Table};
+    use hart_wells::store::{Durability, Store};
+    let Some(_) = peer() else { return };
+    let (Some(bus), Some(up), Some(bureau)) = (pty_pair(), pty_pair(), pty_pair()) else {
+        return;
+    };
+    let dir = tmp("cal");
+    let (store, hh) = (dir.join("c.db"), dir.join("hh.db"));
+    // A table that reads 1000 counts as 1 °C (linear), and a level table.
+    let seg = |k: u32, a1: f64| Segment {
+        raw_from: k * 1_677_721,
+        raw_to: if k == 9 {
+            0xFF_FFFE
+        } else {
+            (k + 1) * 1_677_721 - 1
+        },
+        a0: 0.0,
+        a1,
+        a2: 0.0,
+    };
+    let file = CalibrationFile {
+        temperature: Some(Table::new((0..10).map(|k| seg(k, 0.001)).collect()).unwrap()),
+        level: Some(Table::new((0..10).map(|k| seg(k, 0.0001)).collect()).unwrap()),
+    };
+    let good = dir.join("cal.csv");
+    std::fs::write(&good, file.to_csv()).unwrap();
+    let mut text = file.to_csv();
+    text = text.replacen(",0.001,", ",NaN,", 1);
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, text).unwrap();
+    let _sensors = spawn_peer(&["sensors", bus.2.to_str().unwrap()]);
+    let conc_args = [
+        "wells",
+        "concentrator",
+        "--well",
+        "6",
+        "--bus",
+        bus.1.to_str().unwrap(),
+        "--uplink",
+        up.1.to_str().unwrap(),
+        "--store",
+        store.to_str().unwrap(),
+        "--poll-interval",
+        "1s",
+    ];
+    let conc = spawn_hartkit(&conc_args);
+    std::thread::sleep(Duration::from_millis(500));
+    let (code, _, err) = hartkit(&[
+        "wells",
+        "pc",
+        "calibrate",
+        "--port",
+        up.2.to_str().unwrap(),
+        "--well",
+        "6",
+        "--file",
+        bad.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("line") && err.contains("nothing was sent"),
+        "{err}"
+    );
+    let (code, out, err) = hartkit(&[
+        "wells",
+        "pc",
+        "calibrate",
+        "--port",
+        up.2.to_str().unwrap(),
+        "--well",
+        "6",
+        "--file",
+        good.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("temperature and level table(s) in force"),
+        "{out}"
+    );
+    drop(conc);
+    let st = Store::open(&store, 6, 0, Durability::Process).unwrap();
+    assert_eq!(
+        st.calibration(Sensor::Level).unwrap().as_ref(),
+        file.level.as_ref()
+    );
+    drop(st);
+    // Through the handheld: the PC gives it the table at the bureau...
+    let serve = spawn_hartkit(&[
+        "wells",
+        "handheld",
+        "serve",
+        "--port",
+        bureau.1.to_str().unwrap(),
+        "--store",
+        hh.to_str().unwrap(),
+    ]);
+    std::thread::sleep(Duration::from_millis(300));
+    let file2 = CalibrationFile {
+        temperature: Some(Table::new((0..10).map(|k| seg(k, 0.002)).collect()).unwrap()),
+        level: None,
+    };
+    let good2 = dir.join("cal2.csv");
+    std::fs::write(&good2, file2.to_csv()).unwrap();
+    let (code, out, err) = hartkit(&[
+        "wells",
+        "pc",
+        "calibrate",
+        "--handheld",
+        "--port",
+        bureau.2.to_str().unwrap(),
+        "--well",
+        "6",
+        "--file",
+        good2.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("kept by the handheld"), "{out}");
+    drop(serve);
+    // ...and it goes down on the next visit, with the collection.
+    let _conc = spawn_hartkit(&conc_args);
+    std::thread::sleep(Duration::from_millis(500));
+    let (code, out, err) = hartkit(&[
+        "wells",
+        "handheld",
+        "collect",
+        "--port",
+        up.2.to_str().unwrap(),
+        "--well",
+        "6",
+        "--store",
+        hh.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(
+        v["calibration_downloaded"],
+        serde_json::json!(["temperature"]),
+        "{v}"
+    );
+    assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
+}
