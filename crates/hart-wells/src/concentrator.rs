@@ -7,10 +7,11 @@ use tracing::{error, info, warn};
 
 use crate::calibration::{Sensor, Table};
 use crate::proto::{
-    decode_transfer_request, Assembled, Diagnosis, Groups, Message, Record, SegmentRequest,
-    SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS, NO_VALUE, RC_NOT_IMPLEMENTED,
-    RC_TOO_FEW_BYTES, READ_VALUES, SEGMENT_TAKEN, STATE_NOT_ANSWERING, STATUS_NORMAL,
-    TABLE_IN_FORCE, TRANSFER, VALID_LEVEL, VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
+    decode_transfer_request, Assembled, Diagnosis, Groups, Message, Parameters, Record,
+    SegmentRequest, SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS, NO_VALUE,
+    PARAMETERS, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, RC_TOO_LARGE, READ_VALUES, SEGMENT_TAKEN,
+    STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
+    VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
 };
 use crate::sensor::body_celsius;
 use crate::store::{PollOutcome, Store, StoreError};
@@ -138,6 +139,13 @@ impl Concentrator {
             bus_timeouts: 0,
             uplink_answered: 0,
         };
+        // Parameters changed online survive a restart.
+        if let Some(v) = c.store.parameter("poll_interval_s")? {
+            c.cfg.poll_interval = v.clamp(1, 180) as Millis * 1000;
+        }
+        if let Some(v) = c.store.parameter("retries")? {
+            c.cfg.retries = v.clamp(0, 5) as u8;
+        }
         c.next_poll = c.poll_time_after(now);
         // Back after a restart with a minute missing: poll at once, while the sensors
         // still hold it (they keep three).
@@ -440,8 +448,62 @@ impl Concentrator {
                     reply(rc, d)
                 }
             },
+            PARAMETERS => match Parameters::decode(&msg.data) {
+                Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
+                Ok(p) => {
+                    let (rc, d) = self.set_parameters(p, now);
+                    reply(rc, d)
+                }
+            },
             _ => reply(RC_NOT_IMPLEMENTED, vec![]),
         })
+    }
+
+    /// The parameters in force.
+    pub fn parameters(&self) -> Parameters {
+        Parameters {
+            poll_interval_s: (self.cfg.poll_interval / 1000).clamp(1, 180) as u16,
+            retries: self.cfg.retries,
+        }
+    }
+
+    /// Command 161: changes what the request changes, keeps it in the store, and
+    /// answers the values in force.
+    fn set_parameters(&mut self, p: Parameters, now: Millis) -> (u8, Vec<u8>) {
+        if p.poll_interval_s > 180 || (p.retries > 5 && p.retries != 0xFF) {
+            warn!(
+                well = self.cfg.well,
+                "parameters refused: poll interval {} s (1-180), retries {} (0-5)",
+                p.poll_interval_s,
+                p.retries
+            );
+            return (RC_TOO_LARGE, vec![]);
+        }
+        if p.poll_interval_s != 0 {
+            if let Err(e) = self
+                .store
+                .set_parameter("poll_interval_s", p.poll_interval_s as i64)
+            {
+                error!("{e}");
+                return (RC_STORE_FAILED, vec![]);
+            }
+            self.cfg.poll_interval = p.poll_interval_s as Millis * 1000;
+            if self.cycle.is_none() {
+                self.next_poll = self.poll_time_after(now);
+            }
+            info!(
+                well = self.cfg.well,
+                "poll interval now {} s", p.poll_interval_s
+            );
+        }
+        if p.retries != 0xFF {
+            if let Err(e) = self.store.set_parameter("retries", p.retries as i64) {
+                error!("{e}");
+                return (RC_STORE_FAILED, vec![]);
+            }
+            self.cfg.retries = p.retries;
+        }
+        (0, self.parameters().encode())
     }
 
     /// Takes one calibration segment; the response code and the state byte.

@@ -21,6 +21,50 @@ pub const DIAGNOSTICS: u8 = 14;
 pub const TRANSFER: u8 = 144;
 /// Command 160: download a calibration table segment by segment.
 pub const CALIBRATION: u8 = 160;
+/// Command 161: read or change the concentrator's parameters online.
+pub const PARAMETERS: u8 = 161;
+/// Response code: passed parameter too large.
+pub const RC_TOO_LARGE: u8 = 3;
+
+/// The concentrator's parameters (command 161): request data = these 3 bytes (0 and
+/// 0xFF leave a value as it is), reply data = the values in force.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Parameters {
+    /// Seconds between polls (1-180; 0 in a request: unchanged).
+    pub poll_interval_s: u16,
+    /// Retries of a sensor request (0-5; 0xFF in a request: unchanged).
+    pub retries: u8,
+}
+
+impl Parameters {
+    /// A request that changes nothing: reads the values in force.
+    pub const READ: Parameters = Parameters {
+        poll_interval_s: 0,
+        retries: 0xFF,
+    };
+
+    /// The 3 data bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut d = self.poll_interval_s.to_be_bytes().to_vec();
+        d.push(self.retries);
+        d
+    }
+
+    /// Decodes 3 data bytes.
+    pub fn decode(d: &[u8]) -> Result<Self, DecodeError> {
+        if d.len() < 3 {
+            return Err(DecodeError::Length {
+                what: "command 161",
+                expected: 3,
+                got: d.len(),
+            });
+        }
+        Ok(Parameters {
+            poll_interval_s: u16::from_be_bytes([d[0], d[1]]),
+            retries: d[2],
+        })
+    }
+}
 
 /// Preambles the network's stations send.
 pub const PREAMBLES: usize = 2;

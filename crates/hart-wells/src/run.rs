@@ -597,3 +597,47 @@ pub async fn round<T: Transport>(
     }
     out
 }
+
+/// Reads or changes a concentrator's parameters (command 161), dialling first when
+/// the route has a number; returns the values in force.
+pub async fn parameters<T: Transport>(
+    t: &mut T,
+    route: &Route,
+    dial: &crate::hayes::DialOptions,
+    p: crate::proto::Parameters,
+    r: Requester,
+) -> Result<crate::proto::Parameters, String> {
+    let req = Message::request(
+        Station::concentrator(route.well),
+        crate::proto::PARAMETERS,
+        p.encode(),
+    );
+    let opts = crate::hayes::DialOptions {
+        number: route.number.clone().unwrap_or_default(),
+        ..dial.clone()
+    };
+    if route.number.is_some() {
+        crate::hayes::dial(t, &opts)
+            .await
+            .map_err(|e| e.to_string())?;
+    }
+    let result = exchange(t, &req, r).await;
+    if route.number.is_some() {
+        if let Err(e) = crate::hayes::hang_up(t, &opts).await {
+            warn!("well {}: hanging up: {e}", route.well);
+        }
+    }
+    let m = result.map_err(|e| e.to_string())?;
+    match m.response_code() {
+        Some(0) => crate::proto::Parameters::decode(&m.data).map_err(|e| e.to_string()),
+        Some(3) => {
+            Err("the concentrator refused the values: poll interval 1-180 s, retries 0-5".into())
+        }
+        Some(c) => Err(TransferError::Refused {
+            station: req.station,
+            code: c,
+        }
+        .to_string()),
+        None => Err("a reply without status".into()),
+    }
+}

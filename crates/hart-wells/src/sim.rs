@@ -43,6 +43,9 @@ pub struct SimConfig {
     pub capacity_days: u32,
     /// Seconds between a concentrator's polls.
     pub poll_interval_s: u64,
+    /// Failures per sensor per day: the sensor stops answering for a while
+    /// (exponentially distributed, mean half a day).
+    pub sensor_failure_rate: f64,
     /// Bit rate of the telephone modems and the handheld's cable.
     pub uplink_baud: u32,
     /// Seed of everything random.
@@ -64,6 +67,7 @@ impl Default for SimConfig {
             restart_rate: 0.05,
             capacity_days: 14,
             poll_interval_s: 180,
+            sensor_failure_rate: 0.0,
             uplink_baud: 1200,
             seed: 1,
             dir: None,
@@ -129,6 +133,12 @@ pub struct SimReport {
     pub outage_days: f64,
     /// Concentrator restarts.
     pub restarts: u64,
+    /// Times a sensor stopped answering.
+    pub sensor_failures: u64,
+    /// Status reads at the PC that showed a sensor faulty or not answering.
+    pub faults_reported: u64,
+    /// Minutes at the PC with one of the quantities missing (its sensor was down).
+    pub partial_minutes: u64,
     /// Handheld trips.
     pub handheld_trips: u64,
     /// Minutes that reached the PC through the handheld.
@@ -156,11 +166,15 @@ enum Ev {
     OutageEnd(usize),
     PowerLoss(usize),
     PowerBack(usize),
+    SensorFails(usize, usize),
+    SensorBack(usize, usize),
 }
 
 struct Well {
     number: u8,
     sensors: Vec<SimSensor>,
+    /// Sensors that do not answer now.
+    silent: Vec<bool>,
     conc: Option<Concentrator>,
     store_path: PathBuf,
     generation: u32,
@@ -267,6 +281,7 @@ impl Sim {
                 .collect();
             let mut w = Well {
                 number: n,
+                silent: vec![false; 2],
                 sensors,
                 conc: None,
                 store_path,
@@ -304,6 +319,9 @@ impl Sim {
             outages: 0,
             outage_days: 0.0,
             restarts: 0,
+            sensor_failures: 0,
+            faults_reported: 0,
+            partial_minutes: 0,
             handheld_trips: 0,
             minutes_via_handheld: 0,
             values_checked: 0,
@@ -340,6 +358,10 @@ impl Sim {
             s.at(o, Ev::OutageStart(i));
             let r = s.exp_days(s.cfg.restart_rate);
             s.at(r, Ev::PowerLoss(i));
+            for k in 0..2 {
+                let f = s.exp_days(s.cfg.sensor_failure_rate);
+                s.at(f, Ev::SensorFails(i, k));
+            }
         }
         s.at(START + HOUR, Ev::Pc);
         s.pc_next_round = START + HOUR;
@@ -426,6 +448,17 @@ impl Sim {
                 let back = 30_000 + self.rng.next_u64() % 120_000;
                 self.at(self.now + back, Ev::PowerBack(i));
             }
+            Ev::SensorFails(i, k) => {
+                self.wells[i].silent[k] = true;
+                self.report.sensor_failures += 1;
+                let len = (-(self.rng.next_f64().max(1e-12)).ln() * 0.5 * DAY as f64) as Millis;
+                self.at(self.now + len.max(MINUTE), Ev::SensorBack(i, k));
+            }
+            Ev::SensorBack(i, k) => {
+                self.wells[i].silent[k] = false;
+                let f = self.exp_days(self.cfg.sensor_failure_rate);
+                self.at(f, Ev::SensorFails(i, k));
+            }
             Ev::PowerBack(i) => {
                 let c = open_conc(&self.cfg, &self.wells[i], self.now)?;
                 let at = c.next_deadline();
@@ -468,10 +501,13 @@ impl Sim {
         match conc.bus_request(now) {
             Some(req) => {
                 let req_ms = frame_ms(req.to_bytes().len(), 1200);
+                let silent = &w.silent;
                 let reply = w
                     .sensors
                     .iter_mut()
-                    .find_map(|s| s.handle(&req, now + req_ms));
+                    .zip(silent)
+                    .filter(|(_, &quiet)| !quiet)
+                    .find_map(|(s, _)| s.handle(&req, now + req_ms));
                 let done = match &reply {
                     Some(r) => now + req_ms + 20 + frame_ms(r.to_bytes().len(), 1200),
                     None => now + req_ms + 300,
@@ -603,6 +639,9 @@ impl Sim {
                     if let Ok(s) =
                         StationStatus::decode(reply.status.unwrap_or([0, 0]), &reply.data)
                     {
+                        if s.sensors.iter().any(|x| x.state != 0) {
+                            self.report.faults_reported += 1;
+                        }
                         self.pc.log_status(well, self.minute(), &s)?;
                     }
                     self.pc_state = PcState::Session {
@@ -852,6 +891,7 @@ impl Sim {
             let n = self.pc.count(well)? as u64;
             self.report.minutes_at_pc += n;
             let all = self.pc.range(well, 0, u32::MAX)?;
+            self.report.partial_minutes += all.iter().filter(|r| r.valid != 7).count() as u64;
             if let (Some(a), Some(b)) = (all.first(), all.last()) {
                 self.report.minutes_missed += (b.minute - a.minute + 1) as u64 - n;
             }

@@ -184,6 +184,16 @@ impl Store {
         self.capacity
     }
 
+    /// A parameter changed online (command 161), if one was.
+    pub fn parameter(&self, key: &str) -> Result<Option<i64>, StoreError> {
+        self.meta(&format!("param:{key}"))
+    }
+
+    /// Keeps a parameter changed online, so a restart keeps it.
+    pub fn set_parameter(&self, key: &str, v: i64) -> Result<(), StoreError> {
+        self.set_meta(&format!("param:{key}"), v)
+    }
+
     /// The handed-over mark: every minute up to it has been handed over.
     pub fn handed_over(&self) -> Result<u32, StoreError> {
         Ok(self.meta("handed_over")?.unwrap_or(0) as u32)

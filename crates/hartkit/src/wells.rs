@@ -196,10 +196,39 @@ pub enum PcCmd {
     /// Pull every well on a timetable, dialling each, with retries, and report the
     /// wells that could not be reached and the sensors in trouble.
     Schedule(ScheduleArgs),
+    /// Read or change a concentrator's parameters online (command 161): the poll
+    /// interval and the retries; a restart keeps them.
+    Set(SetArgs),
     /// Download a calibration file (CSV) with command 160: to the concentrator, which
     /// puts it in force, or with --handheld to the handheld, which downloads it on its
     /// next visit to the well.
     Calibrate(CalibrateArgs),
+}
+
+/// `wells pc set`.
+#[derive(Args)]
+pub struct SetArgs {
+    /// The line.
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The well.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    /// New time between polls (1 s to 3 min); without it, unchanged.
+    #[arg(long, value_name = "DURATION", value_parser = parse_duration)]
+    pub poll_interval: Option<Duration>,
+    /// New retries of a sensor request (0-5); without it, unchanged.
+    #[arg(long)]
+    pub retries: Option<u8>,
+    /// Dial this number first.
+    #[arg(long, value_name = "NUMBER")]
+    pub dial: Option<String>,
+    #[command(flatten)]
+    pub modem: ModemArgs,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
 }
 
 /// `wells pc calibrate`.
@@ -362,6 +391,9 @@ pub struct WellsSimArgs {
     /// Seconds between polls.
     #[arg(long, default_value_t = 180)]
     pub poll_interval_s: u64,
+    /// Failures per sensor per day (it stops answering, for half a day on average).
+    #[arg(long, default_value_t = 0.0)]
+    pub sensor_failure_rate: f64,
     /// Seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -418,6 +450,7 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
     match cmd {
         WellsCmd::Sim(a) => sim(a),
         WellsCmd::Pc(PcCmd::Calibrate(a)) => calibrate(a),
+        WellsCmd::Pc(PcCmd::Set(a)) => set(a),
         WellsCmd::Pc(PcCmd::Schedule(a)) => schedule(a),
         WellsCmd::Bus(a) => crate::wells_bus::run(&a.master, &a.drops),
         WellsCmd::Sensor(a) => sensor(a),
@@ -568,6 +601,41 @@ fn round_text(n: u32, outcomes: &[run::WellOutcome]) -> String {
     out
 }
 
+fn set(a: &SetArgs) -> Result<String, String> {
+    let poll = match a.poll_interval {
+        None => 0,
+        Some(d) if (1..=180).contains(&d.as_secs()) => d.as_secs() as u16,
+        Some(d) => return Err(format!("--poll-interval {d:?}: 1 s to 3 min")),
+    };
+    let retries = match a.retries {
+        None => 0xFF,
+        Some(r) if r <= 5 => r,
+        Some(r) => return Err(format!("--retries {r}: 0-5")),
+    };
+    let p = crate::host::block_on(async {
+        let mut t = open_line(&a.port, &a.line, None)?;
+        let route = run::Route {
+            well: a.well,
+            number: a.dial.clone(),
+        };
+        run::parameters(
+            &mut t,
+            &route,
+            &a.modem.options(""),
+            hart_wells::proto::Parameters {
+                poll_interval_s: poll,
+                retries,
+            },
+            requester(&a.req),
+        )
+        .await
+    })?;
+    Ok(format!(
+        "well {}: poll interval {} s, {} retries",
+        a.well, p.poll_interval_s, p.retries
+    ))
+}
+
 fn calibrate(a: &CalibrateArgs) -> Result<String, String> {
     let file = CalibrationFile::read(&a.file).map_err(|e| format!("{e}; nothing was sent"))?;
     let station = if a.handheld {
@@ -640,6 +708,7 @@ fn sim(a: &WellsSimArgs) -> Result<String, String> {
         restart_rate: a.restart_rate,
         capacity_days: a.capacity_days,
         poll_interval_s: a.poll_interval_s,
+        sensor_failure_rate: a.sensor_failure_rate,
         uplink_baud: 1200,
         seed: a.seed,
         dir: a.dir.clone(),
@@ -649,9 +718,10 @@ fn sim(a: &WellsSimArgs) -> Result<String, String> {
         return serde_json::to_string_pretty(&r).map_err(|e| e.to_string());
     }
     Ok(format!(
-        "{} wells, {} days: {} minutes sampled, {} at the PC, {} lost, {} duplicated ({} missed by restarts)\n\
+        "{} wells, {} days: {} minutes sampled, {} at the PC, {} lost, {} duplicated ({} minutes without any value: a concentrator down longer than its sensors remember, or both sensors down)\n\
          store fill at most {:.1} %, {} minutes pending at the end (drained)\n\
          {} outages ({:.1} well-days without a line), {} restarts, {} handheld trips ({} minutes via the handheld)\n\
+         {} sensor failures, shown {} times in the status the PC read; {} minutes with a quantity missing\n\
          {} pulls: {} complete, {} cut, {} rounds unreachable; {} batches\n\
          values checked against the stores: {} ({} different); {:.2} s",
         r.wells,
@@ -668,6 +738,9 @@ fn sim(a: &WellsSimArgs) -> Result<String, String> {
         r.restarts,
         r.handheld_trips,
         r.minutes_via_handheld,
+        r.sensor_failures,
+        r.faults_reported,
+        r.partial_minutes,
         r.pulls,
         r.pulls_complete,
         r.pulls_cut,

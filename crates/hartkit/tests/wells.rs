@@ -716,9 +716,9 @@ fn calibration_tables_reach_the_concentrator_directly_and_through_the_handheld()
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("kept by the handheld"), "{out}");
     drop(serve);
-    // ...and it goes down on the next visit, with the collection.
+    // ...and it goes down on the next visit, with the collection (after a poll).
     let _conc = spawn_hartkit(&conc_args);
-    std::thread::sleep(Duration::from_millis(500));
+    std::thread::sleep(Duration::from_millis(2500));
     let (code, out, err) = hartkit(&[
         "wells",
         "handheld",
@@ -739,4 +739,31 @@ fn calibration_tables_reach_the_concentrator_directly_and_through_the_handheld()
         "{v}"
     );
     assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
+    // Parameters online (command 161): changed, kept over a restart, refused when
+    // out of range.
+    let set = |extra: &[&str]| {
+        let mut args = vec![
+            "wells",
+            "pc",
+            "set",
+            "--port",
+            up.2.to_str().unwrap(),
+            "--well",
+            "6",
+        ];
+        args.extend_from_slice(extra);
+        hartkit(&args)
+    };
+    let (code, out, err) = set(&["--poll-interval", "2m", "--retries", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.trim(), "well 6: poll interval 120 s, 1 retries");
+    drop(_conc);
+    let _conc = spawn_hartkit(&conc_args);
+    std::thread::sleep(Duration::from_millis(500));
+    let (code, out, err) = set(&[]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.trim(), "well 6: poll interval 120 s, 1 retries");
+    let (code, _, err) = set(&["--poll-interval", "10m"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("1 s to 3 min"), "{err}");
 }
