@@ -17,6 +17,7 @@ pub mod sim;
 pub mod sound;
 pub mod wells;
 pub mod wells_bus;
+pub mod wells_export;
 
 use hart_proto::frame::{Frame, FrameType};
 use hart_proto::tables::{response_class, ResponseClass};

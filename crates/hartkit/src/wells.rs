@@ -196,6 +196,10 @@ pub enum PcCmd {
     /// Pull every well on a timetable, dialling each, with retries, and report the
     /// wells that could not be reached and the sensors in trouble.
     Schedule(ScheduleArgs),
+    /// Export the minutes or their averages as CSV, or as GeoJSON points for a GIS.
+    Export(crate::wells_export::ExportArgs),
+    /// Draw the trends of level and temperature per well into a PNG.
+    Plot(crate::wells_export::PlotArgs),
     /// Read or change a concentrator's parameters online (command 161): the poll
     /// interval and the retries; a restart keeps them.
     Set(SetArgs),
@@ -451,6 +455,11 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
         WellsCmd::Sim(a) => sim(a),
         WellsCmd::Pc(PcCmd::Calibrate(a)) => calibrate(a),
         WellsCmd::Pc(PcCmd::Set(a)) => set(a),
+        WellsCmd::Pc(PcCmd::Export(a)) => crate::wells_export::export(a).map(|summary| {
+            eprintln!("{summary}");
+            String::new()
+        }),
+        WellsCmd::Pc(PcCmd::Plot(a)) => crate::wells_export::plot(a),
         WellsCmd::Pc(PcCmd::Schedule(a)) => schedule(a),
         WellsCmd::Bus(a) => crate::wells_bus::run(&a.master, &a.drops),
         WellsCmd::Sensor(a) => sensor(a),

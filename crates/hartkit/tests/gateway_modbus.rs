@@ -10,7 +10,7 @@
 //! map, the terminal view) always run.
 
 use std::path::PathBuf;
-use std::process::{Child, Command};
+use std::process::Command;
 
 mod common;
 use common::{gateway, hartkit, pty_pair, workspace};
