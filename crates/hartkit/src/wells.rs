@@ -858,6 +858,26 @@ pub fn view(c: &Concentrator) -> String {
         }
         _ => out.push_str("  no values yet\n"),
     }
+    if let Ok(Some(r)) = c.latest() {
+        use hart_wells::average::{averages, period_of, Every};
+        for every in [Every::Hour, Every::Day, Every::Pentad, Every::Dekad, Every::Month] {
+            let (from, to) = period_of(r.minute, every);
+            let Ok(recs) = c.store().range(from, to.saturating_sub(1)) else {
+                continue;
+            };
+            if let Some(a) = averages(recs, every).pop() {
+                let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+                out.push_str(&format!(
+                    "  this {:<6} from {}: water {} °C, level {} m ({} minutes)\n",
+                    every.name(),
+                    iso_minute(a.start),
+                    f(a.temperature),
+                    f(a.level),
+                    a.temperature_n.max(a.level_n)
+                ));
+            }
+        }
+    }
     for s in c.sensors() {
         out.push_str(&format!(
             "  sensor {} ({}): {}\n",
