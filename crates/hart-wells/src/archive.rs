@@ -243,14 +243,34 @@ impl Archive {
             .map_err(|e| self.err(e))
     }
 
-    /// The wells the archive holds minutes of.
+    /// The wells the archive holds minutes of (a skip through the primary key: one
+    /// short lookup per well, however many minutes there are).
     pub fn wells(&self) -> Result<Vec<u8>, StoreError> {
+        let mut out = Vec::new();
+        let mut after: i64 = -1;
         let mut st = self
             .conn
-            .prepare("SELECT DISTINCT well FROM minutes ORDER BY well")
+            .prepare_cached("SELECT min(well) FROM minutes WHERE well > ?1")
             .map_err(|e| self.err(e))?;
-        let rows = st.query_map([], |r| r.get(0)).map_err(|e| self.err(e))?;
-        rows.collect::<Result<Vec<_>, _>>().map_err(|e| self.err(e))
+        while let Some(w) = st
+            .query_row([after], |r| r.get::<_, Option<u8>>(0))
+            .map_err(|e| self.err(e))?
+        {
+            out.push(w);
+            after = w as i64;
+        }
+        Ok(out)
+    }
+
+    /// Whether the archive holds any minute of `well`.
+    pub fn holds(&self, well: u8) -> Result<bool, StoreError> {
+        self.conn
+            .query_row(
+                "SELECT EXISTS(SELECT 1 FROM minutes WHERE well=?1)",
+                [well],
+                |r| r.get(0),
+            )
+            .map_err(|e| self.err(e))
     }
 
     /// Minutes held for `well`.
@@ -596,5 +616,45 @@ impl CalibrationSender {
             }));
         }
         Ok(Step::More)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::proto::Record;
+
+    fn batch(minutes: std::ops::Range<u32>) -> Batch {
+        Batch {
+            remaining: 0,
+            records: minutes.map(Record::empty).collect(),
+        }
+    }
+
+    #[test]
+    fn wells_cursors_and_duplicates() {
+        let d = tempfile::tempdir().unwrap();
+        let mut a = Archive::open(&d.path().join("a.db"), Durability::Process).unwrap();
+        assert!(a.wells().unwrap().is_empty());
+        let s = a.store_batch(Via::Concentrator, 5, &batch(10..20), 30).unwrap();
+        assert_eq!((s.new, s.duplicated), (10, 0));
+        a.store_batch(Via::Handheld, 2, &batch(1..4), 30).unwrap();
+        assert_eq!(a.wells().unwrap(), vec![2, 5]);
+        assert!(a.holds(2).unwrap() && !a.holds(3).unwrap());
+        // Cursors are per source: the handheld's does not move the concentrator's.
+        assert_eq!(a.cursor(Via::Concentrator, 5).unwrap(), 19);
+        assert_eq!(a.cursor(Via::Handheld, 5).unwrap(), 0);
+        // A minute received twice is counted, not stored twice.
+        let s = a.store_batch(Via::Handheld, 5, &batch(18..22), 31).unwrap();
+        assert_eq!((s.new, s.duplicated), (2, 2));
+        assert_eq!(a.duplicated().unwrap(), 2);
+        assert_eq!(a.count(5).unwrap(), 12);
+        // As a station, the handheld hands each well over with its own mark.
+        let b = a.transfer(5, 0, 40).unwrap();
+        assert_eq!((b.records.len(), b.remaining), (11, 1));
+        let b = a.transfer(5, 20, 40).unwrap();
+        assert_eq!(b.records.len(), 1);
+        assert_eq!(a.unsent(5).unwrap(), 1);
+        assert_eq!(a.unsent(2).unwrap(), 3);
     }
 }

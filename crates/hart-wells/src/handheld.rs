@@ -41,7 +41,7 @@ impl HandheldStation {
         let reply = |rc: u8, data: Vec<u8>| Message::reply(msg.station, msg.command, [rc, 0], data);
         match msg.command {
             TRANSFER => {
-                if !archive.wells().ok()?.contains(&well) {
+                if !archive.holds(well).ok()? {
                     return None;
                 }
                 Some(match decode_transfer_request(&msg.data) {

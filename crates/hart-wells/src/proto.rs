@@ -1021,6 +1021,27 @@ mod tests {
         }
     }
 
+    /// A frame with a wrong check byte or a parity error is reported damaged (and so
+    /// never answered: its address cannot be trusted).
+    #[test]
+    fn damaged_frames_are_reported_not_delivered() {
+        let mut bytes = hex("FF FF 02 01 01 00 02");
+        bytes[6] ^= 0x10;
+        let got = Receiver::new().feed(&bytes);
+        assert!(matches!(got[..], [Received::Damaged { errors }] if errors & 0x08 != 0), "{got:?}");
+        let chars: Vec<(u8, UartFlags)> = hex("FF FF 02 01 01 00 02")
+            .into_iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let mut f = UartFlags::OK;
+                f.parity = i == 4;
+                (b, f)
+            })
+            .collect();
+        let got = Receiver::new().push(&chars);
+        assert!(matches!(got[..], [Received::Damaged { errors }] if errors & 0x40 != 0), "{got:?}");
+    }
+
     #[test]
     fn addresses_round_trip_through_hart_proto() {
         for b in 0..=255u8 {
