@@ -636,7 +636,9 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let mut a = Archive::open(&d.path().join("a.db"), Durability::Process).unwrap();
         assert!(a.wells().unwrap().is_empty());
-        let s = a.store_batch(Via::Concentrator, 5, &batch(10..20), 30).unwrap();
+        let s = a
+            .store_batch(Via::Concentrator, 5, &batch(10..20), 30)
+            .unwrap();
         assert_eq!((s.new, s.duplicated), (10, 0));
         a.store_batch(Via::Handheld, 2, &batch(1..4), 30).unwrap();
         assert_eq!(a.wells().unwrap(), vec![2, 5]);

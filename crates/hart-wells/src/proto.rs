@@ -1028,7 +1028,10 @@ mod tests {
         let mut bytes = hex("FF FF 02 01 01 00 02");
         bytes[6] ^= 0x10;
         let got = Receiver::new().feed(&bytes);
-        assert!(matches!(got[..], [Received::Damaged { errors }] if errors & 0x08 != 0), "{got:?}");
+        assert!(
+            matches!(got[..], [Received::Damaged { errors }] if errors & 0x08 != 0),
+            "{got:?}"
+        );
         let chars: Vec<(u8, UartFlags)> = hex("FF FF 02 01 01 00 02")
             .into_iter()
             .enumerate()
@@ -1039,7 +1042,10 @@ mod tests {
             })
             .collect();
         let got = Receiver::new().push(&chars);
-        assert!(matches!(got[..], [Received::Damaged { errors }] if errors & 0x40 != 0), "{got:?}");
+        assert!(
+            matches!(got[..], [Received::Damaged { errors }] if errors & 0x40 != 0),
+            "{got:?}"
+        );
     }
 
     #[test]

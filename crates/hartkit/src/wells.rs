@@ -860,7 +860,13 @@ pub fn view(c: &Concentrator) -> String {
     }
     if let Ok(Some(r)) = c.latest() {
         use hart_wells::average::{averages, period_of, Every};
-        for every in [Every::Hour, Every::Day, Every::Pentad, Every::Dekad, Every::Month] {
+        for every in [
+            Every::Hour,
+            Every::Day,
+            Every::Pentad,
+            Every::Dekad,
+            Every::Month,
+        ] {
             let (from, to) = period_of(r.minute, every);
             let Ok(recs) = c.store().range(from, to.saturating_sub(1)) else {
                 continue;
