@@ -112,11 +112,13 @@ impl Archive {
     /// Opens (or creates) an archive.
     pub fn open(path: &Path, durability: Durability) -> Result<Self, StoreError> {
         let conn = open_db(path, durability)?;
+        crate::store::claim(&conn, path, crate::store::Kind::Archive)?;
         let a = Archive {
             conn,
             path: path.to_path_buf(),
         };
         a.conn.execute_batch(SCHEMA).map_err(|e| a.err(e))?;
+        crate::store::mark_kind(&a.conn, crate::store::Kind::Archive).map_err(|e| a.err(e))?;
         Ok(a)
     }
 
@@ -223,6 +225,7 @@ impl Archive {
             "minutes",
             &format!(":{well}"),
             &[("well", well as i64)],
+            None,
         )
         .map_err(e)?;
         tx.commit().map_err(e)?;
@@ -455,8 +458,12 @@ impl std::fmt::Display for TransferError {
                 f,
                 "{station} answered response code {code} ({}){}",
                 match *code {
+                    2 => "invalid selection: a sensor or segment number it does not know",
+                    3 => "a value out of range",
                     5 => "too few data bytes",
-                    6 => "its store failed; see its log",
+                    6 => "its store failed (a full disk, or the file locked by another program); see its log",
+                    9 => "segments out of order: it restarted or another download came in between; send the file again",
+                    10 => "calibration table refused: its log says why; the old table stays in force",
                     64 => "command not implemented",
                     _ => "refused",
                 },
@@ -567,6 +574,7 @@ pub struct CalibrationSender {
     sensor: Sensor,
     table: Table,
     next: usize,
+    mismatches: u8,
 }
 
 impl CalibrationSender {
@@ -577,6 +585,7 @@ impl CalibrationSender {
             sensor,
             table,
             next: 0,
+            mismatches: 0,
         }
     }
 
@@ -604,6 +613,23 @@ impl CalibrationSender {
                 code: rc,
             });
         }
+        // A reply for another segment (a late reply to an earlier try): send this one
+        // again.
+        if reply.data.first() != Some(&self.sensor.code())
+            || reply.data.get(1).map(|&n| n as usize) != Some(self.next + 1)
+        {
+            self.mismatches += 1;
+            if self.mismatches > 3 {
+                return Err(TransferError::Decode(DecodeError::Field {
+                    what: "command 160 reply",
+                    problem:
+                        "the station keeps echoing another sensor or segment than the one sent"
+                            .into(),
+                }));
+            }
+            return Ok(Step::More);
+        }
+        self.mismatches = 0;
         self.next += 1;
         if reply.data.get(2) == Some(&TABLE_IN_FORCE) {
             return Ok(Step::Done);

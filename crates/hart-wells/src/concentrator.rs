@@ -58,16 +58,15 @@ pub struct SensorView {
 
 #[derive(Debug, Clone)]
 struct Cycle {
-    /// The minute in progress when the poll began: the groups are the three before.
-    minute: u32,
     /// The sensor being asked.
     index: usize,
     /// The command being asked.
     command: u8,
     /// Tries of that command so far.
     tries: u8,
-    /// Groups received per sensor.
-    groups: Vec<Option<Groups>>,
+    /// Groups received per sensor, with the minute in progress when each reply
+    /// arrived (its groups are the three minutes before).
+    groups: Vec<Option<(u32, Groups)>>,
     /// A request is out.
     outstanding: bool,
 }
@@ -217,7 +216,6 @@ impl Concentrator {
                 return None;
             }
             self.cycle = Some(Cycle {
-                minute: (now / 60_000) as u32,
                 index: 0,
                 command: READ_VALUES,
                 tries: 0,
@@ -269,7 +267,7 @@ impl Concentrator {
                 match Groups::decode(status, &m.data) {
                     Ok(g) => {
                         let normal = g.status == STATUS_NORMAL;
-                        c.groups[c.index] = Some(g);
+                        c.groups[c.index] = Some((crate::minute_of(now), g));
                         if normal {
                             sensor.status.state = 0;
                             next = true;
@@ -316,17 +314,20 @@ impl Concentrator {
     }
 
     fn commit(&mut self, cycle: Cycle, now: Millis) -> Result<PollOutcome, StoreError> {
-        let mut records: Vec<Record> = (1..=3)
-            .rev()
-            .map(|k| Record::empty(cycle.minute.saturating_sub(k)))
-            .collect();
+        // Each sensor's groups are the three minutes before the one in progress when
+        // it answered (a poll held up across a minute's end still files them right).
+        let mut by_minute: std::collections::BTreeMap<u32, Record> = Default::default();
         for (view, groups) in self.sensors.iter_mut().zip(&cycle.groups) {
-            let Some(g) = groups else { continue };
+            let Some((at, g)) = groups else { continue };
             let table = &self.tables[kind_index(view.status.kind)];
-            for (r, v) in records.iter_mut().zip(g.groups) {
-                if v[0] == NO_VALUE {
+            for (k, v) in g.groups.iter().enumerate() {
+                if v[0] == NO_VALUE || *at < 3 {
                     continue;
                 }
+                let minute = at - 3 + k as u32;
+                let r = by_minute
+                    .entry(minute)
+                    .or_insert_with(|| Record::empty(minute));
                 let x = table.eval(v[0]);
                 match view.status.kind {
                     Sensor::Temperature => {
@@ -349,7 +350,7 @@ impl Concentrator {
             }
         }
         let mut all = std::mem::take(&mut self.unsaved);
-        all.extend(records);
+        all.extend(by_minute.into_values());
         let statuses: Vec<SensorStatus> = self.sensors.iter().map(|s| s.status).collect();
         let minute = (now / 60_000) as u32;
         match self.store.commit_poll(&all, &statuses, minute) {
@@ -425,7 +426,7 @@ impl Concentrator {
             }
             TRANSFER => match decode_transfer_request(&msg.data) {
                 Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
-                Ok(ack) => match self.store.transfer(ack, minute) {
+                Ok(ack) => match self.store.transfer(ack, minute, self.full_mask()) {
                     Ok(b) => reply(0, b.encode()),
                     Err(e) => {
                         error!("{e}");
@@ -457,6 +458,20 @@ impl Concentrator {
             },
             _ => reply(RC_NOT_IMPLEMENTED, vec![]),
         })
+    }
+
+    /// The valid bits of a minute with every quantity this concentrator's working
+    /// sensors give (a sensor not answering or faulty gives nothing to wait for).
+    pub fn full_mask(&self) -> u8 {
+        self.sensors
+            .iter()
+            .filter(|s| s.status.state == 0)
+            .fold(0, |m, s| {
+                m | match s.status.kind {
+                    Sensor::Temperature => VALID_TEMPERATURE,
+                    Sensor::Level => VALID_LEVEL,
+                }
+            })
     }
 
     /// The parameters in force.
@@ -510,6 +525,7 @@ impl Concentrator {
     fn take_segment(&mut self, seg: SegmentRequest) -> (u8, u8) {
         match self.assembler.take(seg) {
             Assembled::Taken => (0, SEGMENT_TAKEN),
+            Assembled::AlreadyInForce => (0, TABLE_IN_FORCE),
             Assembled::Refused(rc, why) => {
                 warn!(
                     well = self.cfg.well,

@@ -41,9 +41,8 @@ impl HandheldStation {
         let reply = |rc: u8, data: Vec<u8>| Message::reply(msg.station, msg.command, [rc, 0], data);
         match msg.command {
             TRANSFER => {
-                if !archive.holds(well).ok()? {
-                    return None;
-                }
+                // A well it holds nothing of: an empty batch (nothing to hand over),
+                // rather than silence that would look like a broken cable.
                 Some(match decode_transfer_request(&msg.data) {
                     Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
                     Ok(ack) => match archive.transfer(well, ack, minute) {
@@ -63,6 +62,9 @@ impl HandheldStation {
                 Ok(seg) => match self.assemblers.entry(well).or_default().take(seg) {
                     Assembled::Taken => {
                         reply(0, vec![seg.sensor.code(), seg.number, SEGMENT_TAKEN])
+                    }
+                    Assembled::AlreadyInForce => {
+                        reply(0, vec![seg.sensor.code(), seg.number, TABLE_IN_FORCE])
                     }
                     Assembled::Refused(rc, why) => {
                         warn!("calibration for well {well} refused: {why}");

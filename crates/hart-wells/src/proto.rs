@@ -791,6 +791,8 @@ pub const TABLE_IN_FORCE: u8 = 1;
 #[derive(Debug, Clone, Default)]
 pub struct TableAssembler {
     pending: Option<(Sensor, Vec<Segment>)>,
+    /// The segment that completed the last table (its reply may have been lost).
+    completed: Option<(Sensor, Segment)>,
 }
 
 /// What a segment did.
@@ -800,6 +802,9 @@ pub enum Assembled {
     Taken,
     /// The table is complete and checks out.
     Table(Sensor, Box<crate::calibration::Table>),
+    /// The segment that completed the last table, again (its reply was lost): the
+    /// table is already in force.
+    AlreadyInForce,
     /// Refused: the response code and why.
     Refused(u8, String),
 }
@@ -807,6 +812,12 @@ pub enum Assembled {
 impl TableAssembler {
     /// Takes one segment.
     pub fn take(&mut self, seg: SegmentRequest) -> Assembled {
+        if self.pending.is_none()
+            && seg.number as usize == crate::calibration::SEGMENTS
+            && self.completed == Some((seg.sensor, seg.segment))
+        {
+            return Assembled::AlreadyInForce;
+        }
         if seg.number == 1 {
             self.pending = Some((seg.sensor, vec![]));
         }
@@ -839,7 +850,10 @@ impl TableAssembler {
             return Assembled::Taken;
         };
         match crate::calibration::Table::new(segs) {
-            Ok(t) => Assembled::Table(sensor, Box::new(t)),
+            Ok(t) => {
+                self.completed = Some((sensor, seg.segment));
+                Assembled::Table(sensor, Box::new(t))
+            }
             Err(e) => Assembled::Refused(RC_TABLE_REFUSED, e.to_string()),
         }
     }

@@ -2,7 +2,6 @@
 //! pseudo-terminal): the sans-IO cores with the bytes moved and the time read from a
 //! [`Clock`].
 
-use std::cell::RefCell;
 use std::io;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -48,8 +47,14 @@ impl Clock {
         }
     }
 
-    /// Now, ms since the Unix epoch.
+    /// Now, ms since the Unix epoch. At speed 1 the system clock itself, read each
+    /// time, so a correction of the system clock is followed at once.
     pub fn now(&self) -> Millis {
+        if self.speed == 1.0 {
+            return SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0, |d| d.as_millis() as Millis);
+        }
         self.start_ms + (self.start.elapsed().as_secs_f64() * 1000.0 * self.speed) as Millis
     }
 
@@ -60,8 +65,15 @@ impl Clock {
     }
 }
 
-/// Waits for the next frame on `t` until `timeout` of real time has passed; damaged
-/// frames are counted and skipped.
+/// Silence inside a frame after which the part received is dropped (a call that
+/// dropped mid-frame, or modem text, must not swallow the next frames). 54 character
+/// times at 1200 bit/s, room for a telephone modem's buffering.
+pub const FRAME_GAP: Duration = Duration::from_millis(500);
+
+/// Waits for the next frame on `t`: it must start within `timeout` of real time; once
+/// it has started it may take as long as its bytes need, as long as no gap inside it
+/// is longer than [`FRAME_GAP`] (a gap drops the part received). Damaged frames are
+/// logged and skipped.
 pub async fn next_message<T: Transport>(
     t: &mut T,
     rx: &mut Receiver,
@@ -72,23 +84,44 @@ pub async fn next_message<T: Transport>(
         return Ok(Some(pending.remove(0)));
     }
     let deadline = t.now() + timeout.as_micros() as u64;
+    let gap = FRAME_GAP.as_micros() as u64;
+    let mut last = t.now();
     loop {
-        let chars = t.recv_flagged(deadline).await?;
+        let until = if rx.in_frame() { last + gap } else { deadline };
+        let chars = t.recv_flagged(until).await?;
         if chars.is_empty() {
+            let partial = rx.in_frame();
             rx.reset();
+            if partial && t.now() < deadline {
+                continue;
+            }
             return Ok(None);
         }
+        last = chars.last().map_or(t.now(), |c| c.at);
         let flagged: Vec<_> = chars.iter().map(|c| (c.byte, c.flags)).collect();
         for r in rx.push(&flagged) {
             match r {
                 Received::Message(m) => pending.push(m),
-                Received::Damaged { errors } => {
-                    warn!("damaged frame ignored (errors 0x{errors:02X})")
-                }
+                Received::Damaged { errors } => warn!(
+                    "damaged frame ignored (errors 0x{errors:02X}); if this repeats, check \
+                     the bit rate (--baud), odd parity on both ends, and --two-wire on a \
+                     two-wire RS-485 adapter"
+                ),
             }
         }
         if !pending.is_empty() {
             return Ok(Some(pending.remove(0)));
+        }
+    }
+}
+
+/// Drops whatever has arrived and not been read (a late reply to an earlier try must
+/// not be taken for the reply to the next request).
+pub async fn discard_input<T: Transport>(t: &mut T) -> io::Result<()> {
+    loop {
+        let chars = t.recv_flagged(t.now() + 1_000).await?;
+        if chars.is_empty() {
+            return Ok(());
         }
     }
 }
@@ -116,85 +149,172 @@ pub async fn run_sensor<T: Transport>(
 }
 
 /// What the concentrator shows after each poll and transfer.
-pub type View<'a> = &'a dyn Fn(&Concentrator);
+pub type View<'a> = &'a (dyn Fn(&Concentrator) + Sync);
 
-/// The concentrator: polls its sensors on `bus` and serves `uplink` at the same
-/// time, until a line fails.
-pub async fn run_concentrator<B: Transport, U: Transport>(
-    mut bus: B,
-    uplink: Option<U>,
+/// Opens a line (again, after it failed).
+pub type Opener<'a, T> = &'a (dyn Fn() -> io::Result<T> + Sync);
+
+/// Time before a failed line is opened again.
+pub const REOPEN_AFTER: Duration = Duration::from_secs(5);
+
+fn lock(c: &std::sync::Mutex<Concentrator>) -> std::sync::MutexGuard<'_, Concentrator> {
+    c.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// The concentrator: polls its sensors on the bus and serves the uplink at the same
+/// time, each on its own thread (a long reply on the uplink does not hold up a poll).
+/// A line that fails is logged and opened again every [`REOPEN_AFTER`]: the
+/// concentrator goes on polling whatever happens to its uplink. Returns only when
+/// both lines have been given up, which never happens; blocks the calling thread.
+pub fn run_concentrator<B: Transport, U: Transport + Send>(
+    open_bus: Opener<'_, B>,
+    open_uplink: Option<Opener<'_, U>>,
     conc: Concentrator,
     clock: Clock,
     reply_timeout: Duration,
     view: View<'_>,
 ) -> io::Result<()> {
-    let conc = RefCell::new(conc);
-    let bus_loop = async {
-        let mut rx = Receiver::new();
-        let mut pending = Vec::new();
-        loop {
-            let req = conc.borrow_mut().bus_request(clock.now());
-            let Some(req) = req else {
-                let next = conc.borrow().next_deadline();
-                tokio::time::sleep(clock.until(next).min(Duration::from_secs(1))).await;
-                continue;
-            };
-            pending.clear();
-            rx.reset();
-            bus.send(&req.to_bytes()).await?;
-            let reply = loop {
-                match next_message(&mut bus, &mut rx, &mut pending, reply_timeout).await? {
-                    None => break None,
-                    Some(m) if m.reply && m.station == req.station => break Some(m),
-                    Some(_) => continue,
-                }
-            };
-            let done = conc.borrow_mut().bus_result(clock.now(), reply.as_ref());
-            if let Some(r) = done {
-                match r {
-                    Ok(o) => info!(
-                        "poll: {} new minutes, {} completed{}",
-                        o.new_minutes,
-                        o.completed,
-                        if o.dropped_unsent > 0 {
-                            format!(", {} UNSENT MINUTES DROPPED (store full)", o.dropped_unsent)
-                        } else {
-                            String::new()
+    let rt = || {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+    };
+    let conc = std::sync::Mutex::new(conc);
+    let conc = &conc;
+    // Open both once here, so a wrong path fails at start.
+    let bus_rt = rt()?;
+    let first_bus = bus_rt.block_on(async { open_bus() })?;
+    let uplink_rt = rt()?;
+    let first_uplink = match open_uplink {
+        Some(o) => Some(uplink_rt.block_on(async { o() })?),
+        None => None,
+    };
+    std::thread::scope(|scope| {
+        if let (Some(open), Some(first)) = (open_uplink, first_uplink) {
+            scope.spawn(move || {
+                uplink_rt.block_on(async move {
+                    let mut line = Some(first);
+                    loop {
+                        let mut up = match line.take() {
+                            Some(l) => l,
+                            None => match open() {
+                                Ok(l) => l,
+                                Err(e) => {
+                                    warn!("uplink: {e}; trying again in {REOPEN_AFTER:?}");
+                                    tokio::time::sleep(REOPEN_AFTER).await;
+                                    continue;
+                                }
+                            },
+                        };
+                        if let Err(e) = serve_uplink(&mut up, conc, clock, view).await {
+                            warn!("uplink: {e}; polling goes on; opening it again in {REOPEN_AFTER:?}");
+                            tokio::time::sleep(REOPEN_AFTER).await;
                         }
-                    ),
-                    Err(e) => warn!("{e}"),
-                }
-                view(&conc.borrow());
-            }
+                    }
+                })
+            });
         }
-        #[allow(unreachable_code)]
-        Ok::<(), io::Error>(())
-    };
-    let uplink_loop = async {
-        let Some(mut up) = uplink else {
-            std::future::pending::<()>().await;
-            return Ok(());
+        bus_rt.block_on(async move {
+            let mut line = Some(first_bus);
+            loop {
+                let mut bus = match line.take() {
+                    Some(l) => l,
+                    None => match open_bus() {
+                        Ok(l) => l,
+                        Err(e) => {
+                            warn!("bus: {e}; trying again in {REOPEN_AFTER:?}");
+                            tokio::time::sleep(REOPEN_AFTER).await;
+                            continue;
+                        }
+                    },
+                };
+                if let Err(e) = poll_bus(&mut bus, conc, clock, reply_timeout, view).await {
+                    warn!("bus: {e}; opening it again in {REOPEN_AFTER:?}");
+                    tokio::time::sleep(REOPEN_AFTER).await;
+                }
+            }
+        })
+    })
+}
+
+async fn poll_bus<B: Transport>(
+    bus: &mut B,
+    conc: &std::sync::Mutex<Concentrator>,
+    clock: Clock,
+    reply_timeout: Duration,
+    view: View<'_>,
+) -> io::Result<()> {
+    let mut rx = Receiver::new();
+    let mut pending = Vec::new();
+    loop {
+        let req = lock(conc).bus_request(clock.now());
+        let Some(req) = req else {
+            let next = lock(conc).next_deadline();
+            tokio::time::sleep(clock.until(next).min(Duration::from_secs(1))).await;
+            continue;
         };
-        let mut rx = Receiver::new();
-        let mut pending = Vec::new();
-        loop {
-            let Some(m) =
-                next_message(&mut up, &mut rx, &mut pending, Duration::from_secs(3600)).await?
-            else {
-                continue;
-            };
-            let reply = conc.borrow_mut().uplink(&m, clock.now());
-            if let Some(r) = reply {
-                up.send(&r.to_bytes()).await?;
-                if m.command == crate::proto::TRANSFER {
-                    view(&conc.borrow());
-                }
+        pending.clear();
+        rx.reset();
+        discard_input(bus).await?;
+        bus.send(&req.to_bytes()).await?;
+        let deadline = std::time::Instant::now() + reply_timeout;
+        let reply = loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match next_message(bus, &mut rx, &mut pending, left).await? {
+                None => break None,
+                Some(m) if m.reply && m.station == req.station => break Some(m),
+                Some(_) => continue,
+            }
+        };
+        let mut c = lock(conc);
+        if let Some(r) = c.bus_result(clock.now(), reply.as_ref()) {
+            match r {
+                Ok(o) => info!(
+                    "poll: {} new minutes, {} completed{}{}",
+                    o.new_minutes,
+                    o.completed,
+                    if o.dropped_unsent > 0 {
+                        format!(", {} UNSENT MINUTES DROPPED (store full)", o.dropped_unsent)
+                    } else {
+                        String::new()
+                    },
+                    if o.behind_clock > 0 {
+                        format!(
+                            ", {} minutes dated before the data handed over: CHECK THE CLOCK",
+                            o.behind_clock
+                        )
+                    } else {
+                        String::new()
+                    }
+                ),
+                Err(e) => warn!("{e}"),
+            }
+            view(&c);
+        }
+    }
+}
+
+async fn serve_uplink<U: Transport>(
+    up: &mut U,
+    conc: &std::sync::Mutex<Concentrator>,
+    clock: Clock,
+    view: View<'_>,
+) -> io::Result<()> {
+    let mut rx = Receiver::new();
+    let mut pending = Vec::new();
+    loop {
+        let Some(m) = next_message(up, &mut rx, &mut pending, Duration::from_secs(3600)).await?
+        else {
+            continue;
+        };
+        let reply = lock(conc).uplink(&m, clock.now());
+        if let Some(r) = reply {
+            up.send(&r.to_bytes()).await?;
+            if m.command == crate::proto::TRANSFER {
+                view(&lock(conc));
             }
         }
-        #[allow(unreachable_code)]
-        Ok::<(), io::Error>(())
-    };
-    tokio::try_join!(bus_loop, uplink_loop).map(|_| ())
+    }
 }
 
 /// Why a pull or a collection failed.
@@ -220,7 +340,9 @@ impl std::fmt::Display for PullError {
             PullError::NoReply { station, tries } => write!(
                 f,
                 "no reply from the {station} after {tries} tries; check the cable or the \
-                 telephone connection, the port's bit rate and the well number"
+                 telephone connection, the port's bit rate (--baud) and the well number, \
+                 and on a slow modem raise --timeout-ms (it is the time for a reply to \
+                 start)"
             ),
             PullError::Transfer(e) => write!(f, "{e}"),
         }
@@ -263,6 +385,8 @@ pub async fn exchange<T: Transport>(
     let mut pending = Vec::new();
     for _ in 0..r.tries.max(1) {
         pending.clear();
+        rx.reset();
+        discard_input(t).await?;
         t.send(&req.to_bytes()).await?;
         let deadline = Instant::now() + r.timeout;
         loop {
@@ -299,6 +423,9 @@ pub struct PullSummary {
     pub status: Option<serde_json::Value>,
     /// Calibration tables downloaded on the way (handheld visits).
     pub calibration_downloaded: Vec<String>,
+    /// Calibration tables that could not be downloaded, and why (kept for the next
+    /// visit).
+    pub calibration_errors: Vec<String>,
 }
 
 /// Pulls everything `station` holds into `archive`: its status (a concentrator's
@@ -322,35 +449,13 @@ pub async fn pull<T: Transport>(
         duplicated: 0,
         status: None,
         calibration_downloaded: vec![],
+        calibration_errors: vec![],
     };
     if station.role() == crate::proto::Role::Concentrator {
         let m = exchange(t, &Message::request(station, DIAGNOSTICS, vec![]), r).await?;
         if let Ok(s) = StationStatus::decode(m.status.unwrap_or([0, 0]), &m.data) {
             let _ = archive.log_status(well, crate::minute_of(clock.now()), &s);
             summary.status = Some(status_json(&s));
-        }
-        if download_calibration {
-            for sensor in Sensor::ALL {
-                let Ok(Some(table)) = archive.pending_calibration(well, sensor) else {
-                    continue;
-                };
-                let mut s = CalibrationSender::new(station, sensor, table);
-                loop {
-                    let m = exchange(t, &s.request(), r).await?;
-                    match s.on_reply(&m).map_err(PullError::Transfer)? {
-                        Step::More => continue,
-                        Step::Done => break,
-                    }
-                }
-                let _ = archive.clear_pending_calibration(well, sensor);
-                info!(
-                    "{} calibration table downloaded to the {station}",
-                    sensor.name()
-                );
-                summary
-                    .calibration_downloaded
-                    .push(sensor.name().to_string());
-            }
         }
     }
     let mut col = Collector::new(archive, station)
@@ -383,7 +488,50 @@ pub async fn pull<T: Transport>(
             .err()
             .map_or(String::new(), |e| e.to_string()),
     });
-    result.map(|_| summary)
+    result?;
+    // Calibration tables waiting for this well go down after the data, so a failed
+    // download never costs a visit's data; a failure is reported, the table kept.
+    if download_calibration && station.role() == crate::proto::Role::Concentrator {
+        for sensor in Sensor::ALL {
+            let Ok(Some(table)) = archive.pending_calibration(well, sensor) else {
+                continue;
+            };
+            let mut s = CalibrationSender::new(station, sensor, table);
+            let sent = loop {
+                let m = match exchange(t, &s.request(), r).await {
+                    Ok(m) => m,
+                    Err(e) => break Err(e.to_string()),
+                };
+                match s.on_reply(&m) {
+                    Ok(Step::More) => continue,
+                    Ok(Step::Done) => break Ok(()),
+                    Err(e) => break Err(e.to_string()),
+                }
+            };
+            match sent {
+                Ok(()) => {
+                    let _ = archive.clear_pending_calibration(well, sensor);
+                    info!(
+                        "{} calibration table downloaded to the {station}",
+                        sensor.name()
+                    );
+                    summary
+                        .calibration_downloaded
+                        .push(sensor.name().to_string());
+                }
+                Err(e) => {
+                    warn!(
+                        "{} calibration table not downloaded (kept for the next visit): {e}",
+                        sensor.name()
+                    );
+                    summary
+                        .calibration_errors
+                        .push(format!("{}: {e}", sensor.name()));
+                }
+            }
+        }
+    }
+    Ok(summary)
 }
 
 /// A station's status as JSON.

@@ -173,6 +173,8 @@ enum Ev {
 struct Well {
     number: u8,
     sensors: Vec<SimSensor>,
+    /// Every minute its concentrator stored, to compare with the PC's at the end.
+    sampled: Vec<u32>,
     /// Sensors that do not answer now.
     silent: Vec<bool>,
     conc: Option<Concentrator>,
@@ -189,7 +191,10 @@ enum PcState {
         well: u8,
         col: Collector,
         status_read: bool,
-        fails: u8,
+        /// Attempts at this well this round before this one.
+        attempts: u8,
+        /// Requests without a reply in a row.
+        lost_in_row: u8,
     },
 }
 
@@ -281,6 +286,7 @@ impl Sim {
                 .collect();
             let mut w = Well {
                 number: n,
+                sampled: Vec::new(),
                 silent: vec![false; 2],
                 sensors,
                 conc: None,
@@ -490,6 +496,7 @@ impl Sim {
                 let o = r?;
                 self.report.polls += 1;
                 self.report.minutes_sampled += o.new_minutes as u64;
+                w.sampled.extend_from_slice(&o.new_list);
                 self.report.dropped_unsent += o.dropped_unsent as u64;
                 let (_, unsent, _) = conc.store().counts()?;
                 let fill = unsent as f64 / conc.store().capacity() as f64;
@@ -590,7 +597,8 @@ impl Sim {
                     well,
                     col,
                     status_read: false,
-                    fails: attempts,
+                    attempts,
+                    lost_in_row: 0,
                 };
                 self.at(self.now + 25_000, Ev::Pc);
             }
@@ -598,7 +606,8 @@ impl Sim {
                 well,
                 mut col,
                 status_read,
-                fails,
+                attempts,
+                lost_in_row,
             } => {
                 let i = well as usize - 1;
                 let req = if status_read {
@@ -609,9 +618,8 @@ impl Sim {
                 let (reply, done) = self.transact(Target::Conc(i), Line::Phone(i), &req);
                 self.now = done;
                 let Some(reply) = reply else {
-                    // Three time-outs in a row: the session is cut; try again later.
-                    let lost_in_a_row = fails % 4 + 1;
-                    if lost_in_a_row >= 4 {
+                    // Four time-outs in a row: the session is cut; try again later.
+                    if lost_in_row + 1 >= 4 {
                         self.report.pulls_cut += 1;
                         self.pc.log_pull(&PullLog {
                             at: self.minute(),
@@ -622,19 +630,19 @@ impl Sim {
                             batches: col.batches,
                             detail: "no reply to 4 requests in a row".into(),
                         })?;
-                        self.pc_failed(well, fails / 4 + 1, "no reply: the line was cut");
+                        self.pc_failed(well, attempts, "no reply: the line was cut");
                         return Ok(());
                     }
                     self.pc_state = PcState::Session {
                         well,
                         col,
                         status_read,
-                        fails: fails + 1,
+                        attempts,
+                        lost_in_row: lost_in_row + 1,
                     };
                     self.at(done, Ev::Pc);
                     return Ok(());
                 };
-                let fails = fails - fails % 4;
                 if !status_read {
                     if let Ok(s) =
                         StationStatus::decode(reply.status.unwrap_or([0, 0]), &reply.data)
@@ -648,7 +656,8 @@ impl Sim {
                         well,
                         col,
                         status_read: true,
-                        fails,
+                        attempts,
+                        lost_in_row: 0,
                     };
                     self.at(done, Ev::Pc);
                     return Ok(());
@@ -660,7 +669,8 @@ impl Sim {
                             well,
                             col,
                             status_read,
-                            fails,
+                            attempts,
+                            lost_in_row: 0,
                         };
                         self.at(done, Ev::Pc);
                     }
@@ -896,10 +906,18 @@ impl Sim {
                 self.report.minutes_missed += (b.minute - a.minute + 1) as u64 - n;
             }
         }
-        self.report.lost = self
-            .report
-            .minutes_sampled
-            .saturating_sub(self.report.minutes_at_pc);
+        // Lost: minutes a concentrator stored that the PC does not have, minute by
+        // minute (not a difference of counts).
+        self.report.lost = 0;
+        for w in &self.wells {
+            let at_pc: std::collections::HashSet<u32> = self
+                .pc
+                .range(w.number, 0, u32::MAX)?
+                .iter()
+                .map(|r| r.minute)
+                .collect();
+            self.report.lost += w.sampled.iter().filter(|m| !at_pc.contains(m)).count() as u64;
+        }
         self.report.duplicated = self.report.duplicated.max(self.pc.duplicated()? as u64);
         Ok(())
     }

@@ -67,17 +67,111 @@ pub(crate) fn open_db(path: &Path, durability: Durability) -> Result<Connection,
     Ok(c)
 }
 
+/// What a database file of the network is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Kind {
+    /// A concentrator's store.
+    Store = 1,
+    /// The PC's or the handheld's archive.
+    Archive = 2,
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Store => "a concentrator's store (--store of wells concentrator)",
+            Kind::Archive => "an archive (--db of wells pc, --store of wells handheld)",
+        }
+    }
+
+    fn minutes_columns(self) -> usize {
+        match self {
+            Kind::Store => 7,
+            Kind::Archive => 10,
+        }
+    }
+}
+
+/// Makes sure the file at `path` is a `kind` file, or new: a concentrator's store
+/// opened as the PC's archive (or the other way round) would be damaged by the other
+/// program's writes. Marks a new file with its kind.
+pub(crate) fn claim(c: &Connection, path: &Path, kind: Kind) -> Result<(), StoreError> {
+    let err = |what: String| StoreError {
+        path: path.to_path_buf(),
+        what,
+    };
+    let sql = |e: rusqlite::Error| err(e.to_string());
+    let tables: Vec<String> = c
+        .prepare("SELECT name FROM sqlite_master WHERE type='table'")
+        .and_then(|mut st| {
+            st.query_map([], |r| r.get(0))?
+                .collect::<Result<Vec<String>, _>>()
+        })
+        .map_err(sql)?;
+    let has = |t: &str| tables.iter().any(|x| x == t);
+    if has("meta") {
+        let found: Option<i64> = get_meta(c, "kind").map_err(sql)?;
+        match found {
+            Some(k) if k == kind as i64 => return Ok(()),
+            Some(k) => {
+                let other = if k == Kind::Store as i64 {
+                    Kind::Store
+                } else {
+                    Kind::Archive
+                };
+                return Err(err(format!(
+                    "this file is {}, not {}; check the file name",
+                    other.name(),
+                    kind.name()
+                )));
+            }
+            None => {}
+        }
+    }
+    if has("minutes") {
+        let cols: usize = c
+            .query_row(
+                "SELECT count(*) FROM pragma_table_info('minutes')",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(sql)?;
+        if cols != kind.minutes_columns() {
+            return Err(err(format!(
+                "this file's minutes are not laid out as in {}; check the file name",
+                kind.name()
+            )));
+        }
+    } else if !tables.is_empty() && !has("meta") {
+        return Err(err(
+            "this SQLite file belongs to another program; give a new file or one this program wrote"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Marks the file with its kind (after its tables are made).
+pub(crate) fn mark_kind(c: &Connection, kind: Kind) -> rusqlite::Result<()> {
+    set_meta(c, "kind", kind as i64)
+}
+
 /// What one poll's commit did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct PollOutcome {
     /// Minutes stored for the first time.
     pub new_minutes: u32,
+    /// Which they were.
+    pub new_list: Vec<u32>,
     /// Minutes that gained a quantity missing before.
     pub completed: u32,
     /// Handed-over minutes removed to make room.
     pub evicted: u32,
     /// Minutes not handed over removed because nothing else was left to remove.
     pub dropped_unsent: u32,
+    /// New minutes at or before the handed-over mark, not kept: the clock is behind
+    /// the data (it was set back).
+    pub behind_clock: u32,
 }
 
 /// The concentrator's store.
@@ -135,6 +229,7 @@ impl Store {
         durability: Durability,
     ) -> Result<Self, StoreError> {
         let conn = open_db(path, durability)?;
+        claim(&conn, path, Kind::Store)?;
         let mut s = Store {
             conn,
             path: path.to_path_buf(),
@@ -142,6 +237,7 @@ impl Store {
             rows: 0,
         };
         s.conn.execute_batch(SCHEMA).map_err(|e| s.err(e))?;
+        mark_kind(&s.conn, Kind::Store).map_err(|e| s.err(e))?;
         s.rows = s
             .conn
             .query_row("SELECT count(*) FROM minutes", [], |r| r.get(0))
@@ -263,7 +359,23 @@ impl Store {
         let tx = self.conn.transaction().map_err(e)?;
         let mut out = PollOutcome::default();
         let ho: u32 = get_meta(&tx, "handed_over").map_err(e)?.unwrap_or(0) as u32;
+        let sent: u32 = get_meta(&tx, "sent_upto").map_err(e)?.unwrap_or(0) as u32;
         for r in records.iter().filter(|r| r.valid != 0) {
+            if r.minute <= ho {
+                // A minute at or before what has been handed over is new only if the
+                // clock went back: it could never be handed over, so it is not kept.
+                let known: bool = tx
+                    .query_row(
+                        "SELECT EXISTS(SELECT 1 FROM minutes WHERE minute=?1)",
+                        [r.minute],
+                        |x| x.get(0),
+                    )
+                    .map_err(e)?;
+                if !known {
+                    out.behind_clock += 1;
+                }
+                continue;
+            }
             let old: Option<u8> = tx
                 .query_row(
                     "SELECT valid FROM minutes WHERE minute=?1",
@@ -288,8 +400,9 @@ impl Store {
                     )
                     .map_err(e)?;
                     out.new_minutes += 1;
+                    out.new_list.push(r.minute);
                 }
-                Some(v) if r.minute > ho && r.valid & !v != 0 => {
+                Some(v) if r.minute > sent && r.valid & !v != 0 => {
                     let gain = r.valid & !v;
                     if gain & crate::proto::VALID_TEMPERATURE != 0 {
                         tx.execute(
@@ -365,22 +478,39 @@ impl Store {
             )
             .map_err(e)?;
         }
+        if out.behind_clock > 0 {
+            tx.execute(
+                "INSERT INTO events VALUES (?1, 'error', ?2)",
+                params![
+                    now_minute,
+                    format!(
+                        "{} minutes are dated at or before the data already handed over (minute {ho}): \
+                         the clock is behind; they are not kept. Check the clock",
+                        out.behind_clock
+                    )
+                ],
+            )
+            .map_err(e)?;
+        }
         tx.commit().map_err(e)?;
         self.rows = count - out.evicted - out.dropped_unsent;
         Ok(out)
     }
 
     /// Answers command 144: moves the handed-over mark to `ack` (never backwards,
-    /// never past the newest minute) and returns the next batch after the mark, in
-    /// one transaction.
-    pub fn transfer(&mut self, ack: u32, now_minute: u32) -> Result<Batch, StoreError> {
+    /// never past what has been sent) and returns the next batch after the mark, in
+    /// one transaction. A minute goes out once it can no longer change: complete
+    /// (`full`: the valid bits of every quantity the concentrator's sensors give), or
+    /// older than the sensors' three minutes; the batch stops before the first minute
+    /// still waiting.
+    pub fn transfer(&mut self, ack: u32, now_minute: u32, full: u8) -> Result<Batch, StoreError> {
         let path = self.path.clone();
         let e = |e: rusqlite::Error| StoreError {
             path: path.clone(),
             what: e.to_string(),
         };
         let tx = self.conn.transaction().map_err(e)?;
-        let batch = transfer_in(&tx, ack, now_minute, "minutes", "", &[]).map_err(e)?;
+        let batch = transfer_in(&tx, ack, now_minute, "minutes", "", &[], Some(full)).map_err(e)?;
         tx.commit().map_err(e)?;
         Ok(batch)
     }
@@ -496,7 +626,9 @@ pub(crate) fn set_meta(c: &Connection, key: &str, v: i64) -> rusqlite::Result<()
 
 /// The command-144 logic on any table of records: `table` with an optional `scope`
 /// condition (e.g. `well=?`) and its parameters; the mark lives in `meta` under
-/// `handed_over{scope_key}`.
+/// `handed_over{scope_key}`, the last minute sent under `sent_upto{scope_key}`. With
+/// `settle` (the concentrator), minutes that may still change are held back (see
+/// [`Store::transfer`]).
 pub(crate) fn transfer_in(
     tx: &Transaction<'_>,
     ack: u32,
@@ -504,16 +636,16 @@ pub(crate) fn transfer_in(
     table: &str,
     scope_key: &str,
     scope: &[(&str, i64)],
+    settle: Option<u8>,
 ) -> rusqlite::Result<Batch> {
     let where_scope: String = scope.iter().map(|(c, v)| format!(" AND {c}={v}")).collect();
     let key = format!("handed_over{scope_key}");
+    let sent_key = format!("sent_upto{scope_key}");
     let mark = get_meta(tx, &key)?.unwrap_or(0) as u32;
-    let newest: u32 = tx.query_row(
-        &format!("SELECT coalesce(max(minute), 0) FROM {table} WHERE 1=1{where_scope}"),
-        [],
-        |r| r.get(0),
-    )?;
-    let new_mark = mark.max(ack.min(newest));
+    let sent = get_meta(tx, &sent_key)?.unwrap_or(0) as u32;
+    // An acknowledgement counts up to what has been sent, never beyond (a requester's
+    // cursor ahead of this station's data moves nothing it has not had).
+    let new_mark = mark.max(ack.min(sent));
     if new_mark != mark {
         let before: u32 = tx.query_row(
             &format!(
@@ -531,19 +663,36 @@ pub(crate) fn transfer_in(
             now_minute as i64,
         )?;
     }
+    // The first minute that may still change, when settling.
+    let limit: u32 = match settle {
+        None => u32::MAX,
+        Some(full) => tx
+            .query_row(
+                &format!(
+                    "SELECT min(minute) FROM {table} WHERE minute > ?1 AND minute > ?2 \
+                     AND (valid & ?3) != ?3{where_scope}"
+                ),
+                params![new_mark, now_minute.saturating_sub(4), full],
+                |r| r.get::<_, Option<u32>>(0),
+            )?
+            .unwrap_or(u32::MAX),
+    };
     let mut st = tx.prepare_cached(&format!(
         "SELECT minute, valid, t_raw, l_raw, ls_raw, temperature, level FROM {table} \
-         WHERE minute > ?1{where_scope} ORDER BY minute LIMIT ?2"
+         WHERE minute > ?1 AND minute < ?3{where_scope} ORDER BY minute LIMIT ?2"
     ))?;
     let records = st
-        .query_map(params![new_mark, BATCH_RECORDS as i64], |r| {
+        .query_map(params![new_mark, BATCH_RECORDS as i64, limit], |r| {
             record_from_row(r, 0)
         })?
         .collect::<Result<Vec<_>, _>>()?;
     let after = records.last().map_or(new_mark, |r| r.minute);
+    if after > sent {
+        set_meta(tx, &sent_key, after as i64)?;
+    }
     let remaining: u32 = tx.query_row(
-        &format!("SELECT count(*) FROM {table} WHERE minute > ?1{where_scope}"),
-        [after],
+        &format!("SELECT count(*) FROM {table} WHERE minute > ?1 AND minute < ?2{where_scope}"),
+        params![after, limit],
         |r| r.get(0),
     )?;
     Ok(Batch { remaining, records })
@@ -658,9 +807,9 @@ mod tests {
         assert_eq!((o.new_minutes, o.completed), (0, 1));
         assert_eq!(s.get(10).unwrap().unwrap().valid, 3);
         // Once handed over, a minute does not change.
-        let b = s.transfer(0, 12).unwrap();
+        let b = s.transfer(0, 100, 3).unwrap();
         assert_eq!(b.records.len(), 2);
-        let b = s.transfer(11, 12).unwrap();
+        let b = s.transfer(11, 100, 3).unwrap();
         assert!(b.records.is_empty());
         s.commit_poll(&[rec(12, 1)], &[], 13).unwrap();
         let o = s.commit_poll(&[rec(11, 7), rec(12, 3)], &[], 13).unwrap();
@@ -674,17 +823,21 @@ mod tests {
         let mut s = store(&d);
         let recs: Vec<_> = (100..130).map(|m| rec(m, 3)).collect();
         s.commit_poll(&recs, &[], 200).unwrap();
-        let b = s.transfer(0, 200).unwrap();
+        let b = s.transfer(0, 200, 3).unwrap();
         assert_eq!((b.records.len(), b.remaining), (11, 19));
         // Repeating the same request (the reply was lost) gives the same batch.
-        assert_eq!(s.transfer(0, 200).unwrap(), b);
-        let b2 = s.transfer(110, 200).unwrap();
+        assert_eq!(s.transfer(0, 200, 3).unwrap(), b);
+        let b2 = s.transfer(110, 200, 3).unwrap();
         assert_eq!(b2.records[0].minute, 111);
         // An older ack does not move the mark back.
-        assert_eq!(s.transfer(50, 200).unwrap(), b2);
-        // An ack from the future stops at the newest minute.
-        let b3 = s.transfer(5000, 200).unwrap();
-        assert!(b3.records.is_empty());
+        assert_eq!(s.transfer(50, 200, 3).unwrap(), b2);
+        // An ack from the future counts only up to what was sent.
+        let b3 = s.transfer(5000, 200, 3).unwrap();
+        assert_eq!(s.handed_over().unwrap(), 121);
+        assert_eq!(b3.records[0].minute, 122);
+        assert_eq!(b3.remaining, 0);
+        let b4 = s.transfer(129, 200, 3).unwrap();
+        assert!(b4.records.is_empty());
         assert_eq!(s.handed_over().unwrap(), 129);
     }
 
@@ -695,7 +848,19 @@ mod tests {
         let cap = s.capacity();
         let recs: Vec<_> = (1..=cap).map(|m| rec(m, 3)).collect();
         s.commit_poll(&recs, &[], cap).unwrap();
-        s.transfer(100, cap).unwrap();
+        // Hand over the first 99 minutes (nine batches acknowledged).
+        let mut ack = 0;
+        for _ in 0..10 {
+            ack = s
+                .transfer(ack, cap + 10, 3)
+                .unwrap()
+                .records
+                .last()
+                .unwrap()
+                .minute;
+        }
+        let ho = s.handed_over().unwrap();
+        assert_eq!(ho, 99);
         let o = s
             .commit_poll(&[rec(cap + 1, 3), rec(cap + 2, 3)], &[], cap + 2)
             .unwrap();
@@ -703,9 +868,75 @@ mod tests {
         // Everything handed over is gone: the next ones are unsent.
         let more: Vec<_> = (cap + 3..cap + 103).map(|m| rec(m, 3)).collect();
         let o = s.commit_poll(&more, &[], cap + 103).unwrap();
-        assert_eq!((o.evicted, o.dropped_unsent), (98, 2));
-        assert_eq!(s.dropped_unsent().unwrap(), 2);
+        assert_eq!((o.evicted, o.dropped_unsent), (ho - 2, 100 - (ho - 2)));
+        assert_eq!(s.dropped_unsent().unwrap(), 100 - (ho - 2));
         assert!(s.events(1).unwrap()[0].2.contains("store full"));
+    }
+
+    #[test]
+    fn minutes_that_may_still_change_wait() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        // At minute 110: 100-104 complete, 105 lacks the level (its sensor may still
+        // give it), 106 complete.
+        let mut recs: Vec<_> = (100..105).map(|m| rec(m, 3)).collect();
+        recs.push(rec(105, 1));
+        recs.push(rec(106, 3));
+        s.commit_poll(&recs, &[], 107).unwrap();
+        let b = s.transfer(0, 107, 3).unwrap();
+        assert_eq!(
+            b.records.iter().map(|r| r.minute).collect::<Vec<_>>(),
+            (100..105).collect::<Vec<_>>()
+        );
+        assert_eq!(b.remaining, 0);
+        // The level arrives: 105 and 106 go.
+        s.commit_poll(&[rec(105, 3)], &[], 108).unwrap();
+        let b = s.transfer(104, 108, 3).unwrap();
+        assert_eq!(
+            b.records.iter().map(|r| r.minute).collect::<Vec<_>>(),
+            vec![105, 106]
+        );
+        assert_eq!(b.records[0].valid, 3);
+        // A minute that stays incomplete goes once it is older than the sensors' memory.
+        s.commit_poll(&[rec(107, 1)], &[], 109).unwrap();
+        assert!(s.transfer(106, 109, 3).unwrap().records.is_empty());
+        assert_eq!(s.transfer(106, 112, 3).unwrap().records[0].minute, 107);
+    }
+
+    #[test]
+    fn a_clock_set_back_does_not_make_minutes_nobody_can_collect() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        let recs: Vec<_> = (100..120).map(|m| rec(m, 3)).collect();
+        s.commit_poll(&recs, &[], 121).unwrap();
+        s.transfer(0, 130, 3).unwrap();
+        s.transfer(110, 130, 3).unwrap();
+        let o = s.commit_poll(&[rec(50, 3), rec(51, 3)], &[], 53).unwrap();
+        assert_eq!((o.new_minutes, o.behind_clock), (0, 2));
+        assert!(s.events(1).unwrap()[0].2.contains("clock is behind"));
+    }
+
+    #[test]
+    fn a_store_is_not_an_archive() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("pc.db");
+        drop(crate::archive::Archive::open(&p, Durability::Process).unwrap());
+        let e = Store::open(&p, 1, 0, Durability::Process).err().unwrap();
+        assert!(e.to_string().contains("is an archive"), "{e}");
+        drop(store(&d));
+        let e = crate::archive::Archive::open(&d.path().join("c.db"), Durability::Process)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("is a concentrator's store"), "{e}");
+        // Another program's database.
+        let other = d.path().join("other.db");
+        let c = rusqlite::Connection::open(&other).unwrap();
+        c.execute_batch("CREATE TABLE things(a)").unwrap();
+        drop(c);
+        let e = Store::open(&other, 1, 0, Durability::Process)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("another program"), "{e}");
     }
 
     #[test]

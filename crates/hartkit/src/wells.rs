@@ -107,7 +107,8 @@ pub struct ConcentratorArgs {
     /// Time between polls: 3m (default), 1m; seconds for tests (10s, 2s).
     #[arg(long, default_value = "3m", value_name = "DURATION", value_parser = parse_duration)]
     pub poll_interval: Duration,
-    /// Calibration tables to put in force (CSV, docs/wells.md).
+    /// Calibration tables for a new store (CSV, docs/wells.md); a table downloaded
+    /// later with command 160 stays in force over restarts.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
     /// Room in the store, days (at least 7).
@@ -429,7 +430,7 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
     if !(secs.is_finite() && secs > 0.0) {
         return Err(format!("{s:?}: must be more than 0"));
     }
-    Ok(Duration::from_secs_f64(secs))
+    Duration::try_from_secs_f64(secs).map_err(|_| format!("{s:?}: too long"))
 }
 
 fn open_line(
@@ -702,6 +703,11 @@ fn summary(s: &run::PullSummary, json: bool) -> Result<String, String> {
     for c in &s.calibration_downloaded {
         out.push_str(&format!("\n{c} calibration table downloaded"));
     }
+    for e in &s.calibration_errors {
+        out.push_str(&format!(
+            "\ncalibration table NOT downloaded (kept for the next visit): {e}"
+        ));
+    }
     Ok(out)
 }
 
@@ -789,11 +795,26 @@ fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
         Durability::Full,
     )
     .map_err(|e| e.to_string())?;
+    if !(1..=180).contains(&a.poll_interval.as_secs()) {
+        return Err(format!(
+            "--poll-interval {:?}: 1 s to 3 min (the sensors keep three minutes)",
+            a.poll_interval
+        ));
+    }
     if let Some(p) = &a.calibration {
+        // The file gives the first tables; a table downloaded since (command 160)
+        // stays in force over restarts.
         let file = CalibrationFile::read(p).map_err(|e| format!("--calibration: {e}"))?;
         for s in Sensor::ALL {
             if let Some(t) = file.table(s) {
-                store.set_calibration(s, t).map_err(|e| e.to_string())?;
+                match store.calibration(s).map_err(|e| e.to_string())? {
+                    Some(old) if &old != t => tracing::warn!(
+                        "--calibration: the {} table downloaded earlier stays in force (the file gives the first table only)",
+                        s.name()
+                    ),
+                    Some(_) => {}
+                    None => store.set_calibration(s, t).map_err(|e| e.to_string())?,
+                }
             }
         }
     }
@@ -812,23 +833,22 @@ fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
             }
         }
     };
-    crate::host::block_on(async {
-        let bus = open_line(&a.bus, &a.line, None)?;
-        let uplink = match &a.uplink {
-            Some(p) => Some(open_line(p, &a.line, a.uplink_baud)?),
-            None => None,
-        };
-        run::run_concentrator(
-            bus,
-            uplink,
-            conc,
-            clock,
-            Duration::from_millis(a.reply_timeout_ms),
-            &show,
-        )
-        .await
-        .map_err(|e| e.to_string())
-    })?;
+    let open_bus = || open_line(&a.bus, &a.line, None).map_err(std::io::Error::other);
+    let open_up = a
+        .uplink
+        .as_ref()
+        .map(|p| move || open_line(p, &a.line, a.uplink_baud).map_err(std::io::Error::other));
+    run::run_concentrator(
+        &open_bus,
+        open_up
+            .as_ref()
+            .map(|f| f as run::Opener<'_, SerialTransport>),
+        conc,
+        clock,
+        Duration::from_millis(a.reply_timeout_ms),
+        &show,
+    )
+    .map_err(|e| e.to_string())?;
     Ok(String::new())
 }
 
