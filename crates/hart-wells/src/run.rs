@@ -789,3 +789,119 @@ pub async fn parameters<T: Transport>(
         None => Err("a reply without status".into()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::proto::{Batch, Record, TRANSFER};
+    use hart_link::TimingProfile;
+
+    /// A line in virtual time: after each send, `answer` gives (delay µs, bytes) to
+    /// deliver one character at a time at `char_us` apart.
+    struct Paced {
+        now: u64,
+        inbox: std::collections::VecDeque<(u64, u8)>,
+        char_us: u64,
+        answer: Box<dyn FnMut(u64) -> Vec<(u64, Vec<u8>)>>,
+        sends: u64,
+    }
+
+    impl Transport for Paced {
+        fn profile(&self) -> TimingProfile {
+            TimingProfile::rs485(1200)
+        }
+        fn now(&self) -> u64 {
+            self.now
+        }
+        async fn send(&mut self, _bytes: &[u8]) -> io::Result<()> {
+            self.sends += 1;
+            for (delay, bytes) in (self.answer)(self.sends) {
+                let mut at = self.now + delay;
+                for b in bytes {
+                    at += self.char_us;
+                    self.inbox.push_back((at, b));
+                }
+            }
+            Ok(())
+        }
+        async fn recv(&mut self, deadline: u64) -> io::Result<Vec<(u8, u64)>> {
+            match self.inbox.front() {
+                Some(&(at, b)) if at <= deadline => {
+                    self.inbox.pop_front();
+                    self.now = self.now.max(at);
+                    Ok(vec![(b, at)])
+                }
+                _ => {
+                    self.now = self.now.max(deadline);
+                    Ok(vec![])
+                }
+            }
+        }
+        fn describe(&self) -> String {
+            "paced line".into()
+        }
+    }
+
+    fn full_batch() -> Vec<u8> {
+        let records = (0..11).map(|i| Record::empty(1000 + i)).collect();
+        let data = Batch {
+            remaining: 3,
+            records,
+        }
+        .encode();
+        Message::reply(Station::concentrator(1), TRANSFER, [0, 0], data).to_bytes()
+    }
+
+    fn block_on<F: std::future::Future>(f: F) -> F::Output {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(f)
+    }
+
+    /// A full batch at 1200 bit/s takes 2.4 s, longer than the 2 s time-out: the
+    /// time-out is for the reply's start, so it arrives.
+    #[test]
+    fn a_reply_longer_than_the_time_out_arrives() {
+        let reply = full_batch();
+        assert_eq!(reply.len(), 257);
+        let mut t = Paced {
+            now: 0,
+            inbox: Default::default(),
+            char_us: 9_167,
+            answer: Box::new(move |_| vec![(50_000, reply.clone())]),
+            sends: 0,
+        };
+        let req = Message::request(Station::concentrator(1), TRANSFER, vec![0; 4]);
+        let m = block_on(exchange(&mut t, &req, Requester::default())).unwrap();
+        assert_eq!(Batch::decode(&m.data).unwrap().records.len(), 11);
+        assert_eq!(t.sends, 1);
+        assert!(t.now > 2_400_000, "{}", t.now);
+    }
+
+    /// A reply cut by a gap longer than FRAME_GAP is dropped; the try after it gets
+    /// the whole reply, and not the stale remains.
+    #[test]
+    fn a_gap_drops_the_partial_frame() {
+        let reply = full_batch();
+        let mut t = Paced {
+            now: 0,
+            inbox: Default::default(),
+            char_us: 9_167,
+            answer: Box::new(move |n| {
+                if n == 1 {
+                    // Half a reply, then silence: the call dropped.
+                    vec![(50_000, reply[..100].to_vec())]
+                } else {
+                    vec![(50_000, reply.clone())]
+                }
+            }),
+            sends: 0,
+        };
+        let req = Message::request(Station::concentrator(1), TRANSFER, vec![0; 4]);
+        let m = block_on(exchange(&mut t, &req, Requester::default())).unwrap();
+        assert_eq!(Batch::decode(&m.data).unwrap().records.len(), 11);
+        assert_eq!(t.sends, 2);
+    }
+}
