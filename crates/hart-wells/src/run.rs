@@ -796,13 +796,16 @@ mod tests {
     use crate::proto::{Batch, Record, TRANSFER};
     use hart_link::TimingProfile;
 
+    /// What the far end answers to the n-th send: (delay µs, bytes).
+    type Answer = Box<dyn FnMut(u64) -> Vec<(u64, Vec<u8>)>>;
+
     /// A line in virtual time: after each send, `answer` gives (delay µs, bytes) to
     /// deliver one character at a time at `char_us` apart.
     struct Paced {
         now: u64,
         inbox: std::collections::VecDeque<(u64, u8)>,
         char_us: u64,
-        answer: Box<dyn FnMut(u64) -> Vec<(u64, Vec<u8>)>>,
+        answer: Answer,
         sends: u64,
     }
 
