@@ -372,6 +372,18 @@ impl SerialTransport {
     }
 }
 
+/// Whether the port reports a hang-up (`POLLHUP`) or an error now.
+fn hung_up(fd: i32) -> bool {
+    let mut p = libc::pollfd {
+        fd,
+        events: libc::POLLIN,
+        revents: 0,
+    };
+    // SAFETY: poll on one pollfd we own, without waiting.
+    let n = unsafe { libc::poll(&mut p, 1, 0) };
+    n > 0 && p.revents & (libc::POLLHUP | libc::POLLERR) != 0
+}
+
 /// The modem control lines (`TIOCM_*` bits).
 fn modem_lines(fd: i32) -> Result<libc::c_int, ()> {
     let mut bits: libc::c_int = 0;
@@ -505,6 +517,18 @@ impl Transport for SerialTransport {
                 ));
             }
             if n == 0 {
+                // Nothing to read (a raw port with VMIN 0 answers 0), or the line hung
+                // up: a pseudo-terminal whose other end closed, a modem that dropped
+                // the line. A hang-up would otherwise look like silence forever.
+                if hung_up(fd) {
+                    return Err(io::Error::new(
+                        io::ErrorKind::BrokenPipe,
+                        format!(
+                            "{} hung up (the other end closed it or the line dropped)",
+                            self.opts.path.display()
+                        ),
+                    ));
+                }
                 guard.clear_ready();
                 tokio::time::sleep(Duration::from_millis(5)).await;
                 continue;

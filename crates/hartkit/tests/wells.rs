@@ -762,3 +762,96 @@ fn calibration_tables_reach_the_concentrator_directly_and_through_the_handheld()
     assert_ne!(code, 0);
     assert!(err.contains("1 s to 3 min"), "{err}");
 }
+
+/// The uplink vanishes (its line is gone: socat killed) while the concentrator runs:
+/// it keeps polling, opens the uplink again when it is back, and the PC gets every
+/// minute.
+#[test]
+fn the_concentrator_keeps_polling_when_its_uplink_vanishes() {
+    use hart_wells::store::{Durability, Store};
+    let Some(_) = peer() else { return };
+    let Some(bus) = pty_pair() else { return };
+    let dir = tmp("vanish");
+    let (a, b) = (dir.join("up-conc"), dir.join("up-pc"));
+    let (store, pc) = (dir.join("c.db"), dir.join("pc.db"));
+    let socat = |a: &PathBuf, b: &PathBuf| {
+        let k = Kill(
+            Command::new("socat")
+                .arg(format!("pty,raw,echo=0,link={}", a.display()))
+                .arg(format!("pty,raw,echo=0,link={}", b.display()))
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+        );
+        let end = Instant::now() + Duration::from_secs(10);
+        while !(a.exists() && b.exists()) {
+            assert!(Instant::now() < end, "socat made no pseudo-terminals");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        k
+    };
+    let up = socat(&a, &b);
+    let _sensors = spawn_peer(&["sensors", bus.2.to_str().unwrap()]);
+    let _conc = spawn_hartkit(&[
+        "wells",
+        "concentrator",
+        "--well",
+        "7",
+        "--bus",
+        bus.1.to_str().unwrap(),
+        "--uplink",
+        a.to_str().unwrap(),
+        "--store",
+        store.to_str().unwrap(),
+        "--poll-interval",
+        "1s",
+    ]);
+    std::thread::sleep(Duration::from_millis(1500));
+    drop(up);
+    // Without its uplink it goes on polling: the store's poll count grows.
+    let polls = || {
+        let st = Store::open(&store, 7, 0, Durability::Process).unwrap();
+        st.sensors()
+            .unwrap()
+            .iter()
+            .map(|s| s.last_good)
+            .max()
+            .unwrap_or(0)
+    };
+    std::thread::sleep(Duration::from_millis(2500));
+    assert!(polls() > 0, "no poll stored");
+    // The line comes back; the concentrator opens it again (within 5 s) and answers.
+    let _up = socat(&a, &b);
+    let end = Instant::now() + Duration::from_secs(20);
+    loop {
+        let (code, out, err) = hartkit(&[
+            "wells",
+            "pc",
+            "pull",
+            "--port",
+            b.to_str().unwrap(),
+            "--well",
+            "7",
+            "--db",
+            pc.to_str().unwrap(),
+            "--json",
+            "--timeout-ms",
+            "500",
+            "--tries",
+            "1",
+        ]);
+        if code == 0 {
+            let v: Value = serde_json::from_str(&out).unwrap();
+            assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
+            break;
+        }
+        assert!(Instant::now() < end, "the uplink never came back: {err}");
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    assert!(_conc_alive(&_conc));
+}
+
+fn _conc_alive(k: &Kill) -> bool {
+    // SAFETY: kill with signal 0 only checks that the process exists.
+    unsafe { libc::kill(k.0.id() as i32, 0) == 0 }
+}
