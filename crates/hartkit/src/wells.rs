@@ -325,6 +325,11 @@ pub struct ScheduleArgs {
     /// Time between rounds (the first starts at once).
     #[arg(long, default_value = "6h", value_name = "DURATION", value_parser = parse_duration)]
     pub every: Duration,
+    /// Instead of --every: a time of day (UTC) for a round, HH:MM or HH:MM:SS; give
+    /// one per round of the day (e.g. --at 06:00 --at 18:00). The first round waits
+    /// for the next of them.
+    #[arg(long = "at", value_name = "HH:MM", value_parser = parse_time_of_day, conflicts_with = "every")]
+    pub at: Vec<u32>,
     /// Attempts after the first for a well that cannot be reached.
     #[arg(long, default_value_t = 2)]
     pub retries: u32,
@@ -343,6 +348,32 @@ pub struct ScheduleArgs {
     pub req: ReqArgs,
     #[command(flatten)]
     pub line: LineArgs,
+}
+
+/// Parses `HH:MM` or `HH:MM:SS` into seconds of the day.
+pub fn parse_time_of_day(s: &str) -> Result<u32, String> {
+    let parts: Vec<&str> = s.trim().split(':').collect();
+    let num = |p: &str, max: u32| p.parse::<u32>().ok().filter(|v| *v <= max);
+    let (h, m, sec) = match parts[..] {
+        [h, m] => (num(h, 23), num(m, 59), Some(0)),
+        [h, m, x] => (num(h, 23), num(m, 59), num(x, 59)),
+        _ => (None, None, None),
+    };
+    match (h, m, sec) {
+        (Some(h), Some(m), Some(x)) => Ok(h * 3600 + m * 60 + x),
+        _ => Err(format!("{s:?}: a time of day, HH:MM or HH:MM:SS (UTC)")),
+    }
+}
+
+/// Time from `now_s` (Unix seconds) to the next of `times` (seconds of the UTC day).
+pub fn until_next(times: &[u32], now_s: u64) -> Duration {
+    let sod = (now_s % 86_400) as u32;
+    let next = times
+        .iter()
+        .map(|&t| if t > sod { t - sod } else { t + 86_400 - sod })
+        .min()
+        .unwrap_or(86_400);
+    Duration::from_secs(next as u64)
 }
 
 /// Parses `W` or `W=NUMBER`.
@@ -552,6 +583,11 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
     let unreachable = crate::host::block_on(async {
         let mut t = open_line(&a.port, &a.line, None)?;
         let mut n = 0u32;
+        if !a.at.is_empty() {
+            let wait = until_next(&a.at, unix_now());
+            tracing::info!("first round in {wait:?}");
+            tokio::time::sleep(wait).await;
+        }
         loop {
             let started = std::time::Instant::now();
             let outcomes = run::round(&mut t, &mut archive, &plan, clock).await;
@@ -572,7 +608,11 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
             if a.rounds.is_some_and(|r| n >= r) {
                 break Ok::<usize, String>(unreachable);
             }
-            tokio::time::sleep(a.every.saturating_sub(started.elapsed())).await;
+            if a.at.is_empty() {
+                tokio::time::sleep(a.every.saturating_sub(started.elapsed())).await;
+            } else {
+                tokio::time::sleep(until_next(&a.at, unix_now())).await;
+            }
         }
     })?;
     if unreachable > 0 {
@@ -581,6 +621,12 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
         ));
     }
     Ok(String::new())
+}
+
+fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
 }
 
 fn round_text(n: u32, outcomes: &[run::WellOutcome]) -> String {
@@ -967,5 +1013,20 @@ mod tests {
         assert!(parse_duration("3x").is_err());
         assert!(parse_duration("0s").is_err());
         assert_eq!(iso_minute(1_772_323_200 / 60), "2026-03-01 00:00");
+        assert_eq!(parse_time_of_day("06:30").unwrap(), 6 * 3600 + 1800);
+        assert_eq!(parse_time_of_day("23:59:59").unwrap(), 86_399);
+        assert!(parse_time_of_day("24:00").is_err() && parse_time_of_day("6").is_err());
+        // At 05:00 the next of 06:00 and 18:00 is in an hour; at 19:00, 06:00 tomorrow.
+        let day = 1_772_323_200;
+        let t = [6 * 3600, 18 * 3600];
+        assert_eq!(until_next(&t, day + 5 * 3600), Duration::from_secs(3600));
+        assert_eq!(
+            until_next(&t, day + 19 * 3600),
+            Duration::from_secs(11 * 3600)
+        );
+        assert_eq!(
+            until_next(&t, day + 6 * 3600),
+            Duration::from_secs(12 * 3600)
+        );
     }
 }

@@ -848,10 +848,10 @@ fn the_concentrator_keeps_polling_when_its_uplink_vanishes() {
         assert!(Instant::now() < end, "the uplink never came back: {err}");
         std::thread::sleep(Duration::from_millis(500));
     }
-    assert!(_conc_alive(&_conc));
+    assert!(alive(&_conc), "the concentrator exited");
 }
 
-fn _conc_alive(k: &Kill) -> bool {
+fn alive(k: &Kill) -> bool {
     // SAFETY: kill with signal 0 only checks that the process exists.
     unsafe { libc::kill(k.0.id() as i32, 0) == 0 }
 }
