@@ -211,6 +211,16 @@ impl Concentrator {
     /// request in progress is sent (again). The caller sends it and reports the
     /// reply or the time-out with [`Concentrator::bus_result`].
     pub fn bus_request(&mut self, now: Millis) -> Option<Message> {
+        if self.cycle.is_none() && self.next_poll > now + 2 * self.cfg.poll_interval + 10_000 {
+            // The clock was set back: poll on the new time base instead of waiting
+            // out the step (the sensors keep only three minutes).
+            warn!(
+                well = self.cfg.well,
+                "the clock went back {} s; polling on the new time",
+                (self.next_poll - now) / 1000
+            );
+            self.next_poll = self.poll_time_after(now);
+        }
         if self.cycle.is_none() {
             if now < self.next_poll || self.sensors.is_empty() {
                 return None;
@@ -535,6 +545,7 @@ impl Concentrator {
             }
             Assembled::Table(sensor, t) => match self.store.set_calibration(sensor, &t) {
                 Ok(()) => {
+                    self.assembler.confirm(sensor, seg.segment);
                     info!(
                         well = self.cfg.well,
                         "new {} calibration table in force",
@@ -554,5 +565,69 @@ impl Concentrator {
     /// Engineering value of a level sensor's own temperature counts.
     pub fn body_temperature(raw: u32) -> f64 {
         body_celsius(raw)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::Durability;
+
+    fn conc(d: &tempfile::TempDir, now: Millis) -> Concentrator {
+        let store = Store::open(&d.path().join("c.db"), 1, 0, Durability::Process).unwrap();
+        Concentrator::new(ConcentratorConfig::reference(1), store, now).unwrap()
+    }
+
+    #[test]
+    fn a_clock_set_back_polls_on_the_new_time() {
+        let d = tempfile::tempdir().unwrap();
+        let t0 = 29_500_000 * 60_000;
+        let mut c = conc(&d, t0);
+        assert!(c.bus_request(t0).is_none());
+        // Ten minutes back: the next poll is within a poll interval of the new time.
+        let back = t0 - 600_000;
+        assert!(c.bus_request(back).is_none());
+        assert!(
+            c.next_deadline() <= back + 180_000 + 10_000,
+            "{}",
+            c.next_deadline() - back
+        );
+    }
+
+    #[test]
+    fn each_reply_is_filed_by_the_minute_it_arrived_in() {
+        let d = tempfile::tempdir().unwrap();
+        let t0 = 29_500_000 * 60_000;
+        let mut c = conc(&d, t0);
+        let start = c.next_deadline();
+        let groups = |w: usize| {
+            let g = Groups {
+                status: 0,
+                width: w,
+                groups: [[100, 5], [101, 5], [102, 5]],
+            };
+            let (s, data) = g.encode();
+            (s, data)
+        };
+        // Temperature answers in one minute, the level sensor (after retries) in the
+        // next.
+        let r1 = c.bus_request(start).unwrap();
+        let (s, data) = groups(1);
+        c.bus_result(start + 100, Some(&Message::reply(r1.station, 1, s, data)));
+        let r2 = c.bus_request(start + 200).unwrap();
+        let late = (start / 60_000 + 1) * 60_000 + 500;
+        let (s, data) = groups(2);
+        let o = c
+            .bus_result(late, Some(&Message::reply(r2.station, 1, s, data)))
+            .unwrap()
+            .unwrap();
+        // Minutes m-3..m-1 from the first, m-2..m from the second: four minutes.
+        assert_eq!(o.new_minutes, 4);
+        let m = (start / 60_000) as u32;
+        let first = c.store().get(m - 3).unwrap().unwrap();
+        assert_eq!((first.valid, first.t_raw), (VALID_TEMPERATURE, 100));
+        let last = c.store().get(m).unwrap().unwrap();
+        assert_eq!(last.valid & VALID_LEVEL, VALID_LEVEL);
+        assert_eq!(last.l_raw, 102);
     }
 }

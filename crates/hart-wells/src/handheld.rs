@@ -30,8 +30,8 @@ impl HandheldStation {
         Self::default()
     }
 
-    /// Answers a request from the PC (`None`: not a request for the handheld, or a
-    /// well it holds nothing of).
+    /// Answers a request from the PC (`None`: not a request for the handheld; a well
+    /// it holds nothing of gets an empty batch).
     pub fn answer(&mut self, archive: &mut Archive, msg: &Message, now: Millis) -> Option<Message> {
         if msg.reply || msg.station.role() != Role::Handheld {
             return None;
@@ -73,6 +73,10 @@ impl HandheldStation {
                     Assembled::Table(sensor, t) => {
                         match archive.set_pending_calibration(well, sensor, &t) {
                             Ok(()) => {
+                                self.assemblers
+                                    .entry(well)
+                                    .or_default()
+                                    .confirm(sensor, seg.segment);
                                 info!(
                                     "{} calibration table for well {well} kept for the next visit",
                                     sensor.name()

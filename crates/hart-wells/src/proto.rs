@@ -810,6 +810,12 @@ pub enum Assembled {
 }
 
 impl TableAssembler {
+    /// The table made from the last segment was kept: a repeat of that segment
+    /// (its reply lost) is answered *in force*.
+    pub fn confirm(&mut self, sensor: Sensor, last: Segment) {
+        self.completed = Some((sensor, last));
+    }
+
     /// Takes one segment.
     pub fn take(&mut self, seg: SegmentRequest) -> Assembled {
         if self.pending.is_none()
@@ -820,6 +826,7 @@ impl TableAssembler {
         }
         if seg.number == 1 {
             self.pending = Some((seg.sensor, vec![]));
+            self.completed = None;
         }
         let Some((sensor, segs)) = self.pending.as_mut() else {
             return Assembled::Refused(
@@ -850,10 +857,7 @@ impl TableAssembler {
             return Assembled::Taken;
         };
         match crate::calibration::Table::new(segs) {
-            Ok(t) => {
-                self.completed = Some((sensor, seg.segment));
-                Assembled::Table(sensor, Box::new(t))
-            }
+            Ok(t) => Assembled::Table(sensor, Box::new(t)),
             Err(e) => Assembled::Refused(RC_TABLE_REFUSED, e.to_string()),
         }
     }
@@ -1033,6 +1037,35 @@ mod tests {
         for (got, want) in c.iter().zip([15.2003, 15.2011, 15.2007]) {
             assert!((got - want).abs() < 1e-5, "{c:?}");
         }
+    }
+
+    /// The tenth segment again after its reply was lost: in force, but only once the
+    /// table was kept.
+    #[test]
+    fn segment_ten_repeated() {
+        use crate::calibration::Table;
+        let t = Table::builtin(Sensor::Level);
+        let mut a = TableAssembler::default();
+        let seg = |i: usize| SegmentRequest {
+            sensor: Sensor::Level,
+            number: i as u8 + 1,
+            segment: t.segments()[i],
+        };
+        for i in 0..9 {
+            assert_eq!(a.take(seg(i)), Assembled::Taken);
+        }
+        assert!(matches!(a.take(seg(9)), Assembled::Table(Sensor::Level, _)));
+        // Not kept (the store failed): a repeat is out of order, not "in force".
+        assert!(matches!(
+            a.take(seg(9)),
+            Assembled::Refused(RC_OUT_OF_ORDER, _)
+        ));
+        for i in 0..9 {
+            a.take(seg(i));
+        }
+        assert!(matches!(a.take(seg(9)), Assembled::Table(..)));
+        a.confirm(Sensor::Level, t.segments()[9]);
+        assert_eq!(a.take(seg(9)), Assembled::AlreadyInForce);
     }
 
     /// A frame with a wrong check byte or a parity error is reported damaged (and so

@@ -85,8 +85,14 @@ pub async fn next_message<T: Transport>(
     }
     let deadline = t.now() + timeout.as_micros() as u64;
     let gap = FRAME_GAP.as_micros() as u64;
+    // However a frame keeps going, the wait ends when the longest frame would have.
+    let hard = deadline + 260 * t.profile().char_time + gap;
     let mut last = t.now();
     loop {
+        if t.now() > hard {
+            rx.reset();
+            return Ok(None);
+        }
         let until = if rx.in_frame() { last + gap } else { deadline };
         let chars = t.recv_flagged(until).await?;
         if chars.is_empty() {
@@ -97,7 +103,7 @@ pub async fn next_message<T: Transport>(
             }
             return Ok(None);
         }
-        last = chars.last().map_or(t.now(), |c| c.at);
+        last = t.now();
         let flagged: Vec<_> = chars.iter().map(|c| (c.byte, c.flags)).collect();
         for r in rx.push(&flagged) {
             match r {
@@ -115,15 +121,17 @@ pub async fn next_message<T: Transport>(
     }
 }
 
-/// Drops whatever has arrived and not been read (a late reply to an earlier try must
-/// not be taken for the reply to the next request).
+/// Drops whatever has arrived and not been read, until the line has been quiet for
+/// 20 ms (at most 1 s of it): the rest of an earlier try's late reply must not be
+/// taken for the reply to the next request.
 pub async fn discard_input<T: Transport>(t: &mut T) -> io::Result<()> {
-    loop {
-        let chars = t.recv_flagged(t.now() + 1_000).await?;
-        if chars.is_empty() {
-            return Ok(());
+    let give_up = t.now() + 1_000_000;
+    while t.now() < give_up {
+        if t.recv_flagged(t.now() + 20_000).await?.is_empty() {
+            break;
         }
     }
+    Ok(())
 }
 
 /// A simulated sensor on a line: answers every request to its address until the
@@ -192,7 +200,7 @@ pub fn run_concentrator<B: Transport, U: Transport + Send>(
     std::thread::scope(|scope| {
         if let (Some(open), Some(first)) = (open_uplink, first_uplink) {
             scope.spawn(move || {
-                uplink_rt.block_on(async move {
+                fatal_on_panic("uplink", || uplink_rt.block_on(async move {
                     let mut line = Some(first);
                     loop {
                         let mut up = match line.take() {
@@ -206,35 +214,56 @@ pub fn run_concentrator<B: Transport, U: Transport + Send>(
                                 }
                             },
                         };
-                        if let Err(e) = serve_uplink(&mut up, conc, clock, view).await {
+                        let result = serve_uplink(&mut up, conc, clock, view).await;
+                        // Close the failed line before waiting (a USB adapter plugged
+                        // back in gets its old name only if nobody holds it).
+                        drop(up);
+                        if let Err(e) = result {
                             warn!("uplink: {e}; polling goes on; opening it again in {REOPEN_AFTER:?}");
                             tokio::time::sleep(REOPEN_AFTER).await;
                         }
                     }
-                })
+                }))
             });
         }
-        bus_rt.block_on(async move {
-            let mut line = Some(first_bus);
-            loop {
-                let mut bus = match line.take() {
-                    Some(l) => l,
-                    None => match open_bus() {
-                        Ok(l) => l,
-                        Err(e) => {
-                            warn!("bus: {e}; trying again in {REOPEN_AFTER:?}");
-                            tokio::time::sleep(REOPEN_AFTER).await;
-                            continue;
-                        }
-                    },
-                };
-                if let Err(e) = poll_bus(&mut bus, conc, clock, reply_timeout, view).await {
-                    warn!("bus: {e}; opening it again in {REOPEN_AFTER:?}");
-                    tokio::time::sleep(REOPEN_AFTER).await;
+        fatal_on_panic("bus", || {
+            bus_rt.block_on(async move {
+                let mut line = Some(first_bus);
+                loop {
+                    let mut bus = match line.take() {
+                        Some(l) => l,
+                        None => match open_bus() {
+                            Ok(l) => l,
+                            Err(e) => {
+                                warn!("bus: {e}; trying again in {REOPEN_AFTER:?}");
+                                tokio::time::sleep(REOPEN_AFTER).await;
+                                continue;
+                            }
+                        },
+                    };
+                    let result = poll_bus(&mut bus, conc, clock, reply_timeout, view).await;
+                    drop(bus);
+                    if let Err(e) = result {
+                        warn!("bus: {e}; opening it again in {REOPEN_AFTER:?}");
+                        tokio::time::sleep(REOPEN_AFTER).await;
+                    }
                 }
-            }
+            })
         })
     })
+}
+
+/// Runs `f`; a panic in it ends the process (exit status 70) instead of leaving a
+/// concentrator that looks alive with one of its loops dead: a supervisor (systemd)
+/// starts it again, and the store makes that safe.
+fn fatal_on_panic<R>(what: &str, f: impl FnOnce() -> R) -> R {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(_) => {
+            tracing::error!("the {what} loop failed unexpectedly; stopping so the concentrator can be restarted");
+            std::process::exit(70);
+        }
+    }
 }
 
 async fn poll_bus<B: Transport>(
@@ -255,19 +284,33 @@ async fn poll_bus<B: Transport>(
         };
         pending.clear();
         rx.reset();
-        discard_input(bus).await?;
-        bus.send(&req.to_bytes()).await?;
-        let deadline = std::time::Instant::now() + reply_timeout;
-        let reply = loop {
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
-            match next_message(bus, &mut rx, &mut pending, left).await? {
-                None => break None,
-                Some(m) if m.reply && m.station == req.station => break Some(m),
-                Some(_) => continue,
+        let exchanged: io::Result<Option<Message>> = async {
+            discard_input(bus).await?;
+            bus.send(&req.to_bytes()).await?;
+            let deadline = std::time::Instant::now() + reply_timeout;
+            loop {
+                let left = deadline.saturating_duration_since(std::time::Instant::now());
+                match next_message(bus, &mut rx, &mut pending, left).await? {
+                    None => return Ok(None),
+                    Some(m) if m.reply && m.station == req.station => return Ok(Some(m)),
+                    Some(_) => continue,
+                }
+            }
+        }
+        .await;
+        // The time the reply arrived, before waiting for the lock.
+        let at = clock.now();
+        let reply = match exchanged {
+            Ok(r) => r,
+            Err(e) => {
+                // The request in progress ends as unanswered, so the poll goes on
+                // with the line opened again.
+                let _ = lock(conc).bus_result(at, None);
+                return Err(e);
             }
         };
         let mut c = lock(conc);
-        if let Some(r) = c.bus_result(clock.now(), reply.as_ref()) {
+        if let Some(r) = c.bus_result(at, reply.as_ref()) {
             match r {
                 Ok(o) => info!(
                     "poll: {} new minutes, {} completed{}{}",
@@ -906,5 +949,51 @@ mod tests {
         let m = block_on(exchange(&mut t, &req, Requester::default())).unwrap();
         assert_eq!(Batch::decode(&m.data).unwrap().records.len(), 11);
         assert_eq!(t.sends, 2);
+    }
+
+    /// A line whose writes fail (a USB adapter pulled out).
+    struct Broken;
+
+    impl Transport for Broken {
+        fn profile(&self) -> TimingProfile {
+            TimingProfile::rs485(1200)
+        }
+        fn now(&self) -> u64 {
+            0
+        }
+        async fn send(&mut self, _bytes: &[u8]) -> io::Result<()> {
+            Err(io::Error::other("gone"))
+        }
+        async fn recv(&mut self, _deadline: u64) -> io::Result<Vec<(u8, u64)>> {
+            Ok(vec![])
+        }
+        fn describe(&self) -> String {
+            "broken".into()
+        }
+    }
+
+    /// A bus that fails mid-poll leaves no request hanging: with the line opened
+    /// again, the poll goes on.
+    #[test]
+    fn a_failed_bus_does_not_leave_the_poll_stuck() {
+        use crate::concentrator::{Concentrator, ConcentratorConfig};
+        use crate::store::{Durability, Store};
+        let d = tempfile::tempdir().unwrap();
+        let store = Store::open(&d.path().join("c.db"), 1, 0, Durability::Process).unwrap();
+        let clock = Clock::new(1.0);
+        let mut cfg = ConcentratorConfig::reference(1);
+        cfg.poll_interval = 1_000;
+        let conc = std::sync::Mutex::new(Concentrator::new(cfg, store, clock.now()).unwrap());
+        let view = |_: &Concentrator| {};
+        let e = block_on(poll_bus(
+            &mut Broken,
+            &conc,
+            clock,
+            Duration::from_millis(50),
+            &view,
+        ));
+        assert!(e.is_err());
+        // The request that failed counts as unanswered; the next one is ready.
+        assert!(lock(&conc).bus_request(clock.now()).is_some());
     }
 }

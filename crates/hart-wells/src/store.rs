@@ -153,7 +153,10 @@ pub(crate) fn claim(c: &Connection, path: &Path, kind: Kind) -> Result<(), Store
 
 /// Marks the file with its kind (after its tables are made).
 pub(crate) fn mark_kind(c: &Connection, kind: Kind) -> rusqlite::Result<()> {
-    set_meta(c, "kind", kind as i64)
+    if get_meta(c, "kind")?.is_none() {
+        set_meta(c, "kind", kind as i64)?;
+    }
+    Ok(())
 }
 
 /// What one poll's commit did.
@@ -360,6 +363,7 @@ impl Store {
         let mut out = PollOutcome::default();
         let ho: u32 = get_meta(&tx, "handed_over").map_err(e)?.unwrap_or(0) as u32;
         let sent: u32 = get_meta(&tx, "sent_upto").map_err(e)?.unwrap_or(0) as u32;
+        let mut resend_from = sent;
         for r in records.iter().filter(|r| r.valid != 0) {
             if r.minute <= ho {
                 // A minute at or before what has been handed over is new only if the
@@ -386,6 +390,12 @@ impl Store {
                 .map_err(e)?;
             match old {
                 None => {
+                    if r.minute <= sent {
+                        // A minute filled in below what was sent already (a hole
+                        // filled late): send again from just before it, so it is not
+                        // passed over (the requester counts the repeats).
+                        resend_from = resend_from.min(r.minute - 1);
+                    }
                     tx.execute(
                         "INSERT INTO minutes VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
                         params![
@@ -477,6 +487,9 @@ impl Store {
                 params![s.address, s.kind.name(), s.state, s.last_good],
             )
             .map_err(e)?;
+        }
+        if resend_from < sent {
+            set_meta(&tx, "sent_upto", resend_from as i64).map_err(e)?;
         }
         if out.behind_clock > 0 {
             tx.execute(
@@ -914,6 +927,22 @@ mod tests {
         let o = s.commit_poll(&[rec(50, 3), rec(51, 3)], &[], 53).unwrap();
         assert_eq!((o.new_minutes, o.behind_clock), (0, 2));
         assert!(s.events(1).unwrap()[0].2.contains("clock is behind"));
+    }
+
+    #[test]
+    fn a_hole_filled_below_what_was_sent_is_sent_again() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        let recs: Vec<_> = (100..110)
+            .filter(|m| *m != 104)
+            .map(|m| rec(m, 3))
+            .collect();
+        s.commit_poll(&recs, &[], 120).unwrap();
+        let b = s.transfer(0, 120, 3).unwrap();
+        assert_eq!(b.records.last().unwrap().minute, 109);
+        s.commit_poll(&[rec(104, 3)], &[], 121).unwrap();
+        let b = s.transfer(109, 121, 3).unwrap();
+        assert_eq!(b.records[0].minute, 104, "{b:?}");
     }
 
     #[test]

@@ -834,6 +834,12 @@ fn sensor(a: &SensorArgs) -> Result<String, String> {
 
 fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
     crate::gateway::init_log();
+    if !(1_000..=180_000).contains(&a.poll_interval.as_millis()) {
+        return Err(format!(
+            "--poll-interval {:?}: 1 s to 3 min (the sensors keep three minutes)",
+            a.poll_interval
+        ));
+    }
     let mut store = Store::open(
         &a.store,
         a.well,
@@ -841,12 +847,6 @@ fn concentrator(a: &ConcentratorArgs) -> Result<String, String> {
         Durability::Full,
     )
     .map_err(|e| e.to_string())?;
-    if !(1..=180).contains(&a.poll_interval.as_secs()) {
-        return Err(format!(
-            "--poll-interval {:?}: 1 s to 3 min (the sensors keep three minutes)",
-            a.poll_interval
-        ));
-    }
     if let Some(p) = &a.calibration {
         // The file gives the first tables; a table downloaded since (command 160)
         // stays in force over restarts.
