@@ -64,8 +64,8 @@ struct Cycle {
     command: u8,
     /// Tries of that command so far.
     tries: u8,
-    /// Groups received per sensor, with the minute in progress when each reply
-    /// arrived (its groups are the three minutes before).
+    /// Groups received per sensor, with the minute in progress when each request
+    /// reached its sensor (its groups are the three minutes before).
     groups: Vec<Option<(u32, Groups)>>,
     /// A request is out.
     outstanding: bool,
@@ -244,8 +244,9 @@ impl Concentrator {
     }
 
     /// The outcome of the request [`Concentrator::bus_request`] gave: its reply, or
-    /// `None` after the reply time-out. Returns what the poll stored when this
-    /// completed it.
+    /// `None` after the reply time-out, and `now`, the time the request reached the
+    /// sensor (its groups are the three minutes before the one in progress then).
+    /// Returns what the poll stored when this completed it.
     pub fn bus_result(
         &mut self,
         now: Millis,
@@ -325,7 +326,8 @@ impl Concentrator {
 
     fn commit(&mut self, cycle: Cycle, now: Millis) -> Result<PollOutcome, StoreError> {
         // Each sensor's groups are the three minutes before the one in progress when
-        // it answered (a poll held up across a minute's end still files them right).
+        // its request reached it (a poll held up across a minute's end still files
+        // each sensor's right).
         let mut by_minute: std::collections::BTreeMap<u32, Record> = Default::default();
         for (view, groups) in self.sensors.iter_mut().zip(&cycle.groups) {
             let Some((at, g)) = groups else { continue };

@@ -200,57 +200,52 @@ pub fn run_concentrator<B: Transport, U: Transport + Send>(
     std::thread::scope(|scope| {
         if let (Some(open), Some(first)) = (open_uplink, first_uplink) {
             scope.spawn(move || {
-                fatal_on_panic("uplink", || uplink_rt.block_on(async move {
-                    let mut line = Some(first);
-                    loop {
-                        let mut up = match line.take() {
-                            Some(l) => l,
-                            None => match open() {
-                                Ok(l) => l,
-                                Err(e) => {
-                                    warn!("uplink: {e}; trying again in {REOPEN_AFTER:?}");
-                                    tokio::time::sleep(REOPEN_AFTER).await;
-                                    continue;
-                                }
-                            },
-                        };
-                        let result = serve_uplink(&mut up, conc, clock, view).await;
-                        // Close the failed line before waiting (a USB adapter plugged
-                        // back in gets its old name only if nobody holds it).
-                        drop(up);
-                        if let Err(e) = result {
-                            warn!("uplink: {e}; polling goes on; opening it again in {REOPEN_AFTER:?}");
-                            tokio::time::sleep(REOPEN_AFTER).await;
-                        }
-                    }
-                }))
+                fatal_on_panic("uplink", || {
+                    uplink_rt.block_on(keep_open("uplink", first, open, |up| {
+                        serve_uplink(up, conc, clock, view)
+                    }))
+                })
             });
         }
         fatal_on_panic("bus", || {
-            bus_rt.block_on(async move {
-                let mut line = Some(first_bus);
-                loop {
-                    let mut bus = match line.take() {
-                        Some(l) => l,
-                        None => match open_bus() {
-                            Ok(l) => l,
-                            Err(e) => {
-                                warn!("bus: {e}; trying again in {REOPEN_AFTER:?}");
-                                tokio::time::sleep(REOPEN_AFTER).await;
-                                continue;
-                            }
-                        },
-                    };
-                    let result = poll_bus(&mut bus, conc, clock, reply_timeout, view).await;
-                    drop(bus);
-                    if let Err(e) = result {
-                        warn!("bus: {e}; opening it again in {REOPEN_AFTER:?}");
-                        tokio::time::sleep(REOPEN_AFTER).await;
-                    }
-                }
-            })
+            bus_rt.block_on(keep_open("bus", first_bus, open_bus, |bus| {
+                poll_bus(bus, conc, clock, reply_timeout, view)
+            }))
         })
     })
+}
+
+/// Runs `run` on the line, and whenever it fails: logs why, closes the line (a USB
+/// adapter plugged back in gets its old name only if nobody holds it), waits
+/// [`REOPEN_AFTER`], opens it again and goes on. Never returns.
+async fn keep_open<T, Fut>(
+    what: &str,
+    first: T,
+    open: Opener<'_, T>,
+    mut run: impl FnMut(T) -> Fut,
+) -> io::Result<()>
+where
+    Fut: std::future::Future<Output = io::Result<()>>,
+{
+    let mut line = Some(first);
+    loop {
+        let l = match line.take() {
+            Some(l) => l,
+            None => match open() {
+                Ok(l) => l,
+                Err(e) => {
+                    warn!("{what}: {e}; trying again in {REOPEN_AFTER:?}");
+                    tokio::time::sleep(REOPEN_AFTER).await;
+                    continue;
+                }
+            },
+        };
+        // `run` owns the line: it is closed when `run` ends.
+        if let Err(e) = run(l).await {
+            warn!("{what}: {e}; the concentrator goes on; opening it again in {REOPEN_AFTER:?}");
+            tokio::time::sleep(REOPEN_AFTER).await;
+        }
+    }
 }
 
 /// Runs `f`; a panic in it ends the process (exit status 70) instead of leaving a
@@ -267,7 +262,7 @@ fn fatal_on_panic<R>(what: &str, f: impl FnOnce() -> R) -> R {
 }
 
 async fn poll_bus<B: Transport>(
-    bus: &mut B,
+    mut bus: B,
     conc: &std::sync::Mutex<Concentrator>,
     clock: Clock,
     reply_timeout: Duration,
@@ -284,13 +279,17 @@ async fn poll_bus<B: Transport>(
         };
         pending.clear();
         rx.reset();
+        // The time the request reached the sensor: it answers with the three minutes
+        // before the one in progress then.
+        let mut sent_at = clock.now();
         let exchanged: io::Result<Option<Message>> = async {
-            discard_input(bus).await?;
+            discard_input(&mut bus).await?;
             bus.send(&req.to_bytes()).await?;
+            sent_at = clock.now();
             let deadline = std::time::Instant::now() + reply_timeout;
             loop {
                 let left = deadline.saturating_duration_since(std::time::Instant::now());
-                match next_message(bus, &mut rx, &mut pending, left).await? {
+                match next_message(&mut bus, &mut rx, &mut pending, left).await? {
                     None => return Ok(None),
                     Some(m) if m.reply && m.station == req.station => return Ok(Some(m)),
                     Some(_) => continue,
@@ -298,8 +297,7 @@ async fn poll_bus<B: Transport>(
             }
         }
         .await;
-        // The time the reply arrived, before waiting for the lock.
-        let at = clock.now();
+        let at = sent_at;
         let reply = match exchanged {
             Ok(r) => r,
             Err(e) => {
@@ -338,7 +336,7 @@ async fn poll_bus<B: Transport>(
 }
 
 async fn serve_uplink<U: Transport>(
-    up: &mut U,
+    mut up: U,
     conc: &std::sync::Mutex<Concentrator>,
     clock: Clock,
     view: View<'_>,
@@ -346,7 +344,8 @@ async fn serve_uplink<U: Transport>(
     let mut rx = Receiver::new();
     let mut pending = Vec::new();
     loop {
-        let Some(m) = next_message(up, &mut rx, &mut pending, Duration::from_secs(3600)).await?
+        let Some(m) =
+            next_message(&mut up, &mut rx, &mut pending, Duration::from_secs(3600)).await?
         else {
             continue;
         };
@@ -986,7 +985,7 @@ mod tests {
         let conc = std::sync::Mutex::new(Concentrator::new(cfg, store, clock.now()).unwrap());
         let view = |_: &Concentrator| {};
         let e = block_on(poll_bus(
-            &mut Broken,
+            Broken,
             &conc,
             clock,
             Duration::from_millis(50),

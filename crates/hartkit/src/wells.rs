@@ -145,22 +145,14 @@ pub enum HandheldCmd {
 /// `wells handheld collect`.
 #[derive(Args)]
 pub struct CollectArgs {
-    /// The cable to the concentrator.
-    #[arg(long, value_name = "PORT")]
-    pub port: PathBuf,
-    /// The well.
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: u8,
+    #[command(flatten)]
+    pub to: ToWell,
     /// The handheld's store.
     #[arg(long, value_name = "FILE")]
     pub store: PathBuf,
     /// Print the result as JSON.
     #[arg(long)]
     pub json: bool,
-    #[command(flatten)]
-    pub req: ReqArgs,
-    #[command(flatten)]
-    pub line: LineArgs,
 }
 
 /// `wells handheld serve`.
@@ -176,10 +168,26 @@ pub struct ServeArgs {
     pub line: LineArgs,
 }
 
+/// A well and the line to it.
+#[derive(Args, Clone)]
+pub struct ToWell {
+    /// The line: a cable, or a telephone modem (dialled with --dial where offered).
+    #[arg(long, value_name = "PORT")]
+    pub port: PathBuf,
+    /// The well, 1-15.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: u8,
+    #[command(flatten)]
+    pub req: ReqArgs,
+    #[command(flatten)]
+    pub line: LineArgs,
+}
+
 /// Requester timing.
 #[derive(Args, Clone)]
 pub struct ReqArgs {
-    /// Time for a reply, ms.
+    /// Time for a reply to start, ms (a long reply may then take as long as its bytes
+    /// need).
     #[arg(long, default_value_t = 2000)]
     pub timeout_ms: u64,
     /// Tries of each request.
@@ -213,12 +221,8 @@ pub enum PcCmd {
 /// `wells pc set`.
 #[derive(Args)]
 pub struct SetArgs {
-    /// The line.
-    #[arg(long, value_name = "PORT")]
-    pub port: PathBuf,
-    /// The well.
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: u8,
+    #[command(flatten)]
+    pub to: ToWell,
     /// New time between polls (1 s to 3 min); without it, unchanged.
     #[arg(long, value_name = "DURATION", value_parser = parse_duration)]
     pub poll_interval: Option<Duration>,
@@ -230,42 +234,31 @@ pub struct SetArgs {
     pub dial: Option<String>,
     #[command(flatten)]
     pub modem: ModemArgs,
-    #[command(flatten)]
-    pub req: ReqArgs,
-    #[command(flatten)]
-    pub line: LineArgs,
 }
 
 /// `wells pc calibrate`.
 #[derive(Args)]
 pub struct CalibrateArgs {
-    /// The line.
-    #[arg(long, value_name = "PORT")]
-    pub port: PathBuf,
-    /// The well.
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: u8,
+    #[command(flatten)]
+    pub to: ToWell,
     /// The calibration file (docs/wells.md); refused whole if anything in it is wrong.
     #[arg(long, value_name = "FILE")]
     pub file: PathBuf,
     /// Send it to the handheld instead of the concentrator.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "dial")]
     pub handheld: bool,
+    /// Dial this number first (Hayes modem on --port).
+    #[arg(long, value_name = "NUMBER")]
+    pub dial: Option<String>,
     #[command(flatten)]
-    pub req: ReqArgs,
-    #[command(flatten)]
-    pub line: LineArgs,
+    pub modem: ModemArgs,
 }
 
 /// `wells pc pull`.
 #[derive(Args)]
 pub struct PullArgs {
-    /// The line (a cable, or a telephone modem already connected).
-    #[arg(long, value_name = "PORT")]
-    pub port: PathBuf,
-    /// The well.
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: u8,
+    #[command(flatten)]
+    pub to: ToWell,
     /// The PC's database (SQLite; created if missing).
     #[arg(long, value_name = "FILE")]
     pub db: PathBuf,
@@ -281,10 +274,6 @@ pub struct PullArgs {
     /// Print the result as JSON.
     #[arg(long)]
     pub json: bool,
-    #[command(flatten)]
-    pub req: ReqArgs,
-    #[command(flatten)]
-    pub line: LineArgs,
 }
 
 /// Telephone modem options.
@@ -501,12 +490,12 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
             let mut archive =
                 Archive::open(&a.store, Durability::Full).map_err(|e| e.to_string())?;
             let s = crate::host::block_on(async {
-                let mut t = open_line(&a.port, &a.line, None)?;
+                let mut t = open_line(&a.to.port, &a.to.line, None)?;
                 run::pull(
                     &mut t,
                     &mut archive,
-                    Station::concentrator(a.well),
-                    requester(&a.req),
+                    Station::concentrator(a.to.well),
+                    requester(&a.to.req),
                     Clock::new(1.0),
                     true,
                 )
@@ -530,18 +519,18 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
             crate::gateway::init_log();
             let mut archive = Archive::open(&a.db, Durability::Full).map_err(|e| e.to_string())?;
             let station = if a.handheld {
-                Station::handheld(a.well)
+                Station::handheld(a.to.well)
             } else {
-                Station::concentrator(a.well)
+                Station::concentrator(a.to.well)
             };
             let s = crate::host::block_on(async {
-                let mut t = open_line(&a.port, &a.line, None)?;
+                let mut t = open_line(&a.to.port, &a.to.line, None)?;
                 if a.handheld {
                     return run::pull(
                         &mut t,
                         &mut archive,
                         station,
-                        requester(&a.req),
+                        requester(&a.to.req),
                         Clock::new(1.0),
                         false,
                     )
@@ -549,7 +538,7 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
                     .map_err(|e| e.to_string());
                 }
                 let route = run::Route {
-                    well: a.well,
+                    well: a.to.well,
                     number: a.dial.clone(),
                 };
                 let opts = a.modem.options("");
@@ -558,7 +547,7 @@ pub fn run(cmd: &WellsCmd) -> Result<String, String> {
                     &mut archive,
                     &route,
                     &opts,
-                    requester(&a.req),
+                    requester(&a.to.req),
                     Clock::new(1.0),
                 )
                 .await
@@ -669,9 +658,9 @@ fn set(a: &SetArgs) -> Result<String, String> {
         Some(r) => return Err(format!("--retries {r}: 0-5")),
     };
     let p = crate::host::block_on(async {
-        let mut t = open_line(&a.port, &a.line, None)?;
+        let mut t = open_line(&a.to.port, &a.to.line, None)?;
         let route = run::Route {
-            well: a.well,
+            well: a.to.well,
             number: a.dial.clone(),
         };
         run::parameters(
@@ -682,41 +671,53 @@ fn set(a: &SetArgs) -> Result<String, String> {
                 poll_interval_s: poll,
                 retries,
             },
-            requester(&a.req),
+            requester(&a.to.req),
         )
         .await
     })?;
     Ok(format!(
         "well {}: poll interval {} s, {} retries",
-        a.well, p.poll_interval_s, p.retries
+        a.to.well, p.poll_interval_s, p.retries
     ))
 }
 
 fn calibrate(a: &CalibrateArgs) -> Result<String, String> {
     let file = CalibrationFile::read(&a.file).map_err(|e| format!("{e}; nothing was sent"))?;
     let station = if a.handheld {
-        Station::handheld(a.well)
+        Station::handheld(a.to.well)
     } else {
-        Station::concentrator(a.well)
+        Station::concentrator(a.to.well)
     };
     let done = crate::host::block_on(async {
-        let mut t = open_line(&a.port, &a.line, None)?;
-        run::send_calibration(&mut t, station, &file, requester(&a.req))
+        let mut t = open_line(&a.to.port, &a.to.line, None)?;
+        let opts = a.modem.options(a.dial.as_deref().unwrap_or(""));
+        if a.dial.is_some() {
+            hart_wells::hayes::dial(&mut t, &opts)
+                .await
+                .map_err(|e| e.to_string())?;
+        }
+        let result = run::send_calibration(&mut t, station, &file, requester(&a.to.req))
             .await
-            .map_err(|e| e.to_string())
+            .map_err(|e| e.to_string());
+        if a.dial.is_some() {
+            if let Err(e) = hart_wells::hayes::hang_up(&mut t, &opts).await {
+                tracing::warn!("hanging up: {e}");
+            }
+        }
+        result
     })?;
     let names: Vec<&str> = done.iter().map(|s| s.name()).collect();
     Ok(if a.handheld {
         format!(
             "{} table(s) kept by the handheld for well {}'s next visit",
             names.join(" and "),
-            a.well
+            a.to.well
         )
     } else {
         format!(
             "{} table(s) in force at well {}",
             names.join(" and "),
-            a.well
+            a.to.well
         )
     })
 }

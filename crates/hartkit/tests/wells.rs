@@ -362,8 +362,9 @@ fn kill_9_loses_and_repeats_nothing() {
         assert!(Instant::now() < end, "the bus made no pseudo-terminals");
         std::thread::sleep(Duration::from_millis(20));
     }
-    // Ten virtual minutes a second.
-    let speed = "600";
+    // Two virtual minutes a second: the sensors' three minutes are 1.5 s, room for
+    // a restart on a busy machine.
+    let speed = "120";
     let _t = spawn_hartkit(&[
         "wells",
         "sensor",
@@ -430,7 +431,7 @@ fn kill_9_loses_and_repeats_nothing() {
             }
             let _ = conc.0.kill();
             let _ = conc.0.wait();
-            // Back at once (the sensors keep three minutes: 0.3 real seconds at this
+            // Back at once (the sensors keep three minutes: 1.5 real seconds at this
             // speed); the pull may go on with the new process.
             conc = spawn_hartkit(&conc_args);
             let _ = pull.0.wait();
@@ -451,7 +452,7 @@ fn kill_9_loses_and_repeats_nothing() {
     let a = Archive::open(&pc, Durability::Process).unwrap();
     let held = st.range(0, u32::MAX).unwrap();
     let at_pc = a.range(1, 0, u32::MAX).unwrap();
-    assert!(held.len() > 40, "only {} minutes stored", held.len());
+    assert!(held.len() > 8, "only {} minutes stored", held.len());
     assert_eq!(a.duplicated().unwrap(), 0);
     let handed = st.handed_over().unwrap();
     for r in held.iter().filter(|r| r.minute <= handed) {
