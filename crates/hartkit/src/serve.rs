@@ -2,7 +2,6 @@
 //! in real time. All devices share the line (multidrop): each hears the requests and
 //! the other devices' replies, as on a real loop.
 
-use std::ffi::CStr;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -97,31 +96,9 @@ fn configure(fd: i32, baud: Option<u32>) -> Result<(), String> {
 fn open(port: &Port) -> Result<(OwnedFd, Option<(String, OwnedFd)>), String> {
     match port {
         Port::Pty => {
-            let (mut master, mut slave) = (0, 0);
-            // SAFETY: openpty writes two descriptors; name, termios and winsize may be null.
-            if unsafe {
-                libc::openpty(
-                    &mut master,
-                    &mut slave,
-                    std::ptr::null_mut(),
-                    std::ptr::null(),
-                    std::ptr::null(),
-                )
-            } != 0
-            {
-                return Err(errno("openpty"));
-            }
-            let (master, slave) =
-                unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
+            let (master, slave, path) = crate::pty::open()?;
             configure(slave.as_raw_fd(), None)?;
             configure(master.as_raw_fd(), None)?;
-            let name = unsafe { libc::ttyname(slave.as_raw_fd()) };
-            if name.is_null() {
-                return Err(errno("ttyname"));
-            }
-            let path = unsafe { CStr::from_ptr(name) }
-                .to_string_lossy()
-                .into_owned();
             Ok((master, Some((path, slave))))
         }
         Port::Serial(path, baud) => {

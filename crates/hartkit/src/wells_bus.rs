@@ -4,8 +4,7 @@
 //! drop sends reaches the master end only, as on a four-wire bus where the slaves'
 //! transmit pair goes to the master's receiver.
 
-use std::ffi::CStr;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 
 /// One pseudo-terminal of the bus: our end, and the far end kept open so reads do not
@@ -16,27 +15,8 @@ struct Pty {
     link: PathBuf,
 }
 
-fn errno(what: &str) -> String {
-    format!("{what}: {}", std::io::Error::last_os_error())
-}
-
 fn open_pty(link: &Path) -> Result<Pty, String> {
-    let (mut ours, mut far) = (0, 0);
-    // SAFETY: openpty writes two descriptors; name, termios and winsize may be null.
-    if unsafe {
-        libc::openpty(
-            &mut ours,
-            &mut far,
-            std::ptr::null_mut(),
-            std::ptr::null(),
-            std::ptr::null(),
-        )
-    } != 0
-    {
-        return Err(errno("openpty"));
-    }
-    // SAFETY: both descriptors were just created and are owned here.
-    let (ours, far) = unsafe { (OwnedFd::from_raw_fd(ours), OwnedFd::from_raw_fd(far)) };
+    let (ours, far, path) = crate::pty::open()?;
     for fd in [ours.as_raw_fd(), far.as_raw_fd()] {
         // SAFETY: termios is plain data filled by tcgetattr.
         let mut t: libc::termios = unsafe { std::mem::zeroed() };
@@ -50,14 +30,6 @@ fn open_pty(link: &Path) -> Result<Pty, String> {
         let fl = libc::fcntl(ours.as_raw_fd(), libc::F_GETFL);
         libc::fcntl(ours.as_raw_fd(), libc::F_SETFL, fl | libc::O_NONBLOCK);
     }
-    // SAFETY: ttyname returns a pointer to a static buffer or null.
-    let name = unsafe { libc::ttyname(far.as_raw_fd()) };
-    if name.is_null() {
-        return Err(errno("ttyname"));
-    }
-    let path = unsafe { CStr::from_ptr(name) }
-        .to_string_lossy()
-        .into_owned();
     let _ = std::fs::remove_file(link);
     std::os::unix::fs::symlink(&path, link).map_err(|e| {
         format!(
