@@ -351,19 +351,7 @@ impl Archive {
 
     /// Keeps a station's status (command 14) as read at `at`.
     pub fn log_status(&self, well: u8, at: u32, s: &StationStatus) -> Result<(), StoreError> {
-        let sensors: Vec<String> = s
-            .sensors
-            .iter()
-            .map(|x| {
-                format!(
-                    "{{\"address\":{},\"kind\":\"{}\",\"state\":\"{}\",\"last_good\":{}}}",
-                    x.address,
-                    x.kind.name(),
-                    crate::proto::state_name(x.state),
-                    x.last_good
-                )
-            })
-            .collect();
+        let sensors: Vec<serde_json::Value> = s.sensors.iter().map(|x| x.to_json()).collect();
         self.conn
             .execute(
                 "INSERT INTO status VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
@@ -375,7 +363,7 @@ impl Archive {
                     s.unsent,
                     s.fill_permille,
                     s.dropped_unsent,
-                    format!("[{}]", sensors.join(","))
+                    serde_json::Value::from(sensors).to_string()
                 ],
             )
             .map(|_| ())

@@ -13,7 +13,6 @@ use crate::proto::{
     STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
     VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
 };
-use crate::sensor::body_celsius;
 use crate::store::{PollOutcome, Store, StoreError};
 use crate::Millis;
 
@@ -562,11 +561,6 @@ impl Concentrator {
                 }
             },
         }
-    }
-
-    /// Engineering value of a level sensor's own temperature counts.
-    pub fn body_temperature(raw: u32) -> f64 {
-        body_celsius(raw)
     }
 }
 

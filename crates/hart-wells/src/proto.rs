@@ -876,6 +876,18 @@ pub struct SensorStatus {
     pub last_good: u32,
 }
 
+impl SensorStatus {
+    /// As JSON, states in words (the PC's report and its status log).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "address": self.address,
+            "kind": self.kind.name(),
+            "state": state_name(self.state),
+            "last_good_minute": self.last_good,
+        })
+    }
+}
+
 /// Sensor state: it does not answer.
 pub const STATE_NOT_ANSWERING: u8 = 0x10;
 

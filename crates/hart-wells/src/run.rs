@@ -585,12 +585,7 @@ pub fn status_json(s: &StationStatus) -> serde_json::Value {
         "unsent": s.unsent,
         "store_fill": s.fill_permille as f64 / 1000.0,
         "dropped_unsent": s.dropped_unsent,
-        "sensors": s.sensors.iter().map(|x| serde_json::json!({
-            "address": x.address,
-            "kind": x.kind.name(),
-            "state": crate::proto::state_name(x.state),
-            "last_good_minute": x.last_good,
-        })).collect::<Vec<_>>(),
+        "sensors": s.sensors.iter().map(|x| x.to_json()).collect::<Vec<_>>(),
     })
 }
 

@@ -773,9 +773,6 @@ impl Sim {
                 };
                 match step {
                     Ok(Step::More) => {
-                        if reply_was_batch(&col) {
-                            self.report.batches += 1;
-                        }
                         self.hh_state = HhState::Collect {
                             wells,
                             index,
@@ -785,6 +782,7 @@ impl Sim {
                     }
                     Ok(Step::Done) | Err(_) => {
                         self.report.duplicated += col.duplicated as u64;
+                        self.report.batches += col.batches as u64;
                         self.hh_state = HhState::Collect {
                             wells,
                             index: index + 1,
@@ -923,10 +921,6 @@ impl Sim {
     }
 }
 
-fn reply_was_batch(col: &Collector) -> bool {
-    col.batches > 0
-}
-
 fn same(a: &crate::proto::Record, b: &crate::proto::Record) -> bool {
     let f = |x: f64, y: f64| (x.is_nan() && y.is_nan()) || x == y;
     a.minute == b.minute
@@ -942,11 +936,11 @@ fn open_conc(cfg: &SimConfig, w: &Well, now: Millis) -> Result<Concentrator, Sto
     let store = Store::open(
         &w.store_path,
         w.number,
-        cfg.capacity_days * DAY_MINUTES,
+        cfg.capacity_days.saturating_mul(DAY_MINUTES),
         Durability::Process,
     )?;
     let mut c = ConcentratorConfig::reference(w.number);
-    c.poll_interval = cfg.poll_interval_s.max(1) * 1000;
+    c.poll_interval = cfg.poll_interval_s.clamp(1, 180) * 1000;
     Concentrator::new(c, store, now)
 }
 

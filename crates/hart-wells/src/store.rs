@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use rusqlite::{params, Connection, OptionalExtension, Transaction};
 
 use crate::calibration::{Segment, Sensor, Table};
-use crate::proto::{Batch, Record, SensorStatus, StationStatus, BATCH_RECORDS, NO_VALUE};
+use crate::proto::{Batch, Record, SensorStatus, StationStatus, BATCH_RECORDS};
 
 /// How hard the store works to survive power loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -781,18 +781,10 @@ pub(crate) fn save_table(
     Ok(())
 }
 
-/// A record's raw counts, `NO_VALUE` where not valid (a helper for the roles).
-pub fn raw_or_none(valid: bool, v: u32) -> u32 {
-    if valid {
-        v
-    } else {
-        NO_VALUE
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::proto::NO_VALUE;
 
     fn rec(minute: u32, valid: u8) -> Record {
         Record {

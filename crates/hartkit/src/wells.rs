@@ -984,22 +984,9 @@ pub fn view(c: &Concentrator) -> String {
 
 /// A minute as `YYYY-MM-DD HH:MM` UTC.
 pub fn iso_minute(m: u32) -> String {
-    let days = (m / 1440) as i64;
-    let (y, mo, d) = civil_from_days(days);
-    format!("{y:04}-{mo:02}-{d:02} {:02}:{:02}", (m % 1440) / 60, m % 60)
-}
-
-/// The proleptic Gregorian date of a day count from 1970-01-01.
-fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    (yoe + era * 400 + (m <= 2) as i64, m, d)
+    // `YYYY-MM-DDTHH:MM:00Z`, always ASCII of that shape.
+    let s = hart_wells::export::iso8601(m);
+    format!("{} {}", &s[..10], &s[11..16])
 }
 
 #[cfg(test)]

@@ -14,17 +14,13 @@ use hart_wells::export::{self, open_archive, parse_from, parse_to, read_wells};
 /// The averaging periods `--every` takes.
 const PERIODS: [&str; 6] = ["minute", "hour", "day", "5d", "10d", "month"];
 
-/// `wells pc export`.
+/// Which data: the archive, the period, the averaging, the wells.
 #[derive(Args, Debug, Clone)]
-pub struct ExportArgs {
+pub struct Selection {
     /// The PC's archive (SQLite) that `wells pc pull --db` keeps (DIR/pc.db after
     /// `wells sim --dir DIR`). It must exist.
     #[arg(long, value_name = "FILE")]
     pub db: PathBuf,
-    /// csv: a row per well and period; geojson: a point per well and period, at the
-    /// well's place from --wells (a layer for QGIS or another GIS).
-    #[arg(long, default_value = "csv", value_parser = ["csv", "geojson"])]
-    pub format: String,
     /// Start, UTC: 2026-03-01, 2026-03-01T12:00 or 2026-03-01T12:00:00Z [default:
     /// the first stored minute].
     #[arg(long, value_name = "DATE")]
@@ -38,6 +34,20 @@ pub struct ExportArgs {
     /// month; UTC.
     #[arg(long, default_value = "hour", value_parser = PERIODS)]
     pub every: String,
+    /// Only this well, 1-15; repeat for more [default: every well in the archive].
+    #[arg(long = "well", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=15))]
+    pub well: Vec<u8>,
+}
+
+/// `wells pc export`.
+#[derive(Args, Debug, Clone)]
+pub struct ExportArgs {
+    #[command(flatten)]
+    pub sel: Selection,
+    /// csv: a row per well and period; geojson: a point per well and period, at the
+    /// well's place from --wells (a layer for QGIS or another GIS).
+    #[arg(long, default_value = "csv", value_parser = ["csv", "geojson"])]
+    pub format: String,
     /// The wells file: CSV `well,name,latitude,longitude,elevation_m` (decimal
     /// degrees, WGS 84). Needed for geojson.
     #[arg(long, value_name = "FILE")]
@@ -45,34 +55,16 @@ pub struct ExportArgs {
     /// Write to FILE [default: standard output].
     #[arg(long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// Only this well, 1-15; repeat for more [default: every well in the archive].
-    #[arg(long = "well", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: Vec<u8>,
 }
 
 /// `wells pc plot`.
 #[derive(Args, Debug, Clone)]
 pub struct PlotArgs {
-    /// The PC's archive (SQLite) that `wells pc pull --db` keeps. It must exist.
-    #[arg(long, value_name = "FILE")]
-    pub db: PathBuf,
+    #[command(flatten)]
+    pub sel: Selection,
     /// The picture to write (PNG).
     #[arg(long, value_name = "FILE")]
     pub png: PathBuf,
-    /// Start, UTC: 2026-03-01, 2026-03-01T12:00 or 2026-03-01T12:00:00Z [default:
-    /// the first stored minute].
-    #[arg(long, value_name = "DATE")]
-    pub from: Option<String>,
-    /// End, UTC, not included; a date alone means the end of that day [default: the
-    /// last stored minute].
-    #[arg(long, value_name = "DATE")]
-    pub to: Option<String>,
-    /// Average over: minute, hour, day, 5d (pentads), 10d (dekads) or month; UTC.
-    #[arg(long, default_value = "hour", value_parser = PERIODS)]
-    pub every: String,
-    /// Only this well, 1-15; repeat for more [default: every well in the archive].
-    #[arg(long = "well", value_name = "N", value_parser = clap::value_parser!(u8).range(1..=15))]
-    pub well: Vec<u8>,
     /// Size of the picture, pixels: WIDTHxHEIGHT, each 300-8000.
     #[arg(long, default_value = "1400x900", value_name = "WxH", value_parser = parse_size)]
     pub size: (u32, u32),
@@ -184,8 +176,8 @@ fn write_out<T>(
 /// Returns a one-line summary of what was written, meant for standard error (the
 /// data itself may be on standard output).
 pub fn export(a: &ExportArgs) -> Result<String, String> {
-    let every = Every::parse(&a.every)?;
-    let (from, to) = range(a.from.as_deref(), a.to.as_deref())?;
+    let every = Every::parse(&a.sel.every)?;
+    let (from, to) = range(a.sel.from.as_deref(), a.sel.to.as_deref())?;
     if a.format == "geojson" && a.wells.is_none() {
         return Err(
             "--format geojson needs --wells FILE: each well's place, CSV with the \
@@ -193,12 +185,12 @@ pub fn export(a: &ExportArgs) -> Result<String, String> {
                 .into(),
         );
     }
-    let archive = open_archive(&a.db)?;
+    let archive = open_archive(&a.sel.db)?;
     let dest = a
         .output
         .as_ref()
         .map_or("standard output".to_string(), |p| p.display().to_string());
-    let scope = what(&a.well, from, to);
+    let scope = what(&a.sel.well, from, to);
     if a.format == "geojson" {
         let wells_path = a.wells.as_ref().expect("checked above");
         let text = std::fs::read_to_string(wells_path).map_err(|e| {
@@ -208,7 +200,7 @@ pub fn export(a: &ExportArgs) -> Result<String, String> {
             )
         })?;
         let places = read_wells(&text).map_err(|e| format!("{}: {e}", wells_path.display()))?;
-        let fc = export::geojson_wells(&archive, &places, &a.well, from, to, every)
+        let fc = export::geojson_wells(&archive, &places, &a.sel.well, from, to, every)
             .map_err(|e| e.to_string())?;
         let n = fc["features"].as_array().map_or(0, Vec::len);
         write_out(a.output.as_deref(), |w| export::write_geojson(&fc, w))?;
@@ -218,7 +210,7 @@ pub fn export(a: &ExportArgs) -> Result<String, String> {
         ))
     } else {
         let n = write_out(a.output.as_deref(), |w| {
-            export::csv(&archive, &a.well, from, to, every, w)
+            export::csv(&archive, &a.sel.well, from, to, every, w)
         })?;
         Ok(format!(
             "{n} rows of {} ({scope}) as CSV to {dest}",
@@ -229,15 +221,15 @@ pub fn export(a: &ExportArgs) -> Result<String, String> {
 
 /// `wells pc plot`: draws the trends to --png. Returns a one-line summary.
 pub fn plot(a: &PlotArgs) -> Result<String, String> {
-    let every = Every::parse(&a.every)?;
-    let (from, to) = range(a.from.as_deref(), a.to.as_deref())?;
-    let archive = open_archive(&a.db)?;
-    export::plot_png(&archive, &a.well, from, to, every, &a.png, a.size)
+    let every = Every::parse(&a.sel.every)?;
+    let (from, to) = range(a.sel.from.as_deref(), a.sel.to.as_deref())?;
+    let archive = open_archive(&a.sel.db)?;
+    export::plot_png(&archive, &a.sel.well, from, to, every, &a.png, a.size)
         .map_err(|e| e.to_string())?;
     Ok(format!(
         "drew {} ({}) in {} ({}x{} pixels)",
         every.describe(),
-        what(&a.well, from, to),
+        what(&a.sel.well, from, to),
         a.png.display(),
         a.size.0,
         a.size.1

@@ -53,13 +53,13 @@ fn out_dir() -> tempfile::TempDir {
 #[test]
 fn defaults() {
     let a = export_args(&["--db", "x.db"]);
-    assert_eq!((a.format.as_str(), a.every.as_str()), ("csv", "hour"));
-    assert!(a.well.is_empty() && a.output.is_none() && a.wells.is_none());
+    assert_eq!((a.format.as_str(), a.sel.every.as_str()), ("csv", "hour"));
+    assert!(a.sel.well.is_empty() && a.output.is_none() && a.wells.is_none());
     let p = Plot::try_parse_from(["plot", "--db", "x.db", "--png", "p.png", "--well", "2"])
         .unwrap()
         .a;
     assert_eq!(p.size, (1400, 900));
-    assert_eq!(p.well, vec![2]);
+    assert_eq!(p.sel.well, vec![2]);
     assert!(Export::try_parse_from(["export", "--db", "x", "--every", "week"]).is_err());
     assert!(Export::try_parse_from(["export", "--db", "x", "--well", "16"]).is_err());
     assert_eq!(parse_size("800x600"), Ok((800, 600)));
