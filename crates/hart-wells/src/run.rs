@@ -697,6 +697,17 @@ pub async fn pull_route<T: Transport>(
     }
 }
 
+/// Time from `now_s` (Unix seconds) to the next of `times` (seconds of the UTC day).
+pub fn until_next(times: &[u32], now_s: u64) -> Duration {
+    let sod = (now_s % 86_400) as u32;
+    let next = times
+        .iter()
+        .map(|&t| if t > sod { t - sod } else { t + 86_400 - sod })
+        .min()
+        .unwrap_or(86_400);
+    Duration::from_secs(next as u64)
+}
+
 /// What a scheduled round does.
 #[derive(Debug, Clone)]
 pub struct RoundPlan {

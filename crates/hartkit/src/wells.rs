@@ -354,17 +354,6 @@ pub fn parse_time_of_day(s: &str) -> Result<u32, String> {
     }
 }
 
-/// Time from `now_s` (Unix seconds) to the next of `times` (seconds of the UTC day).
-pub fn until_next(times: &[u32], now_s: u64) -> Duration {
-    let sod = (now_s % 86_400) as u32;
-    let next = times
-        .iter()
-        .map(|&t| if t > sod { t - sod } else { t + 86_400 - sod })
-        .min()
-        .unwrap_or(86_400);
-    Duration::from_secs(next as u64)
-}
-
 /// Parses `W` or `W=NUMBER`.
 pub fn parse_route(s: &str) -> Result<run::Route, String> {
     let (w, n) = match s.split_once('=') {
@@ -573,7 +562,7 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
         let mut t = open_line(&a.port, &a.line, None)?;
         let mut n = 0u32;
         if !a.at.is_empty() {
-            let wait = until_next(&a.at, unix_now());
+            let wait = run::until_next(&a.at, unix_now());
             tracing::info!("first round in {wait:?}");
             tokio::time::sleep(wait).await;
         }
@@ -600,7 +589,7 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
             if a.at.is_empty() {
                 tokio::time::sleep(a.every.saturating_sub(started.elapsed())).await;
             } else {
-                tokio::time::sleep(until_next(&a.at, unix_now())).await;
+                tokio::time::sleep(run::until_next(&a.at, unix_now())).await;
             }
         }
     })?;
@@ -1007,13 +996,16 @@ mod tests {
         // At 05:00 the next of 06:00 and 18:00 is in an hour; at 19:00, 06:00 tomorrow.
         let day = 1_772_323_200;
         let t = [6 * 3600, 18 * 3600];
-        assert_eq!(until_next(&t, day + 5 * 3600), Duration::from_secs(3600));
         assert_eq!(
-            until_next(&t, day + 19 * 3600),
+            run::until_next(&t, day + 5 * 3600),
+            Duration::from_secs(3600)
+        );
+        assert_eq!(
+            run::until_next(&t, day + 19 * 3600),
             Duration::from_secs(11 * 3600)
         );
         assert_eq!(
-            until_next(&t, day + 6 * 3600),
+            run::until_next(&t, day + 6 * 3600),
             Duration::from_secs(12 * 3600)
         );
     }
