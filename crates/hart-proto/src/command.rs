@@ -15,7 +15,8 @@ use core::fmt;
 
 use crate::types::*;
 use crate::wire::{
-    DecodeError, EncodeError, Field, List, Meaning, Reader, Value, Visitor, Wire, Writer,
+    BuildError, DecodeError, EncodeError, Field, List, Meaning, Reader, Source, Value, Visitor,
+    Wire, Writer,
 };
 use crate::wire_struct;
 
@@ -62,11 +63,31 @@ wire_struct! {
         pub device_profile: Option<DeviceProfile>,
     }
     describe_extra = identity_legacy_fields;
+    build_with = identity_build;
+}
+
+/// A HART 5 identity's description names bytes 1 and 2 `manufacturer_id` and
+/// `device_type` (see [`identity_legacy_fields`]); when building one from those fields,
+/// they are set aside, since `expanded_device_type` carries the same bytes and the
+/// HART 7 `manufacturer_id` cannot follow a 12-byte reply.
+fn identity_build(src: &mut dyn Source) -> Result<Identity, BuildError> {
+    // `device_type` is no field of the layout: given, it is the legacy reading.
+    let hart5 = matches!(src.value("universal_revision")?, Some(Value::Uint(r)) if r <= 5)
+        && src.value("device_type")?.is_some();
+    if hart5 {
+        Identity::build_fields(&mut crate::wire::Hiding {
+            inner: src,
+            hidden: &["manufacturer_id", "device_type"],
+        })
+    } else {
+        Identity::build_fields(src)
+    }
 }
 
 /// HART 5 and older name bytes 1 and 2 manufacturer ID and device type.
+/// Not when the reply carries HART 7's own `manufacturer_id`, which it would hide.
 fn identity_legacy_fields(id: &Identity, offset: usize, v: &mut dyn Visitor) {
-    if id.universal_revision <= 5 {
+    if id.universal_revision <= 5 && id.manufacturer_id.is_none() {
         let [mfr, dt] = id.expanded_device_type.to_be_bytes();
         v.field(Field {
             name: "manufacturer_id",
@@ -233,6 +254,12 @@ impl Wire for SlotsWithTimestamp {
         self.slots.describe("slots", offset, v);
         self.timestamp
             .describe("timestamp", offset + self.slots.encoded_len(), v);
+    }
+    fn build(_name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        Ok(SlotsWithTimestamp {
+            slots: List::build("slots", src)?,
+            timestamp: Option::build("timestamp", src)?,
+        })
     }
 }
 
@@ -447,6 +474,13 @@ impl Wire for AdditionalStatus {
                 meaning,
             });
         }
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let b = Bytes::build(name, src)?;
+        if b.as_slice().is_empty() {
+            return Err(BuildError::Missing { field: name });
+        }
+        Ok(AdditionalStatus(b))
     }
 }
 
@@ -869,6 +903,12 @@ impl Wire for BurstVariables {
         self.burst_message
             .describe("burst_message", offset + self.slots.encoded_len(), v);
     }
+    fn build(_name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        Ok(BurstVariables {
+            slots: List::build("slots", src)?,
+            burst_message: Option::build("burst_message", src)?,
+        })
+    }
 }
 
 /// Command 108 request and reply: the command a burst message publishes. HART 7 sends
@@ -929,6 +969,12 @@ impl Wire for BurstCommand {
         self.burst_message
             .describe("burst_message", offset + len, v);
     }
+    fn build(_name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        Ok(BurstCommand {
+            command_number: u16::build("command_number", src)?,
+            burst_message: Option::build("burst_message", src)?,
+        })
+    }
 }
 
 wire_struct! {
@@ -980,6 +1026,23 @@ pub fn info(command: u16) -> Option<&'static CommandInfo> {
     COMMANDS.iter().find(|c| c.number == command)
 }
 
+/// A built value that does not encode (a layout's own rule, e.g. command 107's two
+/// forms) is refused with the encoder's reason.
+fn checked<T: Wire>(v: T) -> Result<T, BuildError> {
+    let mut buf = [0u8; 255];
+    match v.encode(&mut Writer::new(&mut buf)) {
+        Ok(()) => Ok(v),
+        Err(EncodeError::Invalid(reason)) => Err(BuildError::Invalid {
+            field: "data",
+            reason,
+        }),
+        Err(EncodeError::BufferTooSmall { .. }) => Err(BuildError::Invalid {
+            field: "data",
+            reason: "more than the 255 bytes a frame's data can hold",
+        }),
+    }
+}
+
 macro_rules! commands {
     ( $( $num:literal $variant:ident $kind:ident $rw:ident $title:literal : $req:ty => $resp:ty ; )* ) => {
         /// A typed request (the data of an STX frame).
@@ -1020,6 +1083,25 @@ macro_rules! commands {
         pub fn decode_response(command: u16, data: &[u8]) -> Option<Result<Response, DecodeError>> {
             match command {
                 $( $num => Some(<$resp as Wire>::decode(&mut Reader::new(data)).map(Response::$variant)), )*
+                _ => None,
+            }
+        }
+
+        /// Builds the request of `command` from named fields (the names its JSON and
+        /// annotated views use); `None` for a command the table does not type. The
+        /// request is checked to encode, so a value that is `Ok` can be sent.
+        pub fn build_request(command: u16, src: &mut dyn Source) -> Option<Result<Request, BuildError>> {
+            match command {
+                $( $num => Some(<$req as Wire>::build("request", src).and_then(checked).map(Request::$variant)), )*
+                _ => None,
+            }
+        }
+
+        /// Builds the reply data of `command` (after the status bytes) from named
+        /// fields; `None` for a command the table does not type.
+        pub fn build_response(command: u16, src: &mut dyn Source) -> Option<Result<Response, BuildError>> {
+            match command {
+                $( $num => Some(<$resp as Wire>::build("response", src).and_then(checked).map(Response::$variant)), )*
                 _ => None,
             }
         }

@@ -51,7 +51,9 @@ pub mod tables;
 pub mod types;
 pub mod wire;
 
-pub use command::{decode_request, decode_response, CommandInfo, Request, Response};
+pub use command::{
+    build_request, build_response, decode_request, decode_response, CommandInfo, Request, Response,
+};
 pub use deframer::{Deframer, DeframerEvent, UartFlags};
 pub use frame::{
     Address, Frame, FrameError, FrameSpec, FrameType, LongAddress, MasterKind, ShortAddress,

@@ -7,7 +7,10 @@
 use core::fmt;
 
 use crate::tables;
-use crate::wire::{DecodeError, EncodeError, Field, Meaning, Reader, Value, Visitor, Wire, Writer};
+use crate::wire::{
+    required, BuildError, DecodeError, EncodeError, Field, FromValue, Meaning, Reader, Source,
+    Value, Visitor, Wire, Writer,
+};
 
 /// The bit pattern HART uses for "not a number" (0x7FA00000), sent for values a device
 /// does not have (e.g. unused dynamic variables).
@@ -111,6 +114,21 @@ macro_rules! text_wire {
                         meaning: Meaning::Plain,
                     })
                 });
+            }
+            fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+                match required(src, name)? {
+                    Value::Str(text) => $name::new(text).map_err(|e| BuildError::Invalid {
+                        field: name,
+                        reason: match e {
+                            EncodeError::Invalid(why) => why,
+                            EncodeError::BufferTooSmall { .. } => "text too long",
+                        },
+                    }),
+                    _ => Err(BuildError::WrongKind {
+                        field: name,
+                        expected: "text",
+                    }),
+                }
             }
         }
     };
@@ -255,6 +273,23 @@ impl Date {
         }
     }
 
+    /// Reads `YYYY-MM-DD` as [`Date`]'s `Display` writes it. Day and month are kept as
+    /// written (0 included, as devices that never had a date set report), so every
+    /// displayed date reads back; the year must be 1900..=2155.
+    pub fn parse(text: &str) -> Option<Self> {
+        let mut parts = text.trim().split('-');
+        let (y, m, d) = (parts.next()?, parts.next()?, parts.next()?);
+        if parts.next().is_some() || y.len() != 4 {
+            return None;
+        }
+        let year: u16 = y.parse().ok()?;
+        Some(Date {
+            day: d.parse().ok()?,
+            month: m.parse().ok()?,
+            year_since_1900: u8::try_from(year.checked_sub(1900)?).ok()?,
+        })
+    }
+
     /// The calendar year.
     pub fn year(&self) -> u16 {
         1900 + u16::from(self.year_since_1900)
@@ -307,6 +342,19 @@ impl Wire for Date {
             value: Value::Date(*self),
             meaning: Meaning::Plain,
         });
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        match required(src, name)? {
+            Value::Date(d) => Ok(d),
+            Value::Str(text) => Date::parse(text).ok_or(BuildError::Invalid {
+                field: name,
+                reason: "a date is written YYYY-MM-DD, year 1900 to 2155",
+            }),
+            _ => Err(BuildError::WrongKind {
+                field: name,
+                expected: "a date (\"YYYY-MM-DD\")",
+            }),
+        }
     }
 }
 
@@ -414,6 +462,13 @@ impl Wire for U24 {
             meaning: Meaning::Plain,
         });
     }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let n = u32::from_value(required(src, name)?, name)?;
+        U24::new(n).map_err(|_| BuildError::Invalid {
+            field: name,
+            reason: "out of range: the field is three bytes (0 to 16777215)",
+        })
+    }
 }
 
 /// A 24-bit device ID, shown as 6 hex digits.
@@ -458,6 +513,23 @@ impl Wire for DeviceId {
             value: Value::Hex(&self.0),
             meaning: Meaning::Plain,
         });
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let bad = BuildError::Invalid {
+            field: name,
+            reason: "a device ID is three bytes: six hex digits or a number below 2^24",
+        };
+        match required(src, name)? {
+            Value::Hex(b) => Ok(DeviceId(b.try_into().map_err(|_| bad)?)),
+            Value::Str(text) => {
+                let mut id = [0u8; 3];
+                crate::wire::hex_into(text, &mut id)
+                    .filter(|&n| n == 3)
+                    .ok_or(bad)?;
+                Ok(DeviceId(id))
+            }
+            v => DeviceId::new(u32::from_value(v, name)?).map_err(|_| bad),
+        }
     }
 }
 
@@ -529,6 +601,29 @@ impl<const N: usize> Wire for Bytes<N> {
             value: Value::Hex(self.as_slice()),
             meaning: Meaning::Plain,
         });
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let too_long = BuildError::Invalid {
+            field: name,
+            reason: "too many bytes for this field",
+        };
+        match src.value(name)? {
+            None => Ok(Self::default()),
+            Some(Value::Hex(b)) => Bytes::new(b).map_err(|_| too_long),
+            Some(Value::Str(text)) => {
+                let mut s = Self::default();
+                s.len = crate::wire::hex_into(text, &mut s.buf).ok_or(BuildError::Invalid {
+                    field: name,
+                    reason:
+                        "raw bytes are written as hex digits, two per byte, and must fit the field",
+                })?;
+                Ok(s)
+            }
+            Some(_) => Err(BuildError::WrongKind {
+                field: name,
+                expected: "hex digits",
+            }),
+        }
     }
 }
 
@@ -740,6 +835,21 @@ impl Wire for HardwareRevision {
             value: Value::Uint(self.physical_signaling().into()),
             meaning: Meaning::Code(&tables::PHYSICAL_SIGNALING),
         });
+    }
+    fn build(_name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let rev = u8::from_value(required(src, "hardware_revision")?, "hardware_revision")?;
+        let sig = u8::from_value(required(src, "physical_signaling")?, "physical_signaling")?;
+        if rev > 31 || sig > 7 {
+            return Err(BuildError::Invalid {
+                field: if rev > 31 {
+                    "hardware_revision"
+                } else {
+                    "physical_signaling"
+                },
+                reason: "the hardware revision is 0 to 31 and the signaling code 0 to 7 (one byte, 5 + 3 bits)",
+            });
+        }
+        Ok(HardwareRevision::new(rev, sig))
     }
 }
 

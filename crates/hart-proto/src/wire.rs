@@ -1,7 +1,9 @@
 //! The field layer shared by every command layout: a bounds-checked [`Reader`] and
 //! [`Writer`], the [`Wire`] trait each field type implements, and the [`Visitor`]
 //! through which a decoded value describes itself field by field (used for the
-//! annotated frame view and for JSON, so both always agree with the codec).
+//! annotated frame view and for JSON, so both always agree with the codec). The
+//! reverse walk, [`Source`], builds a value from named fields (a request typed as JSON
+//! or as a Python dict) through the same field list.
 
 use core::fmt;
 
@@ -263,6 +265,218 @@ pub trait Wire: Sized {
     fn encoded_len(&self) -> usize;
     /// Reports the value to `v` as field `name` starting at `offset`.
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor);
+    /// Builds the value from field `name` of `src`: the reverse of
+    /// [`Wire::describe`], with the same names.
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError>;
+}
+
+/// Why a value could not be built from named fields (see [`Source`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BuildError {
+    /// A field the layout needs was not given.
+    Missing {
+        /// The field.
+        field: &'static str,
+    },
+    /// A field was given a value of the wrong kind (text for a number, say).
+    WrongKind {
+        /// The field.
+        field: &'static str,
+        /// What the field takes.
+        expected: &'static str,
+    },
+    /// A value does not fit its field.
+    Invalid {
+        /// The field.
+        field: &'static str,
+        /// Why.
+        reason: &'static str,
+    },
+    /// An optional trailing field was given after one that was left out: HART's
+    /// optional fields extend a layout at its end, so the later one has no place.
+    Gap {
+        /// The field left out.
+        missing: &'static str,
+        /// The later field that was given.
+        given: &'static str,
+    },
+}
+
+impl fmt::Display for BuildError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BuildError::Missing { field } => write!(f, "field {field} is missing"),
+            BuildError::WrongKind { field, expected } => {
+                write!(f, "field {field} takes {expected}")
+            }
+            BuildError::Invalid { field, reason } => write!(f, "field {field}: {reason}"),
+            BuildError::Gap { missing, given } => write!(
+                f,
+                "field {given} was given but {missing} was not; optional fields end the \
+                 data, so give {missing} too or leave out {given}"
+            ),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for BuildError {}
+
+/// Supplies named field values to [`Wire::build`]: the reverse of a [`Visitor`], with
+/// the same names, the same flattening of nested layouts and the same lists.
+///
+/// Scalars come as [`Value`]s; a field type takes the kinds that make sense for it
+/// (a float takes [`Value::Uint`] too, a unit code its symbol as [`Value::Str`], a
+/// date `"YYYY-MM-DD"`, raw bytes a hex string).
+pub trait Source {
+    /// The value of scalar field `name`; `Ok(None)` when it was not given.
+    fn value(&mut self, name: &'static str) -> Result<Option<Value<'_>>, BuildError>;
+    /// Enters list `name`; returns its number of items, `Ok(None)` when not given.
+    fn begin_list(&mut self, name: &'static str) -> Result<Option<usize>, BuildError>;
+    /// Enters item `index` of the current list. A list of scalars names each item
+    /// `item`, as [`Visitor`] does.
+    fn begin_item(&mut self, index: usize) -> Result<(), BuildError>;
+    /// Leaves the current item.
+    fn end_item(&mut self);
+    /// Leaves the current list.
+    fn end_list(&mut self);
+}
+
+/// Hex digits (spaces, `:` and `-` between bytes allowed) into `out`; the number of
+/// bytes, or `None` when the text is not hex or does not fit.
+pub fn hex_into(text: &str, out: &mut [u8]) -> Option<usize> {
+    let mut n = 0;
+    let mut high: Option<u8> = None;
+    for c in text.chars() {
+        if matches!(c, ' ' | ':' | '-') && high.is_none() {
+            continue;
+        }
+        let d = c.to_digit(16)? as u8;
+        match high.take() {
+            None => high = Some(d),
+            Some(h) => {
+                *out.get_mut(n)? = h << 4 | d;
+                n += 1;
+            }
+        }
+    }
+    high.is_none().then_some(n)
+}
+
+/// A [`Source`] that hides some fields of another: for a layout whose description adds
+/// derived fields under names that are also real fields of a longer form (the HART 5
+/// reading of command 0's `manufacturer_id`).
+pub struct Hiding<'s> {
+    /// The source read through.
+    pub inner: &'s mut dyn Source,
+    /// Fields reported as not given.
+    pub hidden: &'static [&'static str],
+}
+
+impl Source for Hiding<'_> {
+    fn value(&mut self, name: &'static str) -> Result<Option<Value<'_>>, BuildError> {
+        if self.hidden.contains(&name) {
+            return Ok(None);
+        }
+        self.inner.value(name)
+    }
+    fn begin_list(&mut self, name: &'static str) -> Result<Option<usize>, BuildError> {
+        self.inner.begin_list(name)
+    }
+    fn begin_item(&mut self, index: usize) -> Result<(), BuildError> {
+        self.inner.begin_item(index)
+    }
+    fn end_item(&mut self) {
+        self.inner.end_item()
+    }
+    fn end_list(&mut self) {
+        self.inner.end_list()
+    }
+}
+
+/// The value of a required scalar field.
+pub fn required<'s>(src: &'s mut dyn Source, name: &'static str) -> Result<Value<'s>, BuildError> {
+    src.value(name)?.ok_or(BuildError::Missing { field: name })
+}
+
+/// Converts a [`Value`] to a field's Rust type (numbers range-checked).
+pub trait FromValue: Sized {
+    /// `v` as `Self`, or why not, naming `field`.
+    fn from_value(v: Value<'_>, field: &'static str) -> Result<Self, BuildError>;
+}
+
+fn uint_of(v: Value<'_>, field: &'static str, max: u32) -> Result<u32, BuildError> {
+    let n = match v {
+        Value::Uint(n) => n,
+        // A whole float (a JSON 5.0) is taken; `as` saturates, so compare back.
+        Value::Float(x) if (0.0..4_294_967_296.0).contains(&x) && (x as u32) as f32 == x => {
+            x as u32
+        }
+        Value::Bool(b) => b.into(),
+        _ => {
+            return Err(BuildError::WrongKind {
+                field,
+                expected: "a whole number",
+            })
+        }
+    };
+    if n > max {
+        return Err(BuildError::Invalid {
+            field,
+            reason: match max {
+                0xFF => "out of range: the field is one byte (0 to 255)",
+                0xFFFF => "out of range: the field is two bytes (0 to 65535)",
+                0xFF_FFFF => "out of range: the field is three bytes (0 to 16777215)",
+                _ => "out of range",
+            },
+        });
+    }
+    Ok(n)
+}
+
+impl FromValue for u8 {
+    fn from_value(v: Value<'_>, field: &'static str) -> Result<Self, BuildError> {
+        uint_of(v, field, 0xFF).map(|n| n as u8)
+    }
+}
+impl FromValue for u16 {
+    fn from_value(v: Value<'_>, field: &'static str) -> Result<Self, BuildError> {
+        uint_of(v, field, 0xFFFF).map(|n| n as u16)
+    }
+}
+impl FromValue for u32 {
+    fn from_value(v: Value<'_>, field: &'static str) -> Result<Self, BuildError> {
+        uint_of(v, field, u32::MAX)
+    }
+}
+impl FromValue for f32 {
+    fn from_value(v: Value<'_>, field: &'static str) -> Result<Self, BuildError> {
+        match v {
+            Value::Float(x) => Ok(x),
+            Value::Uint(n) => Ok(n as f32),
+            _ => Err(BuildError::WrongKind {
+                field,
+                expected: "a number",
+            }),
+        }
+    }
+}
+
+/// A code field given by its meaning: a unit's symbol or name, or the name of a code in
+/// the field's table; `None` when `meaning` has no names or none matches.
+pub fn code_by_name(meaning: Meaning, text: &str) -> Option<u8> {
+    match meaning {
+        Meaning::Unit => crate::tables::UNITS
+            .iter()
+            .find(|u| u.symbol == text || u.name.eq_ignore_ascii_case(text))
+            .map(|u| u.code),
+        Meaning::Code(t) => t
+            .entries
+            .iter()
+            .find(|e| e.name.eq_ignore_ascii_case(text))
+            .map(|e| e.code),
+        _ => None,
+    }
 }
 
 /// Implements [`Wire`] for a big-endian number type.
@@ -279,6 +493,9 @@ macro_rules! number_wire {
             }
             fn encoded_len(&self) -> usize {
                 $len
+            }
+            fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+                <$t as FromValue>::from_value(required(src, name)?, name)
             }
             fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
                 let value: fn($t) -> Value<'static> = $value;
@@ -320,6 +537,32 @@ macro_rules! newtype_wire {
             }
             fn encoded_len(&self) -> usize {
                 $len
+            }
+            fn build(
+                name: &'static str,
+                src: &mut dyn $crate::wire::Source,
+            ) -> Result<Self, $crate::wire::BuildError> {
+                let v = $crate::wire::required(src, name)?;
+                // A code may be given by its name or symbol (units: "kPa").
+                if let $crate::wire::Value::Str(text) = v {
+                    if let Some(code) = $crate::wire::code_by_name($meaning, text) {
+                        return <$inner as $crate::wire::FromValue>::from_value(
+                            $crate::wire::Value::Uint(code.into()),
+                            name,
+                        )
+                        .map($name);
+                    }
+                    if matches!(
+                        $meaning,
+                        $crate::wire::Meaning::Unit | $crate::wire::Meaning::Code(_)
+                    ) {
+                        return Err($crate::wire::BuildError::Invalid {
+                            field: name,
+                            reason: "no code of this field's table has that name",
+                        });
+                    }
+                }
+                <$inner as $crate::wire::FromValue>::from_value(v, name).map($name)
             }
             fn describe(
                 &self,
@@ -372,6 +615,15 @@ impl<T: Wire> Wire for Option<T> {
     fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
         if let Some(x) = self {
             x.describe(name, offset, v);
+        }
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        match T::build(name, src) {
+            Ok(x) => Ok(Some(x)),
+            // Absent only when the field itself was left out: a missing part of a
+            // larger optional value is still an error.
+            Err(BuildError::Missing { field }) if field == name => Ok(None),
+            Err(e) => Err(e),
         }
     }
 }
@@ -479,12 +731,44 @@ impl<T: Copy + Default + Wire, const N: usize, const MIN: usize> Wire for List<T
         }
         v.end_list();
     }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let Some(n) = src.begin_list(name)? else {
+            return if MIN == 0 {
+                Ok(Self::default())
+            } else {
+                Err(BuildError::Missing { field: name })
+            };
+        };
+        if n > N {
+            return Err(BuildError::Invalid {
+                field: name,
+                reason: "too many items for this command",
+            });
+        }
+        if n < MIN {
+            return Err(BuildError::Invalid {
+                field: name,
+                reason: "too few items for this command",
+            });
+        }
+        let mut l = Self::default();
+        for i in 0..n {
+            src.begin_item(i)?;
+            l.items[i] = T::build("item", src)?;
+            src.end_item();
+        }
+        l.len = n;
+        src.end_list();
+        Ok(l)
+    }
 }
 
 /// Defines a struct whose fields are laid out on the wire in declaration order and
 /// derives [`Wire`] for it: decoding, encoding, its length and its description all
 /// come from the single field list. An optional `describe_extra` function adds
-/// derived fields to the description (e.g. the HART 5 reading of command 0).
+/// derived fields to the description (e.g. the HART 5 reading of command 0); an
+/// optional `build_with` function builds the value from named fields in its place
+/// (to set such derived fields aside), usually by calling `build_fields`.
 #[macro_export]
 macro_rules! wire_struct {
     (
@@ -493,6 +777,7 @@ macro_rules! wire_struct {
             $( $(#[$fmeta:meta])* pub $field:ident : $ty:ty ),* $(,)?
         }
         $(describe_extra = $extra:path;)?
+        $(build_with = $hook:path;)?
     ) => {
         $(#[$meta])*
         #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -503,9 +788,25 @@ macro_rules! wire_struct {
         impl $crate::wire::Wire for $name {
             const MIN_LEN: usize = 0 $( + <$ty as $crate::wire::Wire>::MIN_LEN )*;
             const MAX_LEN: usize = 0 $( + <$ty as $crate::wire::Wire>::MAX_LEN )*;
-            #[allow(unused_variables)]
+            #[allow(unused_variables, unused_mut, unused_assignments)]
             fn decode(r: &mut $crate::wire::Reader<'_>) -> Result<Self, $crate::wire::DecodeError> {
-                Ok($name { $( $field: <$ty as $crate::wire::Wire>::decode(r)?, )* })
+                // Optional fields end a layout: once one is absent, so are the ones after
+                // it, and the bytes left over are surplus (a 13-byte command 105 reply
+                // has no trigger mode in its last byte).
+                let mut ended = false;
+                $(
+                    let $field = if ended {
+                        <$ty as $crate::wire::Wire>::decode(&mut $crate::wire::Reader::new(&[]))?
+                    } else {
+                        <$ty as $crate::wire::Wire>::decode(r)?
+                    };
+                    if <$ty as $crate::wire::Wire>::MIN_LEN == 0
+                        && $crate::wire::Wire::encoded_len(&$field) == 0
+                    {
+                        ended = true;
+                    }
+                )*
+                Ok($name { $( $field, )* })
             }
             #[allow(unused_variables)]
             fn encode(&self, w: &mut $crate::wire::Writer<'_>) -> Result<(), $crate::wire::EncodeError> {
@@ -523,6 +824,46 @@ macro_rules! wire_struct {
                     off += $crate::wire::Wire::encoded_len(&self.$field);
                 )*
                 $( $extra(self, offset, v); )?
+            }
+            fn build(
+                _name: &'static str,
+                src: &mut dyn $crate::wire::Source,
+            ) -> Result<Self, $crate::wire::BuildError> {
+                let hook: Option<
+                    fn(&mut dyn $crate::wire::Source) -> Result<Self, $crate::wire::BuildError>,
+                > = None $( .or(Some($hook)) )?;
+                match hook {
+                    Some(h) => h(src),
+                    None => Self::build_fields(src),
+                }
+            }
+        }
+
+        impl $name {
+            /// Builds the value from its fields in declaration order (what
+            /// [`Wire::build`](crate::wire::Wire::build) does unless the layout has a
+            /// `build_with` hook, which calls this after its own reading).
+            #[allow(unused_variables, unused_mut, unused_assignments)]
+            pub fn build_fields(
+                src: &mut dyn $crate::wire::Source,
+            ) -> Result<Self, $crate::wire::BuildError> {
+                // Optional fields end a layout: once one is left out, none after it may
+                // be given (its bytes would land in the earlier field's place).
+                let mut left_out: Option<&'static str> = None;
+                $(
+                    let $field = <$ty as $crate::wire::Wire>::build(stringify!($field), src)?;
+                    if $crate::wire::Wire::encoded_len(&$field) > 0 {
+                        if let Some(missing) = left_out {
+                            return Err($crate::wire::BuildError::Gap {
+                                missing,
+                                given: stringify!($field),
+                            });
+                        }
+                    } else if <$ty as $crate::wire::Wire>::MIN_LEN == 0 && left_out.is_none() {
+                        left_out = Some(stringify!($field));
+                    }
+                )*
+                Ok($name { $( $field, )* })
             }
         }
     };

@@ -490,3 +490,20 @@ fn encoder_limits() {
     .unwrap();
     assert_eq!(&out[..n], &[0x02, 0x81, 0x1F, 0x02, 0x04, 0x00, 0x9A]);
 }
+
+/// Optional fields end a layout: a 13-byte command 105 reply holds everything up to the
+/// maximum number of burst messages, and its 13th byte (too short for the command
+/// number) is surplus, not a trigger mode.
+#[test]
+fn bytes_after_an_absent_optional_field_are_surplus() {
+    let mut data = [0u8; 13];
+    data[12] = 4;
+    let Some(Ok(hart_proto::Response::ReadBurstConfiguration(c))) =
+        hart_proto::decode_response(105, &data)
+    else {
+        panic!("command 105 reply did not decode");
+    };
+    assert_eq!(c.max_burst_messages, Some(0));
+    assert_eq!(c.command_number, None);
+    assert_eq!(c.trigger_mode, None);
+}

@@ -5,6 +5,7 @@
 pub mod annotate;
 pub mod cable;
 pub mod demo;
+pub mod fields;
 pub mod gateway;
 pub mod hex;
 pub mod host;
