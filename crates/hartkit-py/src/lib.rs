@@ -336,6 +336,40 @@ fn decode_request(py: Python<'_>, command: u16, data: &[u8]) -> PyResult<Option<
     )
 }
 
+/// The request data of `command` built from its fields: a dict with the names
+/// `decode_request` gives (units and codes also by name, the words beside them
+/// ignored). Raises FrameError naming the field at fault, or when hartkit has no layout
+/// for the command.
+#[pyfunction]
+fn encode_request(
+    py: Python<'_>,
+    command: u16,
+    fields: &Bound<'_, PyAny>,
+) -> PyResult<Py<PyBytes>> {
+    let j = fields_json(fields)?;
+    hartkit::fields::request_bytes(command, &j)
+        .map(|b| PyBytes::new(py, &b).unbind())
+        .map_err(|e| FrameError::new_err(format!("command {command} request: {e}")))
+}
+
+/// The reply data of `command` (after the status bytes) built from its fields, the
+/// names `decode_reply` gives. Raises FrameError as `encode_request` does.
+#[pyfunction]
+fn encode_reply(py: Python<'_>, command: u16, fields: &Bound<'_, PyAny>) -> PyResult<Py<PyBytes>> {
+    let j = fields_json(fields)?;
+    hartkit::fields::response_bytes(command, &j)
+        .map(|b| PyBytes::new(py, &b).unbind())
+        .map_err(|e| FrameError::new_err(format!("command {command} reply: {e}")))
+}
+
+fn fields_json(fields: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
+    pythonize::depythonize(fields).map_err(|e| {
+        FrameError::new_err(format!(
+            "fields must be a dict of numbers, text, lists and dicts: {e}"
+        ))
+    })
+}
+
 fn decode(
     py: Python<'_>,
     command: u16,
@@ -505,6 +539,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sim::serve_hart_ip, m)?)?;
     m.add_function(wrap_pyfunction!(decode_reply, m)?)?;
     m.add_function(wrap_pyfunction!(decode_request, m)?)?;
+    m.add_function(wrap_pyfunction!(encode_request, m)?)?;
+    m.add_function(wrap_pyfunction!(encode_reply, m)?)?;
     m.add_function(wrap_pyfunction!(command_table, m)?)?;
     m.add_function(wrap_pyfunction!(unit, m)?)?;
     m.add_function(wrap_pyfunction!(response_code_name, m)?)?;

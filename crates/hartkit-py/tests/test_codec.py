@@ -124,3 +124,61 @@ def test_a_stream_in_pieces_with_garbage_between():
     assert [f.polling_address for f in got] == [1, 2, 3, 4, 5, 1]
     assert got[-1].frame_type == "ACK"
     assert (d.frames, d.damaged) == (6, 1)
+
+
+def test_requests_and_replies_are_built_from_their_fields():
+    # Tag "PT-101" packs to 41 4B 71 C3 18 20 (hart-reference.md §10.1); the date is
+    # day, month, year - 1900.
+    data = commands.WriteTagDescriptorDate.encode_request(tag="PT-101", descriptor="FEED PUMP", date="2025-11-21")
+    assert data[:6] == bytes.fromhex("414B71C31820") and data[-3:] == bytes([21, 11, 125])
+    # Units by symbol or by code; a dict, a Record and keywords are the same.
+    assert commands.WritePvUnits.encode_request(pv_units="kPa") == bytes([12])
+    assert hartkit.encode_request(44, {"pv_units": 12}) == bytes([12])
+    reply = bytes([12]) + bytes.fromhex("42F6E979")
+    typed = commands.ReadPrimaryVariable.decode_reply(reply)
+    assert commands.ReadPrimaryVariable.encode_reply(typed) == reply
+    # Lists of codes, lists of objects, raw bytes as bytes or hex.
+    assert commands.ReadDeviceVariablesWithStatus.encode_request(slots=[0, 1, 246]) == bytes([0, 1, 246])
+    assert hartkit.encode_reply(48, additional_status=b"\x01\x02") == b"\x01\x02"
+
+
+def test_every_public_vector_goes_back_from_its_decoded_fields(vectors):
+    checked = 0
+    for v in vectors:
+        f = hartkit.Frame.parse(bytes.fromhex(v["hex"].replace(" ", "")))
+        if "decoded" not in f.to_dict():
+            continue  # a damaged frame, an error reply, or a command hartkit does not type
+        d = f.decoded
+        if f.frame_type == "STX":
+            back = hartkit.encode_request(f.command, d)
+            again = hartkit.decode_request(f.command, back)
+        else:
+            back = hartkit.encode_reply(f.command, d)
+            again = hartkit.decode_reply(f.command, back)
+        # Surplus bytes a device sent are not part of the layout: compare views, and
+        # bytes wherever the data is exactly the layout.
+        assert again == d, v["name"]
+        if len(back) == len(f.data):
+            assert back == f.data, v["name"]
+        checked += 1
+    assert checked >= 20
+
+
+def test_fields_that_do_not_fit_raise_errors_that_name_them():
+    with pytest.raises(hartkit.FrameError) as e:
+        commands.WritePvUnits.encode_request(pv_unit="kPa")
+    assert "no field pv_unit; the fields are pv_units" in str(e.value)
+    with pytest.raises(hartkit.FrameError) as e:
+        commands.WritePollingAddress.encode_request(polling_address=300)
+    assert "polling_address" in str(e.value) and "0 to 255" in str(e.value)
+    with pytest.raises(hartkit.FrameError) as e:
+        commands.WriteTagDescriptorDate.encode_request(tag="PT-101")
+    assert "descriptor is missing" in str(e.value)
+    with pytest.raises(hartkit.FrameError) as e:
+        commands.WriteTagDescriptorDate.encode_request(tag="A TAG TOO LONG", descriptor="", date="2025-01-01")
+    assert "tag" in str(e.value) and "too long" in str(e.value)
+    with pytest.raises(hartkit.FrameError) as e:
+        hartkit.encode_request(200, {})
+    assert "no layout for command 200" in str(e.value)
+    with pytest.raises(hartkit.FrameError):
+        commands.WritePvUnits.encode_request(pv_units=object())

@@ -38,6 +38,11 @@ def test_scan_read_and_write_with_asyncio():
             assert again.info.unique_id == dev.info.unique_id
             d = await dev.write_damping(2.5)
             assert d.damping == pytest.approx(2.5) and d.range_units_symbol == "kPa"
+            # A typed request from its fields: command 44 by class, units by symbol.
+            u = await dev.request(hartkit.commands.WritePvUnits, pv_units="bar")
+            assert u.response_code == 0 and u.pv_units_symbol == "bar"
+            pv = await dev.request(1)
+            assert pv.pv_units_symbol == "bar"
 
     run(main())
 

@@ -91,6 +91,40 @@ def test_a_python_device_handler_answers_the_cli(hartkit_bin):
         assert refused.returncode != 0 and "5" in refused.stderr
 
 
+def test_a_python_device_answers_with_fields_and_the_cli_sends_fields(hartkit_bin):
+    # The handler returns the reply's fields, not bytes; the CLI sends command 44's
+    # request as JSON fields, which the handler reads back typed.
+    seen = []
+
+    def read_pv(data):
+        return {"pv_units": "degrees Celsius", "pv": 21.5}
+
+    def write_units(data):
+        req = hartkit.commands.WritePvUnits.decode_request(data)
+        seen.append(req.pv_units_symbol)
+        return req
+
+    with hartkit.sim.PythonDevice({1: read_pv, 44: write_units}, poll=0) as dev:
+        out = subprocess.run(
+            [hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert out.returncode == 0, out.stderr
+        pv = json.loads(out.stdout)
+        assert pv["pv"] == 21.5 and pv["units_symbol"] == "°C"
+        out = subprocess.run(
+            [hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "44", '{"pv_units": "kPa"}', "--json"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert out.returncode == 0, out.stderr
+        assert json.loads(out.stdout)["decoded"]["pv_units"] == 12
+        assert seen == ["kPa"]
+
+
 def test_a_server_that_vanishes_mid_session_is_an_error_that_explains():
     import pytest
 

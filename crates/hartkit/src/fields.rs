@@ -75,23 +75,51 @@ impl From<BuildError> for FieldsError {
 /// The request of `command` from its fields.
 pub fn request(command: u16, fields: &Json) -> Result<Request, FieldsError> {
     let obj = fields.as_object().ok_or(FieldsError::NotObject)?;
-    let r = hart_proto::build_request(command, &mut JsonSource::new(obj))
-        .ok_or(FieldsError::NotTyped(command))??;
-    let mut v = JsonVisitor::with_words();
-    r.describe(&mut v);
-    no_unknown_keys(obj, &v.finish())?;
-    Ok(r)
+    let built = hart_proto::build_request(command, &mut JsonSource::new(obj))
+        .ok_or(FieldsError::NotTyped(command))?;
+    let view = |r: &Request| {
+        let mut v = JsonVisitor::with_words();
+        r.describe(&mut v);
+        v.finish()
+    };
+    match built {
+        Ok(r) => {
+            no_unknown_keys(obj, &view(&r))?;
+            Ok(r)
+        }
+        Err(e) => {
+            // A misspelt key is the likelier cause of a missing field: check the keys
+            // against the layout filled with zeros (every field present).
+            if let Some(Ok(full)) = hart_proto::decode_request(command, &[0; 255]) {
+                no_unknown_keys(obj, &view(&full))?;
+            }
+            Err(e.into())
+        }
+    }
 }
 
 /// The reply data of `command` (after the status bytes) from its fields.
 pub fn response(command: u16, fields: &Json) -> Result<Response, FieldsError> {
     let obj = fields.as_object().ok_or(FieldsError::NotObject)?;
-    let r = hart_proto::build_response(command, &mut JsonSource::new(obj))
-        .ok_or(FieldsError::NotTyped(command))??;
-    let mut v = JsonVisitor::with_words();
-    r.describe(&mut v);
-    no_unknown_keys(obj, &v.finish())?;
-    Ok(r)
+    let built = hart_proto::build_response(command, &mut JsonSource::new(obj))
+        .ok_or(FieldsError::NotTyped(command))?;
+    let view = |r: &Response| {
+        let mut v = JsonVisitor::with_words();
+        r.describe(&mut v);
+        v.finish()
+    };
+    match built {
+        Ok(r) => {
+            no_unknown_keys(obj, &view(&r))?;
+            Ok(r)
+        }
+        Err(e) => {
+            if let Some(Ok(full)) = hart_proto::decode_response(command, &[0; 255]) {
+                no_unknown_keys(obj, &view(&full))?;
+            }
+            Err(e.into())
+        }
+    }
 }
 
 /// The request data bytes of `command` from its fields.
@@ -290,6 +318,9 @@ mod tests {
     fn errors_explain() {
         let e = request_bytes(18, &json!({"tag": "PT-101"})).unwrap_err();
         assert_eq!(e.to_string(), "field descriptor is missing");
+        // A misspelling that leaves a field missing is named as the cause.
+        let e = request_bytes(44, &json!({"pv_unit": "kPa"})).unwrap_err();
+        assert_eq!(e.to_string(), "no field pv_unit; the fields are pv_units");
         let e = request_bytes(
             18,
             &json!({"tag": "PT-101", "descriptor": "", "date": "2025-11-21", "tga": 1}),

@@ -65,7 +65,8 @@ enum Top {
         #[arg(required = true, allow_negative_numbers = true)]
         values: Vec<String>,
     },
-    /// Send any command (data as hex) and decode the reply.
+    /// Send any command (data as hex, or a typed command's fields as JSON) and decode
+    /// the reply.
     Command {
         #[command(flatten)]
         host: HostArgs,
@@ -73,7 +74,8 @@ enum Top {
         target: TargetArgs,
         /// Command number (0-65535).
         number: u16,
-        /// Request data as hex.
+        /// Request data as hex, or the request's fields as a JSON object with the names
+        /// `hartkit decode --json` shows, e.g. '{"pv_units": "kPa"}' for command 44.
         #[arg(default_value = "")]
         data: String,
     },
@@ -932,6 +934,11 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             let d = target(t)?;
             let bytes = if data.trim().is_empty() {
                 vec![]
+            } else if data.trim_start().starts_with('{') {
+                let fields: serde_json::Value =
+                    serde_json::from_str(data).map_err(|e| (format!("data: not JSON: {e}"), 2))?;
+                hartkit::fields::request_bytes(*number, &fields)
+                    .map_err(|e| (format!("data: command {number}: {e}"), 2))?
             } else {
                 hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))?
             };

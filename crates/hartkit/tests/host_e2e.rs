@@ -220,3 +220,61 @@ fn write_takes_options_after_its_values() {
     let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["command"], 35);
 }
+
+/// A typed command's request given as JSON fields: the decoded view of one reply,
+/// edited, is the next request (command 13's tag, descriptor and date written back
+/// with command 18), units go by symbol, and a misspelt field is refused with the list
+/// of fields before anything is sent.
+#[test]
+fn command_takes_the_fields_of_its_request_as_json() {
+    let p = "sim?virtual";
+    let (code, out, err) = hartkit(&["command", "-p", p, "--poll", "1", "13", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let mut fields = v["decoded"].clone();
+    assert!(fields["descriptor"].is_string(), "{v}");
+    fields["tag"] = "FT-202".into();
+    let (code, out, err) = hartkit(&[
+        "command",
+        "-p",
+        p,
+        "--poll",
+        "1",
+        "18",
+        &fields.to_string(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["decoded"]["tag"], "FT-202", "{v}");
+    assert_eq!(v["decoded"]["descriptor"], fields["descriptor"], "{v}");
+
+    let (code, out, err) = hartkit(&[
+        "command",
+        "-p",
+        p,
+        "--poll",
+        "1",
+        "44",
+        r#"{"pv_units": "kPa"}"#,
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["decoded"]["pv_units"], 12, "{v}");
+
+    let (code, _, err) = hartkit(&[
+        "command",
+        "-p",
+        p,
+        "--poll",
+        "1",
+        "44",
+        r#"{"pv_unit": "kPa"}"#,
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("command 44: no field pv_unit; the fields are pv_units"),
+        "{err}"
+    );
+}

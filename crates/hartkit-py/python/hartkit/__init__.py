@@ -31,6 +31,7 @@ from ._native import (
     unit,
 )
 from . import commands, sim
+from .commands import encode_reply, encode_request
 from ._host import Device, DeviceInfo, Loop, Reply, connect
 
 __all__ = [
@@ -50,6 +51,8 @@ __all__ = [
     "connect",
     "decode_reply",
     "decode_request",
+    "encode_reply",
+    "encode_request",
     "response_code_name",
     "sim",
     "unit",

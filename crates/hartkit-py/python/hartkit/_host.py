@@ -108,6 +108,18 @@ class _DeviceOps:
         it does not answer."""
         return self._run("command", (self.info.unique_id, number, bytes(data)), Reply._from)
 
+    def request(self, command: Any, fields: Any = None, **kw: Any):
+        """Sends a typed command built from its fields: ``command`` is a class of
+        ``hartkit.commands`` or a number, the fields a Record, a dict or keywords
+        (``await dev.request(commands.WritePvUnits, pv_units="kPa")``); the reply
+        decoded, as ``command`` gives it."""
+        cls = command if isinstance(command, type) else by_number(int(command))
+        if cls is None:
+            raise _native.FrameError(
+                f"hartkit has no layout for command {command}: send its data with command()"
+            )
+        return self.command(cls.number, cls.encode_request(fields, **kw))
+
     def read_pv(self):
         """Command 1: the primary variable and its units."""
         return self.command(1)

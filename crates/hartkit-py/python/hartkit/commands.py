@@ -11,11 +11,28 @@ Each class has ``number``, ``title``, ``kind`` ("universal", "common-practice",
 ``Record`` whose attributes are the command's fields (units, codes and status bits also
 in words: ``units_symbol``, ``<code>_name``, ``<bits>_set``); ``Record.to_dict()`` gives
 them back as a dict. ``by_number(n)`` finds a class by its number.
+
+The other way, ``encode_request(**fields)`` and ``encode_reply(**fields)`` build the
+data from the same names (a decoded Record or its dict goes back as it is; units and
+codes may be given by name, ``pv_units="kPa"``; raw bytes as ``bytes`` or hex):
+
+    >>> commands.WriteTagDescriptorDate.encode_request(
+    ...     tag="PT-101", descriptor="FEED PUMP", date="2026-11-26").hex()
+    '414b71c31820...'
+
+A missing field, a key that is no field of the layout, a value out of range or a later
+optional field given without an earlier one raises FrameError saying which.
 """
 
-from typing import Any, Dict, List, Optional, Type
+from typing import Any, Dict, List, Mapping, Optional, Type, Union
 
-from ._native import command_table, decode_reply as _decode_reply, decode_request as _decode_request
+from ._native import (
+    command_table,
+    decode_reply as _decode_reply,
+    decode_request as _decode_request,
+    encode_reply as _encode_reply,
+    encode_request as _encode_request,
+)
 
 
 class Record:
@@ -62,6 +79,44 @@ def _wrap(v: Any) -> Any:
     return v
 
 
+Fields = Union[Mapping[str, Any], Record, None]
+
+
+def plain(fields: Fields = None, **kw: Any) -> Dict[str, Any]:
+    """Fields as the plain dict the encoders take: a Record or mapping, plus keyword
+    fields; Records inside become dicts, bytes become hex."""
+    d: Dict[str, Any] = {}
+    if isinstance(fields, Record):
+        d.update(fields.to_dict())
+    elif fields is not None:
+        d.update(fields)
+    d.update(kw)
+    return {k: _plain(v) for k, v in d.items()}
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, Record):
+        return {k: _plain(x) for k, x in v.to_dict().items()}
+    if isinstance(v, Mapping):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (bytes, bytearray, memoryview)):
+        return bytes(v).hex()
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v
+
+
+def encode_request(number: int, fields: Fields = None, **kw: Any) -> bytes:
+    """The request data of command ``number`` built from its fields."""
+    return _encode_request(number, plain(fields, **kw))
+
+
+def encode_reply(number: int, fields: Fields = None, **kw: Any) -> bytes:
+    """The reply data (after the status bytes) of command ``number`` built from its
+    fields."""
+    return _encode_reply(number, plain(fields, **kw))
+
+
 class Command:
     """A command of the table; the classes below are its subclasses."""
 
@@ -82,6 +137,16 @@ class Command:
         """The request data decoded."""
         d = _decode_request(cls.number, bytes(data))
         return None if d is None else Record(d)
+
+    @classmethod
+    def encode_request(cls, fields: Fields = None, **kw: Any) -> bytes:
+        """The request data built from its fields (a Record, a dict, keywords)."""
+        return encode_request(cls.number, fields, **kw)
+
+    @classmethod
+    def encode_reply(cls, fields: Fields = None, **kw: Any) -> bytes:
+        """The reply data (after the status bytes) built from its fields."""
+        return encode_reply(cls.number, fields, **kw)
 
 
 _BY_NUMBER: Dict[int, Type[Command]] = {}

@@ -4,15 +4,17 @@ host (``serve_hart_ip``), and the network simulation (``bench``)."""
 import os
 import threading
 import tty
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 from ._native import Deframer, Frame, SimServer, serve_hart_ip as _serve_hart_ip, sim_bench as _sim_bench
+from .commands import Record, encode_reply
 
 __all__ = ["PythonDevice", "SimServer", "bench", "serve_hart_ip"]
 
 #: What a command handler returns: the reply data (response code 0), or
-#: (response code, reply data).
-HandlerResult = Union[bytes, Tuple[int, bytes]]
+#: (response code, reply data); the data as bytes, or as the reply's fields (a dict or
+#: Record with the names ``decode_reply`` gives) for a command hartkit types.
+HandlerResult = Union[bytes, Mapping[str, Any], Record, Tuple[int, Union[bytes, Mapping[str, Any], Record]]]
 
 
 class _Served:
@@ -93,7 +95,8 @@ class PythonDevice:
             ...  # hartkit read -p dev.path --poll 0 pv
 
     ``handlers`` maps a command number to a function of the request data returning the
-    reply data (response code 0) or (response code, data); an exception in it answers
+    reply data (response code 0) or (response code, data), the data as bytes or as the
+    reply's fields (``{"pv_units": "kPa", "pv": 42.0}``); an exception in it answers
     response code 6 (device-specific command error). Command 0 answers with a HART 7
     identity for ``unique_id`` unless a handler is given for it; other commands answer
     64 (not implemented). The device answers its polling address ``poll`` in short
@@ -154,8 +157,10 @@ class PythonDevice:
             try:
                 out = handler(f.data)
                 rc, data = out if isinstance(out, tuple) else (0, out)
+                if not isinstance(data, (bytes, bytearray, memoryview)):
+                    data = encode_reply(f.command, data)
             except Exception:  # a test's handler failing is the device's failure
-                rc = 6
+                rc, data = 6, b""
         address: Union[int, str] = f.polling_address if f.polling_address is not None else self.unique_id
         return Frame.reply(
             address,
