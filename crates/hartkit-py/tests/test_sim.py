@@ -7,6 +7,11 @@ import hartkit
 import hartkit.sync
 
 
+def cli(hartkit_bin, *args):
+    """The command line, run to its end (60 s at most); its CompletedProcess."""
+    return subprocess.run([hartkit_bin, *args], capture_output=True, text=True, timeout=60)
+
+
 def test_bench_matches_the_command_line(hartkit_bin):
     py = hartkit.sim.bench(devices=3, duration=30, secondary=True, burst=True)
     cli = json.loads(
@@ -41,12 +46,7 @@ def test_devices_served_from_python_are_read_by_the_cli(hartkit_bin):
         with hartkit.sync.connect(server.tcp_target) as loop:
             assert [d.polling_address for d in loop.scan(1, 3)] == [1, 2]
     # Closed: nobody answers any more.
-    gone = subprocess.run(
-        [hartkit_bin, "read", "-p", server.target, "--poll", "1", "pv"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    gone = cli(hartkit_bin, "read", "-p", server.target, "--poll", "1", "pv")
     assert gone.returncode != 0
 
 
@@ -70,24 +70,14 @@ def test_a_python_device_handler_answers_the_cli(hartkit_bin):
         return (5, b"")  # too few data bytes
 
     with hartkit.sim.PythonDevice({1: read_pv, 6: refuse}, poll=0) as dev:
-        out = subprocess.run(
-            [hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        out = cli(hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json")
         assert out.returncode == 0, out.stderr
         pv = json.loads(out.stdout)
         assert pv["pv"] == 42.5 and pv["units_symbol"] == "kPa"
         # Command 0 (short frame) found it, command 1 went in a long frame.
         assert [f.command for f in dev.requests] == [0, 1]
         assert dev.requests[1].unique_id == dev.unique_id
-        refused = subprocess.run(
-            [hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "6", "00"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        refused = cli(hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "6", "00")
         assert refused.returncode != 0 and "5" in refused.stderr
 
 
@@ -105,21 +95,11 @@ def test_a_python_device_answers_with_fields_and_the_cli_sends_fields(hartkit_bi
         return req
 
     with hartkit.sim.PythonDevice({1: read_pv, 44: write_units}, poll=0) as dev:
-        out = subprocess.run(
-            [hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        out = cli(hartkit_bin, "read", "-p", f"serial:{dev.path}", "--poll", "0", "pv", "--json")
         assert out.returncode == 0, out.stderr
         pv = json.loads(out.stdout)
         assert pv["pv"] == 21.5 and pv["units_symbol"] == "°C"
-        out = subprocess.run(
-            [hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "44", '{"pv_units": "kPa"}', "--json"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        out = cli(hartkit_bin, "command", "-p", f"serial:{dev.path}", "--poll", "0", "44", '{"pv_units": "kPa"}', "--json")
         assert out.returncode == 0, out.stderr
         assert json.loads(out.stdout)["decoded"]["pv_units"] == 12
         assert seen == ["kPa"]

@@ -17,7 +17,7 @@
 
 use std::fmt;
 
-use hart_proto::wire::{BuildError, Source, Value, Writer};
+use hart_proto::wire::{BuildError, DecodeError, EncodeError, Source, Value, Visitor, Writer};
 use hart_proto::{Request, Response};
 use serde_json::{Map, Value as Json};
 
@@ -74,47 +74,80 @@ impl From<BuildError> for FieldsError {
 
 /// The request of `command` from its fields.
 pub fn request(command: u16, fields: &Json) -> Result<Request, FieldsError> {
-    let obj = fields.as_object().ok_or(FieldsError::NotObject)?;
-    let built = hart_proto::build_request(command, &mut JsonSource::new(obj))
-        .ok_or(FieldsError::NotTyped(command))?;
-    let view = |r: &Request| {
-        let mut v = JsonVisitor::with_words();
-        r.describe(&mut v);
-        v.finish()
-    };
-    match built {
-        Ok(r) => {
-            no_unknown_keys(obj, &view(&r))?;
-            Ok(r)
-        }
-        Err(e) => {
-            // A misspelt key is the likelier cause of a missing field: check the keys
-            // against the layout filled with zeros (every field present).
-            if let Some(Ok(full)) = hart_proto::decode_request(command, &[0; 255]) {
-                no_unknown_keys(obj, &view(&full))?;
-            }
-            Err(e.into())
-        }
-    }
+    build(command, fields)
 }
 
 /// The reply data of `command` (after the status bytes) from its fields.
 pub fn response(command: u16, fields: &Json) -> Result<Response, FieldsError> {
+    build(command, fields)
+}
+
+/// The request data bytes of `command` from its fields.
+pub fn request_bytes(command: u16, fields: &Json) -> Result<Vec<u8>, FieldsError> {
+    bytes(&request(command, fields)?)
+}
+
+/// The reply data bytes (after the status bytes) of `command` from its fields.
+pub fn response_bytes(command: u16, fields: &Json) -> Result<Vec<u8>, FieldsError> {
+    bytes(&response(command, fields)?)
+}
+
+/// A request or a reply: what building needs of either.
+trait Typed: Sized {
+    fn build(command: u16, src: &mut dyn Source) -> Option<Result<Self, BuildError>>;
+    fn decode(command: u16, data: &[u8]) -> Option<Result<Self, DecodeError>>;
+    fn describe(&self, v: &mut dyn Visitor);
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError>;
+}
+
+impl Typed for Request {
+    fn build(command: u16, src: &mut dyn Source) -> Option<Result<Self, BuildError>> {
+        hart_proto::build_request(command, src)
+    }
+    fn decode(command: u16, data: &[u8]) -> Option<Result<Self, DecodeError>> {
+        hart_proto::decode_request(command, data)
+    }
+    fn describe(&self, v: &mut dyn Visitor) {
+        Request::describe(self, v)
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        Request::encode(self, w)
+    }
+}
+
+impl Typed for Response {
+    fn build(command: u16, src: &mut dyn Source) -> Option<Result<Self, BuildError>> {
+        hart_proto::build_response(command, src)
+    }
+    fn decode(command: u16, data: &[u8]) -> Option<Result<Self, DecodeError>> {
+        hart_proto::decode_response(command, data)
+    }
+    fn describe(&self, v: &mut dyn Visitor) {
+        Response::describe(self, v)
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        Response::encode(self, w)
+    }
+}
+
+fn build<T: Typed>(command: u16, fields: &Json) -> Result<T, FieldsError> {
     let obj = fields.as_object().ok_or(FieldsError::NotObject)?;
-    let built = hart_proto::build_response(command, &mut JsonSource::new(obj))
-        .ok_or(FieldsError::NotTyped(command))?;
-    let view = |r: &Response| {
+    let built =
+        T::build(command, &mut JsonSource::new(obj)).ok_or(FieldsError::NotTyped(command))?;
+    let view = |t: &T| {
         let mut v = JsonVisitor::with_words();
-        r.describe(&mut v);
+        t.describe(&mut v);
         v.finish()
     };
     match built {
-        Ok(r) => {
-            no_unknown_keys(obj, &view(&r))?;
-            Ok(r)
+        Ok(t) => {
+            no_unknown_keys(obj, &view(&t))?;
+            Ok(t)
         }
         Err(e) => {
-            if let Some(Ok(full)) = hart_proto::decode_response(command, &[0; 255]) {
+            // A misspelt key is the likelier cause of a missing field: check the keys
+            // against the layout filled with zeros (every field present).
+            if let Some(Ok(full)) = T::decode(command, &[0; 255]) {
                 no_unknown_keys(obj, &view(&full))?;
             }
             Err(e.into())
@@ -122,35 +155,17 @@ pub fn response(command: u16, fields: &Json) -> Result<Response, FieldsError> {
     }
 }
 
-/// The request data bytes of `command` from its fields.
-pub fn request_bytes(command: u16, fields: &Json) -> Result<Vec<u8>, FieldsError> {
-    let r = request(command, fields)?;
+fn bytes<T: Typed>(t: &T) -> Result<Vec<u8>, FieldsError> {
     let mut buf = [0u8; 255];
     let mut w = Writer::new(&mut buf);
-    // Built values are checked to encode (hart_proto::build_request).
-    r.encode(&mut w).map_err(|e| {
+    // Built values are checked to encode (hart_proto::build_request), so this only
+    // repeats that check.
+    t.encode(&mut w).map_err(|e| {
         FieldsError::Build(BuildError::Invalid {
             field: "data",
             reason: match e {
-                hart_proto::wire::EncodeError::Invalid(why) => why,
-                hart_proto::wire::EncodeError::BufferTooSmall { .. } => "too long",
-            },
-        })
-    })?;
-    Ok(w.written().to_vec())
-}
-
-/// The reply data bytes (after the status bytes) of `command` from its fields.
-pub fn response_bytes(command: u16, fields: &Json) -> Result<Vec<u8>, FieldsError> {
-    let r = response(command, fields)?;
-    let mut buf = [0u8; 255];
-    let mut w = Writer::new(&mut buf);
-    r.encode(&mut w).map_err(|e| {
-        FieldsError::Build(BuildError::Invalid {
-            field: "data",
-            reason: match e {
-                hart_proto::wire::EncodeError::Invalid(why) => why,
-                hart_proto::wire::EncodeError::BufferTooSmall { .. } => "too long",
+                EncodeError::Invalid(why) => why,
+                EncodeError::BufferTooSmall { .. } => "too long",
             },
         })
     })?;
