@@ -212,6 +212,13 @@ impl Server {
     pub async fn active_sessions(&self) -> usize {
         *lock(&self.shared.sessions)
     }
+
+    /// Waits until every loop has been scanned once (`Config::scan_to`), so that
+    /// routing by polling address, long address and tag knows the devices; without a
+    /// scan it waits for the first try of each loop.
+    pub async fn ready(&self) {
+        self.shared.io.engine.ready().await
+    }
 }
 
 /// The engine's loop settings for a server's `scan_to` (`None`: no scan).

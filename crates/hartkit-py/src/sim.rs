@@ -61,20 +61,34 @@ impl Drop for SimServer {
 
 /// Serves `profiles` (built-in names such as "pressure", or profile files) at polling
 /// addresses 1, 2, ... behind a HART-IP server bound to `address` (port 0: a free
-/// one), the devices answering at once. Returns once the server listens.
+/// one), the devices answering at once. With `loops` (targets the CLI's `--port`
+/// takes, e.g. "serial:/dev/pts/3" of a `PythonDevice`), those loops are behind it
+/// instead, scanned at polling addresses 0..=`scan_to`; `transparent` lets a device at
+/// polling address 0 of a single loop answer there. Returns once the server listens.
 #[pyfunction]
-#[pyo3(signature = (profiles, address = "127.0.0.1:0".to_string()))]
+#[pyo3(signature = (profiles, address = "127.0.0.1:0".to_string(), loops = None, scan_to = 63, transparent = false))]
 pub fn serve_hart_ip(
     py: Python<'_>,
     profiles: Vec<String>,
     address: String,
+    loops: Option<Vec<String>>,
+    scan_to: u8,
+    transparent: bool,
 ) -> PyResult<SimServer> {
     let bind: SocketAddr = address.parse().map_err(|e| {
         pyo3::exceptions::PyValueError::new_err(format!("address {address:?}: {e} (HOST:PORT)"))
     })?;
-    let devices = hart_host::transport::Plant::from_profiles(&profiles)
-        .and_then(|p| p.devices())
-        .map_err(TargetError::new_err)?;
+    if transparent && loops.as_ref().is_none_or(|l| l.len() != 1) {
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "transparent needs exactly one loop: with several, polling address 0 of each would answer at the same address",
+        ));
+    }
+    let devices = match loops {
+        Some(_) => Vec::new(),
+        None => hart_host::transport::Plant::from_profiles(&profiles)
+            .and_then(|p| p.devices())
+            .map_err(TargetError::new_err)?,
+    };
     let (ready_tx, ready_rx) =
         oneshot::channel::<Result<(Option<SocketAddr>, Option<SocketAddr>), String>>();
     let (stop_tx, stop_rx) = oneshot::channel::<()>();
@@ -92,9 +106,35 @@ pub fn serve_hart_ip(
             local.block_on(&rt, async move {
                 let config = hart_ip_server::Config {
                     bind,
+                    scan_to: Some(scan_to.min(63)),
+                    transparent,
                     ..hart_ip_server::Config::default()
                 };
-                match hart_ip_server::start_in_memory(config, devices).await {
+                let started = match loops {
+                    None => hart_ip_server::start_in_memory(config, devices).await,
+                    Some(targets) => {
+                        let mut clients = Vec::new();
+                        for t in &targets {
+                            match hartkit::host::client(t, None, None, 0, false).await {
+                                Ok(c) => clients.push(c),
+                                Err((m, _)) => {
+                                    let _ = ready_tx.send(Err(format!("loop {t}: {m}")));
+                                    return;
+                                }
+                            }
+                        }
+                        // Returned once the loops are scanned, so the first request
+                        // is routed to the devices found.
+                        match hart_ip_server::start(config, clients).await {
+                            Ok(server) => {
+                                server.ready().await;
+                                Ok(server)
+                            }
+                            Err(e) => Err(e),
+                        }
+                    }
+                };
+                match started {
                     Ok(server) => {
                         let _ = ready_tx.send(Ok((server.udp_addr, server.tcp_addr)));
                         let _ = stop_rx.await;

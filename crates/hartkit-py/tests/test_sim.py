@@ -117,3 +117,22 @@ def test_a_server_that_vanishes_mid_session_is_an_error_that_explains():
         dev.read_pv()
     assert "stopped answering" in str(e.value) or "no reply" in str(e.value).lower(), str(e.value)
     loop.close()
+
+
+def test_a_python_device_behind_hart_ip_answers_a_hart_ip_host(hartkit_bin):
+    # Python handlers, reached over HART-IP: the asyncio host and the CLI (a separate
+    # process) read the handler's value through the server and the pseudo-terminal.
+    def read_pv(data):
+        return {"pv_units": "kPa", "pv": 7.25}
+
+    with hartkit.sim.PythonDevice({1: read_pv}, poll=0) as dev:
+        with dev.serve_hart_ip() as server:
+            with hartkit.sync.connect(server.target) as loop:
+                d = loop.device(poll=0)
+                assert d.info.unique_id == dev.unique_id
+                r = d.command(1)
+                assert r.pv == 7.25 and r.pv_units_symbol == "kPa"
+            out = cli(hartkit_bin, "read", "-p", server.tcp_target, "--poll", "0", "pv", "--json")
+            assert out.returncode == 0, out.stderr
+            assert json.loads(out.stdout)["pv"] == 7.25
+        assert any(f.command == 1 for f in dev.requests)

@@ -101,7 +101,9 @@ class PythonDevice:
     identity for ``unique_id`` unless a handler is given for it; other commands answer
     64 (not implemented). The device answers its polling address ``poll`` in short
     frames and its unique ID in long frames; ``device_status`` goes in every reply.
-    ``requests`` lists every request it answered, as Frames."""
+    ``requests`` lists every request it answered, as Frames.
+
+    ``serve_hart_ip()`` puts it behind a HART-IP server as well, for a HART-IP host."""
 
     def __init__(
         self,
@@ -184,6 +186,23 @@ class PythonDevice:
                 if self._mine(f):
                     self.requests.append(f)
                     os.write(self._master, self._answer(f).to_bytes())
+
+    def serve_hart_ip(self, address: str = "127.0.0.1:0") -> "_Served":
+        """Serves this device behind a HART-IP server on ``address`` (port 0: a free
+        one), which reaches it through its pseudo-terminal as ``hartkit serve -p
+        serial:PATH`` would: at polling address 0 the device answers there itself
+        (no I/O system in front), at another address the server is the I/O system at
+        0 and the device is found at its own. Returns once the server listens, as
+        ``serve_hart_ip`` does; close it before the device."""
+        return _Served(
+            _serve_hart_ip(
+                [],
+                address,
+                loops=[f"serial:{self.path}"],
+                scan_to=self.poll,
+                transparent=self.poll == 0,
+            )
+        )
 
     def close(self) -> None:
         """Stops answering and closes the pseudo-terminal."""
