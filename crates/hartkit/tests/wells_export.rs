@@ -1,6 +1,8 @@
 //! The options and functions behind `hartkit wells pc export` and `wells pc plot`
 //! (hartkit::wells_export), on an archive the simulation wrote.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -227,4 +229,79 @@ fn a_plot() {
     .a;
     let e = plot(&a).unwrap_err();
     assert!(e.contains("no minutes of wells 1 and 2"), "{e}");
+}
+
+/// GDAL, the library under QGIS and most GIS tools (through pyogrio, a separate process
+/// from the interop venv), opens the export as a point layer: every feature, the
+/// coordinates in WGS 84 with the elevation, times as date-times and the means as
+/// numbers.
+#[test]
+fn a_gis_opens_the_geojson() {
+    let Some(py) = common::interop_python("pyogrio") else {
+        return;
+    };
+    let out = out_dir();
+    let wells = out.path().join("wells.csv");
+    std::fs::write(
+        &wells,
+        "well,name,latitude,longitude,elevation_m\n1,North,40.0,116.0,50\n2,South,39.5,116.25,48\n",
+    )
+    .unwrap();
+    let path = out.path().join("w.geojson");
+    export(&export_args(&[
+        "--db",
+        &db(),
+        "--format",
+        "geojson",
+        "--every",
+        "hour",
+        "--wells",
+        wells.to_str().unwrap(),
+        "--output",
+        path.to_str().unwrap(),
+    ]))
+    .unwrap();
+    let ours: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/gis/read_with_gdal.py");
+    let run = std::process::Command::new(py)
+        .arg(&script)
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "GDAL could not read the export: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let gis: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(gis["driver"], "GeoJSON", "{gis}");
+    assert_eq!(
+        gis["features"].as_u64(),
+        Some(ours["features"].as_array().unwrap().len() as u64),
+        "{gis}"
+    );
+    assert!(gis["features"].as_u64().unwrap() >= 2 * 24, "{gis}");
+    assert_eq!(gis["geometry_type"], "Point Z", "{gis}");
+    // WGS 84 (GDAL names the 3D form when points carry an elevation).
+    assert!(
+        ["EPSG:4326", "EPSG:4979", "OGC:CRS84"].contains(&gis["crs"].as_str().unwrap_or("")),
+        "{gis}"
+    );
+    let fields = &gis["fields"];
+    assert_eq!(fields["well"], "int32", "{gis}");
+    assert_eq!(fields["name"], "object", "{gis}");
+    assert!(
+        fields["time"].as_str().unwrap().starts_with("datetime64"),
+        "time is a date-time to a GIS: {gis}"
+    );
+    assert_eq!(fields["level_m"], "float64", "{gis}");
+    assert_eq!(fields["temperature_c"], "float64", "{gis}");
+    let first = &ours["features"][0]["properties"];
+    assert_eq!(gis["first"]["well"], first["well"], "{gis}");
+    assert_eq!(gis["first"]["name"], first["name"], "{gis}");
+    assert_eq!(gis["first"]["level_m"], first["level_m"], "{gis}");
+    // A 3D point as WKB: byte order, type, three doubles.
+    assert_eq!(gis["first_wkb_bytes"], 29, "{gis}");
 }
