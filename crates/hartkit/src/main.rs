@@ -210,8 +210,8 @@ struct IpBenchArgs {
     /// The command each request carries (0-65535).
     #[arg(long, default_value_t = 1)]
     command: u16,
-    /// Request data as hex.
-    #[arg(long, value_name = "HEX", default_value = "")]
+    /// Request data as hex, or the request's fields as a JSON object.
+    #[arg(long, value_name = "HEX|JSON", default_value = "")]
     data: String,
     /// Polling address where command 0 finds the target device (0 is the server
     /// itself, a HART I/O system, which answers without its loop).
@@ -648,8 +648,9 @@ struct EncodeArgs {
     /// Send the command through command 31 even if it is below 256.
     #[arg(long)]
     extended: bool,
-    /// Data bytes as hex.
-    #[arg(long, value_name = "HEX", default_value = "")]
+    /// Data bytes as hex, or the fields of the command's request (of its reply with
+    /// --ack/--back) as a JSON object, e.g. '{"pv_units": "kPa", "pv": 1.5}'.
+    #[arg(long, value_name = "HEX|JSON", default_value = "")]
     data: String,
     /// Secondary master (default primary).
     #[arg(long)]
@@ -666,11 +667,12 @@ struct EncodeArgs {
     /// Build a burst frame (BACK).
     #[arg(long)]
     back: bool,
-    /// Response code (first status byte) of an ACK/BACK.
-    #[arg(long, default_value_t = 0)]
+    /// Response code (first status byte) of an ACK/BACK (decimal, or hex with 0x).
+    #[arg(long, default_value = "0", value_parser = byte_arg)]
     rc: u8,
-    /// Field device status (second status byte) of an ACK/BACK.
-    #[arg(long, default_value_t = 0)]
+    /// Field device status (second status byte) of an ACK/BACK (decimal, or hex with
+    /// 0x: 0x40 is "configuration changed").
+    #[arg(long, default_value = "0", value_parser = byte_arg)]
     status: u8,
     /// Expansion bytes as hex (0-3 bytes; no use is defined).
     #[arg(long, value_name = "HEX", default_value = "")]
@@ -685,6 +687,16 @@ fn decode(args: &[String], as_json: bool) -> Result<String, String> {
     } else {
         Ok(annotate::frame(&frame).trim_end().to_string())
     }
+}
+
+/// A byte given in decimal (64) or hex with `0x` (0x40), as status bytes are written.
+fn byte_arg(s: &str) -> Result<u8, String> {
+    let t = s.trim();
+    match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        Some(h) => u8::from_str_radix(h, 16),
+        None => t.parse(),
+    }
+    .map_err(|_| format!("{s:?}: a byte, 0-255 or 0x00-0xFF"))
 }
 
 fn optional_hex(s: &str) -> Result<Vec<u8>, String> {
@@ -719,7 +731,8 @@ fn encode(a: &EncodeArgs) -> Result<String, String> {
         }),
         (None, None) => return Err("give --short N or --long HEX".into()),
     };
-    let data = optional_hex(&a.data).map_err(|e| format!("--data: {e}"))?;
+    let data = hartkit::fields::data_arg(a.command, &a.data, a.ack || a.back)
+        .map_err(|e| format!("--data: {e}"))?;
     let expansion = optional_hex(&a.expansion).map_err(|e| format!("--expansion: {e}"))?;
     let frame_type = if a.ack {
         FrameType::Ack
@@ -932,16 +945,8 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             data,
         } => host::block_on(async {
             let d = target(t)?;
-            let bytes = if data.trim().is_empty() {
-                vec![]
-            } else if data.trim_start().starts_with('{') {
-                let fields: serde_json::Value =
-                    serde_json::from_str(data).map_err(|e| (format!("data: not JSON: {e}"), 2))?;
-                hartkit::fields::request_bytes(*number, &fields)
-                    .map_err(|e| (format!("data: command {number}: {e}"), 2))?
-            } else {
-                hex::parse(&[data]).map_err(|e| (format!("data: {e}"), 2))?
-            };
+            let bytes = hartkit::fields::data_arg(*number, data, false)
+                .map_err(|e| (format!("data: {e}"), 2))?;
             let mut c = host_client(h).await?;
             host::command(&mut c, &d, *number, &bytes, h.json).await
         }),
@@ -1097,11 +1102,8 @@ fn hart_ip_bench(a: &IpBenchArgs) -> Result<String, (String, u8)> {
     if a.timeout_ms == 0 {
         return Err(("--timeout-ms 0: give a time-out of at least 1 ms".into(), 2));
     }
-    let data = if a.data.trim().is_empty() {
-        vec![]
-    } else {
-        hex::parse(&[&a.data]).map_err(|e| (format!("--data: {e}"), 2))?
-    };
+    let data = hartkit::fields::data_arg(a.command, &a.data, false)
+        .map_err(|e| (format!("--data: {e}"), 2))?;
     let opts = hart_host::load::LoadOptions {
         address,
         tcp,
