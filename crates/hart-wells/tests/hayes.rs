@@ -6,7 +6,7 @@
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use hart_host::transport::{Rts, SerialOptions, SerialTransport, Transport};
@@ -35,37 +35,9 @@ fn tools() -> bool {
     true
 }
 
-/// Two connected pseudo-terminals, `a` and `b`; socat and the directory go on drop.
-struct PtyPair {
-    _socat: Kill,
-    a: PathBuf,
-    b: PathBuf,
-    _dir: tempfile::TempDir,
-}
-
-fn pty_pair() -> PtyPair {
-    let dir = tempfile::tempdir().unwrap();
-    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    let socat = Kill(
-        Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", a.display()))
-            .arg(format!("pty,raw,echo=0,link={}", b.display()))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let end = Instant::now() + Duration::from_secs(10);
-    while !(a.exists() && b.exists()) {
-        assert!(Instant::now() < end, "socat made no pseudo-terminals");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    PtyPair {
-        _socat: socat,
-        a,
-        b,
-        _dir: dir,
-    }
+/// Two connected pseudo-terminals (hart_testkit); `tools()` has checked socat is there.
+fn pty_pair() -> hart_testkit::PtyPair {
+    hart_testkit::pty_pair().expect("socat is installed (checked by tools())")
 }
 
 /// The fake modem, its JSON log in a file.
@@ -189,9 +161,9 @@ async fn dial_carries_data_both_ways_and_hangs_up() {
         return;
     }
     let (dte, line) = (pty_pair(), pty_pair());
-    let connect = format!("5551234={}", line.a.display());
-    let mut modem = FakeModem::start(&dte.b, &["--connect", &connect]);
-    let mut pc = open(&dte.a);
+    let connect = format!("5551234={}", line.1.display());
+    let mut modem = FakeModem::start(&dte.2, &["--connect", &connect]);
+    let mut pc = open(&dte.1);
 
     let started = Instant::now();
     let r = dial(&mut pc, &opts("T 555-1234")).await;
@@ -203,7 +175,7 @@ async fn dial_carries_data_both_ways_and_hangs_up() {
     assert_eq!(dial_ev["outcome"], "CONNECT 1200");
 
     // The concentrator's end of the line.
-    let mut conc = open(&line.b);
+    let mut conc = open(&line.2);
     let request = b"\xFF\xFF\x02\x83\x90\x04\x01\xBC\x61\x4E\x4D";
     pc.send(request).await.unwrap();
     let got = read_n(&mut conc, request.len(), Duration::from_secs(3)).await;
@@ -249,7 +221,7 @@ async fn failed_dials_say_why() {
     }
     let dte = pty_pair();
     let modem = FakeModem::start(
-        &dte.b,
+        &dte.2,
         &[
             "--busy",
             "111",
@@ -263,7 +235,7 @@ async fn failed_dials_say_why() {
             "0.2",
         ],
     );
-    let mut pc = open(&dte.a);
+    let mut pc = open(&dte.1);
     let e = dial(&mut pc, &opts("111")).await.unwrap_err();
     assert!(matches!(e, DialError::Busy), "{e:?}");
     assert!(e.to_string().contains("busy"));
@@ -297,8 +269,8 @@ async fn failed_dials_say_why() {
     drop(modem);
 
     let dte = pty_pair();
-    let _modem = FakeModem::start(&dte.b, &["--no-dialtone"]);
-    let mut pc = open(&dte.a);
+    let _modem = FakeModem::start(&dte.2, &["--no-dialtone"]);
+    let mut pc = open(&dte.1);
     let e = dial(&mut pc, &opts("111")).await.unwrap_err();
     assert!(matches!(e, DialError::NoDialtone), "{e:?}");
     assert!(e.to_string().contains("dial tone"));
@@ -311,8 +283,8 @@ async fn a_silent_modem_times_out() {
         return;
     }
     let dte = pty_pair();
-    let mut modem = FakeModem::start(&dte.b, &["--silent"]);
-    let mut pc = open(&dte.a);
+    let mut modem = FakeModem::start(&dte.2, &["--silent"]);
+    let mut pc = open(&dte.1);
     let o = DialOptions {
         command_timeout: Duration::from_millis(700),
         ..opts("111")
@@ -341,8 +313,8 @@ async fn a_bad_number_sends_nothing() {
         return;
     }
     let dte = pty_pair();
-    let mut modem = FakeModem::start(&dte.b, &["--busy", "111"]);
-    let mut pc = open(&dte.a);
+    let mut modem = FakeModem::start(&dte.2, &["--busy", "111"]);
+    let mut pc = open(&dte.1);
     for number in ["555-CALL", "111\r\nATH", ""] {
         let e = dial(&mut pc, &opts(number)).await.unwrap_err();
         assert!(matches!(e, DialError::BadNumber(_)), "{number:?}: {e:?}");
@@ -364,9 +336,9 @@ async fn a_dropped_call_hangs_up_all_the_same() {
         return;
     }
     let (dte, line) = (pty_pair(), pty_pair());
-    let connect = format!("777={}", line.a.display());
+    let connect = format!("777={}", line.1.display());
     let mut modem = FakeModem::start(
-        &dte.b,
+        &dte.2,
         &[
             "--connect",
             &connect,
@@ -376,7 +348,7 @@ async fn a_dropped_call_hangs_up_all_the_same() {
             "0.3",
         ],
     );
-    let mut pc = open(&dte.a);
+    let mut pc = open(&dte.1);
     assert_eq!(dial(&mut pc, &opts("777")).await.unwrap(), "CONNECT 1200");
     let got = read_n(&mut pc, 14, Duration::from_secs(3)).await;
     assert_eq!(

@@ -225,58 +225,6 @@ pub fn public_vectors() -> Vec<toml::Value> {
         .unwrap_or_default()
 }
 
-/// A pseudo-terminal pair joined by socat (an outside program, run as a process);
-/// `.1` and `.2` are its two ends. Killed when dropped.
-pub struct PtyPair(
-    pub std::process::Child,
-    pub std::path::PathBuf,
-    pub std::path::PathBuf,
-);
-
-impl Drop for PtyPair {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// A new pseudo-terminal pair, or `None` (the test is skipped) when socat is not
-/// installed, unless `HARTKIT_REQUIRE_INTEROP=1`.
-pub fn pty_pair() -> Option<PtyPair> {
-    use std::sync::atomic::{AtomicU32, Ordering};
-    static N: AtomicU32 = AtomicU32::new(0);
-    if std::process::Command::new("socat")
-        .arg("-V")
-        .output()
-        .is_err()
-    {
-        assert!(
-            std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
-            "socat is not installed although HARTKIT_REQUIRE_INTEROP=1 (apt-get install socat)"
-        );
-        eprintln!("socat not installed; skipping a serial-line check");
-        return None;
-    }
-    let dir = std::env::temp_dir().join(format!(
-        "hartkit-pty-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
-    let (a, b) = (dir.join("a"), dir.join("b"));
-    let child = std::process::Command::new("socat")
-        .arg(format!("pty,raw,echo=0,link={}", a.display()))
-        .arg(format!("pty,raw,echo=0,link={}", b.display()))
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
-    while !(a.exists() && b.exists()) {
-        assert!(
-            std::time::Instant::now() < end,
-            "socat made no pseudo-terminals"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    Some(PtyPair(child, a, b))
-}
+// Not every test binary that includes this module opens a serial line.
+#[allow(unused_imports)]
+pub use hart_testkit::pty_pair;
