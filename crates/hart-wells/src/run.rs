@@ -666,6 +666,33 @@ pub struct WellOutcome {
     pub sensor_faults: Vec<String>,
 }
 
+/// Dials `route`'s number (when it has one), runs `f` on the line, and hangs up
+/// whatever `f` gave; straight down the line without a number. Every dialled exchange
+/// (a pull, parameters, a calibration) goes through here.
+pub async fn on_route<T: Transport, R>(
+    t: &mut T,
+    route: &Route,
+    dial: &crate::hayes::DialOptions,
+    f: impl AsyncFnOnce(&mut T) -> Result<R, String>,
+) -> Result<R, String> {
+    let Some(n) = &route.number else {
+        return f(t).await;
+    };
+    let opts = crate::hayes::DialOptions {
+        number: n.clone(),
+        ..dial.clone()
+    };
+    let connect = crate::hayes::dial(t, &opts)
+        .await
+        .map_err(|e| e.to_string())?;
+    info!("well {}: {connect}", route.well);
+    let result = f(t).await;
+    if let Err(e) = crate::hayes::hang_up(t, &opts).await {
+        warn!("well {}: hanging up: {e}", route.well);
+    }
+    result
+}
+
 /// Dials (when the route has a number), pulls, hangs up (whatever happened).
 pub async fn pull_route<T: Transport>(
     t: &mut T,
@@ -676,25 +703,12 @@ pub async fn pull_route<T: Transport>(
     clock: Clock,
 ) -> Result<PullSummary, String> {
     let station = Station::concentrator(route.well);
-    if let Some(n) = &route.number {
-        let opts = crate::hayes::DialOptions {
-            number: n.clone(),
-            ..dial.clone()
-        };
-        let connect = crate::hayes::dial(t, &opts)
-            .await
-            .map_err(|e| e.to_string())?;
-        info!("well {}: {connect}", route.well);
-        let result = pull(t, archive, station, r, clock, false).await;
-        if let Err(e) = crate::hayes::hang_up(t, &opts).await {
-            warn!("well {}: hanging up: {e}", route.well);
-        }
-        result.map_err(|e| e.to_string())
-    } else {
+    on_route(t, route, dial, async |t: &mut T| {
         pull(t, archive, station, r, clock, false)
             .await
             .map_err(|e| e.to_string())
-    }
+    })
+    .await
 }
 
 /// Time from `now_s` (Unix seconds) to the next of `times` (seconds of the UTC day).
@@ -808,22 +822,10 @@ pub async fn parameters<T: Transport>(
         crate::proto::PARAMETERS,
         p.encode(),
     );
-    let opts = crate::hayes::DialOptions {
-        number: route.number.clone().unwrap_or_default(),
-        ..dial.clone()
-    };
-    if route.number.is_some() {
-        crate::hayes::dial(t, &opts)
-            .await
-            .map_err(|e| e.to_string())?;
-    }
-    let result = exchange(t, &req, r).await;
-    if route.number.is_some() {
-        if let Err(e) = crate::hayes::hang_up(t, &opts).await {
-            warn!("well {}: hanging up: {e}", route.well);
-        }
-    }
-    let m = result.map_err(|e| e.to_string())?;
+    let m = on_route(t, route, dial, async |t: &mut T| {
+        exchange(t, &req, r).await.map_err(|e| e.to_string())
+    })
+    .await?;
     match m.response_code() {
         Some(0) => crate::proto::Parameters::decode(&m.data).map_err(|e| e.to_string()),
         Some(3) => {

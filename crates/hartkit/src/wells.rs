@@ -679,21 +679,16 @@ fn calibrate(a: &CalibrateArgs) -> Result<String, String> {
     };
     let done = crate::host::block_on(async {
         let mut t = open_line(&a.to.port, &a.to.line, None)?;
-        let opts = a.modem.options(a.dial.as_deref().unwrap_or(""));
-        if a.dial.is_some() {
-            hart_wells::hayes::dial(&mut t, &opts)
+        let route = run::Route {
+            well: a.to.well,
+            number: a.dial.clone(),
+        };
+        run::on_route(&mut t, &route, &a.modem.options(""), async |t| {
+            run::send_calibration(t, station, &file, requester(&a.to.req))
                 .await
-                .map_err(|e| e.to_string())?;
-        }
-        let result = run::send_calibration(&mut t, station, &file, requester(&a.to.req))
-            .await
-            .map_err(|e| e.to_string());
-        if a.dial.is_some() {
-            if let Err(e) = hart_wells::hayes::hang_up(&mut t, &opts).await {
-                tracing::warn!("hanging up: {e}");
-            }
-        }
-        result
+                .map_err(|e| e.to_string())
+        })
+        .await
     })?;
     let names: Vec<&str> = done.iter().map(|s| s.name()).collect();
     Ok(if a.handheld {
