@@ -1,4 +1,4 @@
-//! Dialling over a serial line to a modem: `hart_wells::hayes` on a `SerialTransport`
+//! Dialling over a serial line to a modem: `hart_wells::hayes` on a serial line
 //! against `tests/peer/fake_modem.py`, a Hayes-compatible modem written from the AT
 //! command conventions, on socat pseudo-terminal pairs. The modem's telephone line to
 //! the concentrator is a second pair, which the test reads and writes as the
@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use hart_host::transport::{Rts, SerialOptions, SerialTransport, Transport};
+use hart_host::target::AnyTransport;
+use hart_host::transport::Transport;
 use hart_wells::hayes::{dial, hang_up, DialError, DialOptions, LineAssembler};
 use serde_json::Value;
 
@@ -119,17 +120,10 @@ impl FakeModem {
     }
 }
 
-fn open(path: &Path) -> SerialTransport {
-    SerialTransport::open(SerialOptions {
-        path: path.to_path_buf(),
-        baud: 1200,
-        rts: Rts::None,
-        rts_pre: Duration::ZERO,
-        rts_post: Duration::ZERO,
-        rs485: false,
-        carrier_detect: false,
-    })
-    .unwrap()
+/// The serial line at `path` as the command line opens it (a HART modem at 1200 bit/s,
+/// no RTS keying).
+fn open(path: &Path) -> AnyTransport {
+    hart_host::target::open(&format!("serial:{}", path.display())).unwrap()
 }
 
 /// Reads until `n` bytes came or `within` passed.
