@@ -6,7 +6,7 @@
 
 mod common;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -59,6 +59,31 @@ fn spawn_hartkit(args: &[&str]) -> Kill {
             .spawn()
             .unwrap(),
     )
+}
+
+/// `hartkit wells pc pull --port PORT --well WELL --db DB --json EXTRA...`: the exit
+/// status, the JSON summary when it succeeded, and standard error.
+fn pc_pull(port: &Path, well: &str, db: &Path, extra: &[&str]) -> (i32, Value, String) {
+    let mut args = vec![
+        "wells",
+        "pc",
+        "pull",
+        "--port",
+        port.to_str().unwrap(),
+        "--well",
+        well,
+        "--db",
+        db.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    let (code, out, err) = hartkit(&args);
+    let v = if code == 0 {
+        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out}"))
+    } else {
+        Value::Null
+    };
+    (code, v, err)
 }
 
 fn tmp(name: &str) -> PathBuf {
@@ -272,38 +297,12 @@ fn the_handheld_collects_from_a_peer_and_hands_over_to_the_pc() {
         hh.to_str().unwrap(),
     ]);
     std::thread::sleep(Duration::from_millis(300));
-    let (code, out, err) = hartkit(&[
-        "wells",
-        "pc",
-        "pull",
-        "--handheld",
-        "--port",
-        bureau.2.to_str().unwrap(),
-        "--well",
-        "2",
-        "--db",
-        pc.to_str().unwrap(),
-        "--json",
-    ]);
+    let (code, v, err) = pc_pull(&bureau.2, "2", &pc, &["--handheld"]);
     assert_eq!(code, 0, "{err}");
-    let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["new_minutes"], 30, "{v}");
     // A well the handheld holds nothing of: an empty hand-over, not silence.
-    let (code, out, err) = hartkit(&[
-        "wells",
-        "pc",
-        "pull",
-        "--handheld",
-        "--port",
-        bureau.2.to_str().unwrap(),
-        "--well",
-        "5",
-        "--db",
-        pc.to_str().unwrap(),
-        "--json",
-    ]);
+    let (code, v, err) = pc_pull(&bureau.2, "5", &pc, &["--handheld"]);
     assert_eq!(code, 0, "{err}");
-    let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["new_minutes"], 0, "{v}");
 }
 
@@ -532,22 +531,8 @@ fn the_pc_dials_pulls_and_reports_unreachable_wells_and_faulty_sensors() {
             .unwrap(),
     );
     std::thread::sleep(Duration::from_millis(2500));
-    let (code, out, err) = hartkit(&[
-        "wells",
-        "pc",
-        "pull",
-        "--port",
-        modem.1.to_str().unwrap(),
-        "--well",
-        "4",
-        "--dial",
-        "555-4004",
-        "--db",
-        pc.to_str().unwrap(),
-        "--json",
-    ]);
+    let (code, v, err) = pc_pull(&modem.1, "4", &pc, &["--dial", "555-4004"]);
     assert_eq!(code, 0, "{err}");
-    let v: Value = serde_json::from_str(&out).unwrap();
     assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
     assert_eq!(v["status"]["sensors"][1]["state"], "not answering", "{v}");
     let (code, out, err) = hartkit(&[
@@ -825,24 +810,8 @@ fn the_concentrator_keeps_polling_when_its_uplink_vanishes() {
     let _up = socat(&a, &b);
     let end = Instant::now() + Duration::from_secs(20);
     loop {
-        let (code, out, err) = hartkit(&[
-            "wells",
-            "pc",
-            "pull",
-            "--port",
-            b.to_str().unwrap(),
-            "--well",
-            "7",
-            "--db",
-            pc.to_str().unwrap(),
-            "--json",
-            "--timeout-ms",
-            "500",
-            "--tries",
-            "1",
-        ]);
+        let (code, v, err) = pc_pull(&b, "7", &pc, &["--timeout-ms", "500", "--tries", "1"]);
         if code == 0 {
-            let v: Value = serde_json::from_str(&out).unwrap();
             assert!(v["new_minutes"].as_u64().unwrap() >= 3, "{v}");
             break;
         }
