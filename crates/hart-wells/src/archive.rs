@@ -17,8 +17,8 @@ use crate::proto::{
     CALIBRATION, TABLE_IN_FORCE, TRANSFER,
 };
 use crate::store::{
-    get_meta, load_table, open_db, record_from_row, save_table, set_meta, transfer_in, Durability,
-    StoreError,
+    add_count, get_count, get_meta, load_table, open_db, record_from_row, save_table, transfer_in,
+    Durability, StoreError,
 };
 
 /// Where records came from.
@@ -195,8 +195,7 @@ impl Archive {
             .map_err(e)?;
         }
         if out.duplicated > 0 {
-            let d = get_meta(&tx, "duplicated").map_err(e)?.unwrap_or(0) + out.duplicated as i64;
-            set_meta(&tx, "duplicated", d).map_err(e)?;
+            add_count(&tx, "duplicated", out.duplicated).map_err(e)?;
         }
         tx.commit().map_err(e)?;
         Ok(out)
@@ -204,9 +203,7 @@ impl Archive {
 
     /// Minutes received that the archive already had, over its life.
     pub fn duplicated(&self) -> Result<u32, StoreError> {
-        Ok(get_meta(&self.conn, "duplicated")
-            .map_err(|e| self.err(e))?
-            .unwrap_or(0) as u32)
+        get_count(&self.conn, "duplicated").map_err(|e| self.err(e))
     }
 
     /// Answers command 144 for `well` as a station (the handheld serving the PC):
@@ -437,6 +434,15 @@ pub enum TransferError {
     Decode(DecodeError),
     /// The archive could not store it.
     Store(StoreError),
+    /// The station sent the batch it had just sent although it was acknowledged, or
+    /// more batches than any store holds: it is not moving on, and the pull stops
+    /// rather than asking forever (what came before is stored).
+    NotMovingOn {
+        /// The station.
+        station: Station,
+        /// Batches received in this pull.
+        batches: u32,
+    },
 }
 
 impl std::fmt::Display for TransferError {
@@ -463,6 +469,12 @@ impl std::fmt::Display for TransferError {
             ),
             TransferError::Decode(e) => write!(f, "{e}"),
             TransferError::Store(e) => write!(f, "{e}"),
+            TransferError::NotMovingOn { station, batches } => write!(
+                f,
+                "{station} is not moving on after {batches} batch(es): it sent an acknowledged \
+                 batch again, or more than its store can hold; what came before is stored. \
+                 Check its log, and that no other program answers at its address"
+            ),
         }
     }
 }
@@ -493,7 +505,13 @@ pub struct Collector {
     pub duplicated: u32,
     /// Records the station said remained after the last batch.
     pub remaining: u32,
+    /// The last batch's data, to tell a station that repeats it.
+    last_data: Vec<u8>,
 }
+
+/// More batches than a pull can need: a year of minutes at 11 a batch is under 48 000,
+/// and no store holds a year.
+const MAX_BATCHES: u32 = 60_000;
 
 impl Collector {
     /// A transfer from `station` (a concentrator, or the handheld for a well), going
@@ -510,6 +528,7 @@ impl Collector {
             new: 0,
             duplicated: 0,
             remaining: 0,
+            last_data: Vec::new(),
         })
     }
 
@@ -543,6 +562,15 @@ impl Collector {
         if batch.records.is_empty() {
             return Ok(Step::Done);
         }
+        // An acknowledged batch sent again, or no end in sight: a station that does
+        // not move on would otherwise be asked forever.
+        if reply.data == self.last_data || self.batches >= MAX_BATCHES {
+            return Err(TransferError::NotMovingOn {
+                station: self.station,
+                batches: self.batches,
+            });
+        }
+        self.last_data.clone_from(&reply.data);
         let s = archive
             .store_batch(self.via, self.well, &batch, now_minute)
             .map_err(TransferError::Store)?;
@@ -672,5 +700,31 @@ mod tests {
         assert_eq!(b.records.len(), 1);
         assert_eq!(a.unsent(5).unwrap(), 1);
         assert_eq!(a.unsent(2).unwrap(), 3);
+    }
+
+    /// A station that answers every request with the batch it has just sent (a broken
+    /// peer, or another program at its address) ends the pull with an error instead
+    /// of being asked forever; what it sent first is stored.
+    #[test]
+    fn a_station_that_repeats_an_acknowledged_batch_ends_the_pull() {
+        let d = tempfile::tempdir().unwrap();
+        let mut a = Archive::open(&d.path().join("a.db"), Durability::Process).unwrap();
+        let station = Station::concentrator(3);
+        let mut col = Collector::new(&a, station).unwrap();
+        let reply = Message::reply(station, TRANSFER, [0, 0], batch(5..6).encode());
+        assert_eq!(col.on_reply(&reply, &mut a, 10).unwrap(), Step::More);
+        let e = col.on_reply(&reply, &mut a, 10).unwrap_err();
+        assert!(
+            matches!(e, TransferError::NotMovingOn { batches: 1, .. }),
+            "{e}"
+        );
+        assert!(e.to_string().contains("not moving on"), "{e}");
+        assert_eq!(a.count(3).unwrap(), 1);
+        // A different batch next is progress.
+        let mut col = Collector::new(&a, station).unwrap();
+        for m in 6..9 {
+            let r = Message::reply(station, TRANSFER, [0, 0], batch(m..m + 1).encode());
+            assert_eq!(col.on_reply(&r, &mut a, 10).unwrap(), Step::More);
+        }
     }
 }

@@ -148,7 +148,7 @@ impl Concentrator {
         // Back after a restart with a minute missing: poll at once, while the sensors
         // still hold it (they keep three).
         let (_, _, newest) = c.store.counts()?;
-        if newest > 0 && newest + 1 < crate::minute_of(now) {
+        if newest > 0 && newest.saturating_add(1) < crate::minute_of(now) {
             c.next_poll = now;
         }
         Ok(c)

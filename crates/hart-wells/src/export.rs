@@ -744,7 +744,7 @@ pub fn plot_png(
     } else {
         to.saturating_add(1)
     };
-    let picture = plot::draw(&data, lo, hi.max(lo + 1), every, size)?;
+    let picture = plot::draw(&data, lo, hi.max(lo.saturating_add(1)), every, size)?;
     plot::write_png(&picture, size, path)
 }
 
@@ -984,12 +984,17 @@ mod plot {
             .unwrap_or(10.0 * mag);
         let decimals = (-(step.log10().floor())).max(0.0) as usize
             + usize::from((step / 10f64.powf(step.log10().floor()) - 2.5).abs() < 1e-9);
-        let mut out = Vec::new();
-        let mut i = (lo / step).ceil();
-        while i * step <= hi + step * 1e-9 {
-            out.push(i * step);
-            i += 1.0;
-        }
+        // Counted first, not stepped to the end: at values far above the step (a
+        // corrupt archive's 1e16 m) adding 1 to the tick index changes nothing, and a
+        // loop waiting for it to pass `hi` would never end.
+        let first = (lo / step).ceil();
+        let count = ((hi + step * 1e-9) / step).floor() - first;
+        let count = if count.is_finite() {
+            count.clamp(-1.0, 4.0 * max as f64) as i64
+        } else {
+            -1
+        };
+        let out = (0..=count).map(|k| (first + k as f64) * step).collect();
         (out, decimals)
     }
 
@@ -1327,6 +1332,22 @@ mod plot {
             assert_eq!(format!("{:.*}", d, t[0]), "15.7160");
             let (_, d) = value_ticks(0.0, 1.0, 4);
             assert_eq!(d, 2); // a step of 0.25
+        }
+
+        /// Values far above their spread (a corrupt archive) still give a finite,
+        /// short list of ticks: counting them once ends where stepping 1e16 by 1 would
+        /// not.
+        #[test]
+        fn value_ticks_end_for_values_far_above_their_spread() {
+            for (lo, hi) in [
+                (1e16, 1e16 + 2.0),
+                (1e7, 1e7 + 3.7e-9),
+                (0.0, 0.0),
+                (5.0, 5.0),
+            ] {
+                let (t, _) = value_ticks(lo, hi, 6);
+                assert!(t.len() <= 24, "{lo} {hi}: {} ticks", t.len());
+            }
         }
 
         #[test]

@@ -295,7 +295,7 @@ impl Store {
 
     /// The handed-over mark: every minute up to it has been handed over.
     pub fn handed_over(&self) -> Result<u32, StoreError> {
-        Ok(self.meta("handed_over")?.unwrap_or(0) as u32)
+        get_count(&self.conn, "handed_over").map_err(|e| self.err(e))
     }
 
     /// Minutes stored, minutes not handed over, the newest minute.
@@ -314,7 +314,7 @@ impl Store {
 
     /// Minutes dropped before they were handed over, over the store's life.
     pub fn dropped_unsent(&self) -> Result<u32, StoreError> {
-        Ok(self.meta("dropped_unsent")?.unwrap_or(0) as u32)
+        get_count(&self.conn, "dropped_unsent").map_err(|e| self.err(e))
     }
 
     /// The record of `minute`, if stored.
@@ -361,8 +361,8 @@ impl Store {
         };
         let tx = self.conn.transaction().map_err(e)?;
         let mut out = PollOutcome::default();
-        let ho: u32 = get_meta(&tx, "handed_over").map_err(e)?.unwrap_or(0) as u32;
-        let sent: u32 = get_meta(&tx, "sent_upto").map_err(e)?.unwrap_or(0) as u32;
+        let ho = get_count(&tx, "handed_over").map_err(e)?;
+        let sent = get_count(&tx, "sent_upto").map_err(e)?;
         let mut resend_from = sent;
         for r in records.iter().filter(|r| r.valid != 0) {
             if r.minute <= ho {
@@ -464,9 +464,7 @@ impl Store {
                         [left],
                     )
                     .map_err(e)? as u32;
-                let total = get_meta(&tx, "dropped_unsent").map_err(e)?.unwrap_or(0)
-                    + out.dropped_unsent as i64;
-                set_meta(&tx, "dropped_unsent", total).map_err(e)?;
+                let total = add_count(&tx, "dropped_unsent", out.dropped_unsent).map_err(e)?;
                 tx.execute(
                     "INSERT INTO events VALUES (?1, 'error', ?2)",
                     params![
@@ -629,6 +627,21 @@ pub(crate) fn get_meta(c: &Connection, key: &str) -> rusqlite::Result<Option<i64
         .optional()
 }
 
+/// A mark or a count kept in `meta` (a minute, minutes dropped): 0 when not set; a
+/// value outside 0..=u32::MAX (a damaged file) is an error, never wrapped into a mark
+/// that would hide or drop minutes.
+pub(crate) fn get_count(c: &Connection, key: &str) -> rusqlite::Result<u32> {
+    let v = get_meta(c, key)?.unwrap_or(0);
+    u32::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(0, v))
+}
+
+/// Adds `n` to the count `key` in `meta` (saturating); the new total.
+pub(crate) fn add_count(c: &Connection, key: &str, n: u32) -> rusqlite::Result<i64> {
+    let total = get_meta(c, key)?.unwrap_or(0).saturating_add(i64::from(n));
+    set_meta(c, key, total)?;
+    Ok(total)
+}
+
 pub(crate) fn set_meta(c: &Connection, key: &str, v: i64) -> rusqlite::Result<()> {
     c.execute(
         "INSERT OR REPLACE INTO meta VALUES (?1, ?2)",
@@ -654,8 +667,8 @@ pub(crate) fn transfer_in(
     let where_scope: String = scope.iter().map(|(c, v)| format!(" AND {c}={v}")).collect();
     let key = format!("handed_over{scope_key}");
     let sent_key = format!("sent_upto{scope_key}");
-    let mark = get_meta(tx, &key)?.unwrap_or(0) as u32;
-    let sent = get_meta(tx, &sent_key)?.unwrap_or(0) as u32;
+    let mark = get_count(tx, &key)?;
+    let sent = get_count(tx, &sent_key)?;
     // An acknowledgement counts up to what has been sent, never beyond (a requester's
     // cursor ahead of this station's data moves nothing it has not had).
     let new_mark = mark.max(ack.min(sent));
@@ -668,8 +681,7 @@ pub(crate) fn transfer_in(
             |r| r.get(0),
         )?;
         set_meta(tx, &key, new_mark as i64)?;
-        let total = get_meta(tx, &format!("transferred{scope_key}"))?.unwrap_or(0) + before as i64;
-        set_meta(tx, &format!("transferred{scope_key}"), total)?;
+        add_count(tx, &format!("transferred{scope_key}"), before)?;
         set_meta(
             tx,
             &format!("last_transfer_at{scope_key}"),
@@ -935,6 +947,23 @@ mod tests {
         s.commit_poll(&[rec(104, 3)], &[], 121).unwrap();
         let b = s.transfer(109, 121, 3).unwrap();
         assert_eq!(b.records[0].minute, 104, "{b:?}");
+    }
+
+    /// A damaged mark (a negative or oversized value in `meta`) is an error that names
+    /// it, not a wrapped mark that would drop every new minute as "behind the clock" or
+    /// hand nothing over.
+    #[test]
+    fn a_damaged_mark_is_an_error_not_a_wrapped_minute() {
+        let d = tempfile::tempdir().unwrap();
+        let mut s = store(&d);
+        set_meta(&s.conn, "handed_over", -1).unwrap();
+        let e = s.handed_over().unwrap_err();
+        assert!(e.to_string().contains("out of range"), "{e}");
+        assert!(s.transfer(0, 100, 0x03).is_err());
+        set_meta(&s.conn, "handed_over", 0).unwrap();
+        assert_eq!(s.handed_over().unwrap(), 0);
+        set_meta(&s.conn, "dropped_unsent", i64::MAX).unwrap();
+        assert!(s.dropped_unsent().is_err());
     }
 
     #[test]
