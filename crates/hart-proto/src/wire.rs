@@ -406,12 +406,23 @@ pub trait FromValue: Sized {
 }
 
 fn uint_of(v: Value<'_>, field: &'static str, max: u32) -> Result<u32, BuildError> {
+    let out_of_range = BuildError::Invalid {
+        field,
+        reason: match max {
+            0xFF => "out of range: the field is one byte (0 to 255)",
+            0xFFFF => "out of range: the field is two bytes (0 to 65535)",
+            0xFF_FFFF => "out of range: the field is three bytes (0 to 16777215)",
+            _ => "out of range: the field is four bytes (0 to 4294967295)",
+        },
+    };
     let n = match v {
         Value::Uint(n) => n,
         // A whole float (a JSON 5.0) is taken; `as` saturates, so compare back.
         Value::Float(x) if (0.0..4_294_967_296.0).contains(&x) && (x as u32) as f32 == x => {
             x as u32
         }
+        // A negative or too large whole number is a number out of range, not text.
+        Value::Float(x) if x.is_finite() && x == (x as i64) as f32 => return Err(out_of_range),
         Value::Bool(b) => b.into(),
         _ => {
             return Err(BuildError::WrongKind {
@@ -421,15 +432,7 @@ fn uint_of(v: Value<'_>, field: &'static str, max: u32) -> Result<u32, BuildErro
         }
     };
     if n > max {
-        return Err(BuildError::Invalid {
-            field,
-            reason: match max {
-                0xFF => "out of range: the field is one byte (0 to 255)",
-                0xFFFF => "out of range: the field is two bytes (0 to 65535)",
-                0xFF_FFFF => "out of range: the field is three bytes (0 to 16777215)",
-                _ => "out of range",
-            },
-        });
+        return Err(out_of_range);
     }
     Ok(n)
 }

@@ -385,6 +385,8 @@ mod tests {
         );
         let e = request_bytes(6, &json!({"polling_address": 300})).unwrap_err();
         assert!(e.to_string().contains("0 to 255"), "{e}");
+        let e = request_bytes(6, &json!({"polling_address": -1})).unwrap_err();
+        assert!(e.to_string().contains("0 to 255"), "{e}");
         let e = request_bytes(6, &json!({"polling_address": "x"})).unwrap_err();
         assert!(e.to_string().contains("whole number"), "{e}");
         assert_eq!(
