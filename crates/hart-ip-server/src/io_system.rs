@@ -296,6 +296,29 @@ impl IoSystem {
         }
     }
 
+    /// The expanded device type of the device request `f` reaches, when the server
+    /// knows it: the I/O system's own, a long address's, or a sub-device's found at
+    /// that polling address (for access control's declared device-specific reads).
+    pub async fn device_type(&self, f: &Frame<'_>) -> Option<u16> {
+        match f.address {
+            Address::Long(a) if a.id.is_broadcast() => None,
+            Address::Long(a) => Some(a.id.expanded_device_type),
+            Address::Short(a) => {
+                if self.route(f).await == Route::Local {
+                    return Some(self.unique_id().expanded_device_type);
+                }
+                let subs = self.subs.lock().await;
+                let mut found = subs
+                    .iter()
+                    .filter(|s| s.info.polling_address == Some(a.polling_address));
+                match (found.next(), found.next()) {
+                    (Some(s), None) => Some(s.info.unique_id().expanded_device_type),
+                    _ => None,
+                }
+            }
+        }
+    }
+
     /// Forwards a PDU to loop `channel` with `retries`, between the engine's polls.
     /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
     pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {

@@ -50,8 +50,13 @@ pub struct Config {
     /// Most sessions at once from one client address (IP), so one host cannot take
     /// every session.
     pub max_sessions_per_host: usize,
-    /// Refuse every command that changes a device ("access restricted").
+    /// Every session may only read, whatever its identity or listener: commands not
+    /// known to read are answered "access restricted".
     pub read_only: bool,
+    /// What plain (version 1, unauthenticated) sessions may do: those on `bind`
+    /// without `psk`, and those on `plain`. `hartkit serve` makes it read-only when a
+    /// PSK file is given, unless told otherwise (`--plain-rights`).
+    pub plain_rights: access::Rights,
     /// Scan each loop's polling addresses 0..=N at start and keep the list current
     /// (for routing by long address and command 84); `None` skips the scan.
     pub scan_to: Option<u8>,
@@ -68,6 +73,8 @@ pub struct Config {
     /// Only these commands may be sent (others are answered "access restricted");
     /// `None`: every command.
     pub allow_commands: Option<access::CommandAllowList>,
+    /// Device-specific commands the plant declares reads (`--device-commands`).
+    pub device_commands: access::DeviceCommands,
     /// Append a JSON line for every accepted write to this file (besides the log).
     pub audit_file: Option<std::path::PathBuf>,
 }
@@ -81,12 +88,14 @@ impl Default for Config {
             max_sessions: 64,
             max_sessions_per_host: 16,
             read_only: false,
+            plain_rights: access::Rights::ReadWrite,
             scan_to: Some(63),
             identity: GatewayIdentity::default(),
             transparent: false,
             psk: None,
             plain: None,
             allow_commands: None,
+            device_commands: access::DeviceCommands::default(),
             audit_file: None,
         }
     }
@@ -162,6 +171,10 @@ impl Counters {
 /// (they guard a few field updates), so they are plain `std` mutexes.
 pub(crate) struct Shared {
     pub(crate) config: Config,
+    /// The access rules (allow-list, declared device-specific reads).
+    pub(crate) policy: hart_access::Policy,
+    /// Where writes let through are recorded.
+    pub(crate) write_audit: hart_access::Audit,
     /// Sessions open now.
     pub(crate) sessions: std::sync::Mutex<usize>,
     /// Sessions open now, by client address (for `max_sessions_per_host`).
@@ -259,6 +272,11 @@ pub async fn start_with_engine(
     let io = IoSystem::new(config.identity.clone(), engine, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
+        policy: hart_access::Policy {
+            allow: config.allow_commands.clone(),
+            device_commands: config.device_commands.clone(),
+        },
+        write_audit: hart_access::Audit::new(config.audit_file.clone()),
         sessions: std::sync::Mutex::new(0),
         per_host: Default::default(),
         stats: Counters::default(),
@@ -392,8 +410,21 @@ pub(crate) fn message(
     body: &[u8],
 ) -> Vec<u8> {
     let mut out = vec![0u8; HEADER_LEN + body.len()];
-    let _ = encode(version, ty, id, st, seq, body, &mut out);
-    out
+    match encode(version, ty, id, st, seq, body, &mut out) {
+        Ok(n) => {
+            out.truncate(n);
+            out
+        }
+        Err(e) => {
+            // Longer than a HART-IP message can be (the server caps what it builds, so
+            // this is a fault): answer "device-specific error" without a body rather
+            // than send a broken header.
+            tracing::error!("hart-ip: a reply of {} bytes could not be encoded: {e}", body.len());
+            let mut out = vec![0u8; HEADER_LEN];
+            let _ = encode(version, ty, id, hart_ip::status::DEVICE_SPECIFIC, seq, &[], &mut out);
+            out
+        }
+    }
 }
 
 /// The PDU of `spec` (no preambles, as HART-IP carries it); empty if it cannot be

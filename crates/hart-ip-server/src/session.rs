@@ -7,6 +7,7 @@ use hart_ip::{status, Body, Header, MessageId, MessageType};
 use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
+use hart_access::{Allowed, Rights, WriteRecord};
 use crate::io_system::{LoopOutcome, Route};
 use crate::subscriptions::{subscription_command, Subscriptions};
 use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
@@ -169,58 +170,79 @@ impl Session {
         }
     }
 
-    /// Whether this session may only read (the server's `--read-only`, or a read-only
-    /// PSK identity).
-    fn read_only(&self, shared: &Shared) -> bool {
-        shared.config.read_only
-            || self
-                .secure
-                .as_ref()
-                .is_some_and(|(_, r)| *r == hart_ip_tls::Rights::ReadOnly)
+    /// What this session may do: its PSK identity's rights, or the plain listener's
+    /// (`--plain-rights`), and read-only whatever they are on a `--read-only` server.
+    pub(crate) fn rights(&self, shared: &Shared) -> Rights {
+        let own = match &self.secure {
+            Some((_, r)) => *r,
+            None => shared.config.plain_rights,
+        };
+        if shared.config.read_only {
+            Rights::ReadOnly
+        } else {
+            own
+        }
     }
 }
 
-/// Whether a command changes a device: a write command of the table, or the I/O
-/// system's command 102.
-fn is_write(command: u16) -> bool {
-    command == 102 || hart_proto::command::info(command).is_some_and(|i| i.writes)
-}
-
-/// Whether a request changes a device, a write wrapped in command 77 included.
-fn writes(f: &Frame<'_>) -> bool {
-    let (outer, inner) = crate::access::commands(f);
-    is_write(outer) || inner.is_some_and(is_write)
-}
-
-/// Whether access control lets `s` send `command` (and, for command 77, the command
-/// wrapped in it): the allow-list, then read-only sessions against writes.
-fn allowed(shared: &Shared, s: &Session, command: u16, inner: Option<u16>) -> bool {
-    let listed = |c: u16| {
-        shared
-            .config
-            .allow_commands
-            .as_ref()
-            .is_none_or(|a| a.allows(c))
+/// Asks the server's policy whether session `s` may send request frame `f` and whether
+/// it writes; a write let through is audited (with the innermost device and command),
+/// a refusal logged. `via` names the path (`token-passing`, `direct PDU`).
+async fn admit(
+    shared: &Shared,
+    s: &Session,
+    f: &Frame<'_>,
+    via: &str,
+) -> Result<Allowed, hart_access::Refusal> {
+    let device_type = shared.io.device_type(f).await;
+    let rights = s.rights(shared);
+    let verdict = if hart_access::SESSION_COMMANDS.contains(&f.command) {
+        shared.policy.check_session_command(f.command)
+    } else {
+        shared.policy.check(rights, f, device_type)
     };
-    let read_only = s.read_only(shared);
-    listed(command)
-        && inner.is_none_or(listed)
-        && !(read_only && (is_write(command) || inner.is_some_and(is_write)))
+    match &verdict {
+        Ok(Allowed::Write(t)) => {
+            let via = match t.depth {
+                0 => via.to_string(),
+                1 => format!("{via}, command 77"),
+                n => format!("{via}, command 77 ({n} levels)"),
+            };
+            shared.write_audit.record(&WriteRecord {
+                front_end: "hart-ip",
+                session: s.audit,
+                peer: s.peer.to_string(),
+                identity: s.secure.as_ref().map(|(i, _)| i.clone()),
+                device: t.device.clone(),
+                command: t.command,
+                via,
+                operation: hart_proto::command::title(t.command).map(str::to_string),
+            });
+            if let Some(i) = s.audit {
+                if let Some(r) = lock(&shared.audit).get_mut(i) {
+                    r.status |= 0x0001; // writes occurred
+                }
+            }
+        }
+        Ok(Allowed::Read) => {}
+        Err(why) => tracing::warn!(
+            "hart-ip: refused {via} request from {} ({}, {}): {why}",
+            s.peer,
+            s.secure
+                .as_ref()
+                .map_or("plain".to_string(), |(i, _)| format!("identity {i:?}")),
+            rights
+        ),
+    }
+    verdict
 }
 
-/// Logs a write the server lets through.
-fn audit(shared: &Shared, s: &Session, device: String, command: u16) {
-    crate::access::audit_write(
-        shared.config.audit_file.as_ref(),
-        &crate::access::Write {
-            session: s.audit,
-            peer: s.peer,
-            identity: s.secure.as_ref().map(|(i, _)| i.as_str()),
-            device,
-            command,
-        },
-    );
-}
+/// Most command entries in one Direct PDU; a message with more is refused whole
+/// (HART-IP status "invalid selection"), nothing carried out. Each entry may forward
+/// to a loop (commands 75, 77), so the cap bounds the line time one message takes; it
+/// also keeps the reply (at most 3 + 255 bytes an entry) far below the largest
+/// HART-IP message.
+pub const MAX_DIRECT_ENTRIES: usize = 32;
 
 pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[u8]) -> Action {
     s.last_rx = Instant::now();
@@ -321,9 +343,6 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 if let Some(r) = lock(&shared.audit).get_mut(i) {
                     r.requests += 1;
                     r.responses += 1;
-                    if Frame::parse_pdu(body).is_ok_and(|f| writes(&f)) && !s.read_only(shared) {
-                        r.status |= 0x0001;
-                    }
                 }
             }
             let Ok(f) = Frame::parse_pdu(body) else {
@@ -333,20 +352,13 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             if f.frame_type() != FrameType::Stx {
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
-            let (outer, inner) = crate::access::commands(&f);
-            if !allowed(shared, s, outer, inner) {
+            if admit(shared, s, &f, "token-passing").await.is_err() {
                 return Action::Reply(reply(
                     status::SUCCESS,
                     &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
                 ));
             }
-            if writes(&f) {
-                match (outer, crate::access::embedded(&f)) {
-                    (77, Some((device, c))) => audit(shared, s, device, c),
-                    _ => audit(shared, s, f.address.to_string(), outer),
-                }
-            }
-            if matches!(f.command, 532 | 533) {
+            if hart_access::SESSION_COMMANDS.contains(&f.command) {
                 // Subscriptions belong to this session: the server answers them whatever
                 // the address.
                 let (code, data) =
@@ -380,15 +392,34 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             else {
                 return Action::Reply(reply(status::TOO_FEW_DATA_BYTES, &[]));
             };
-            // Commands to the gateway itself, each answered in turn.
+            let entries: Vec<hart_ip::DirectEntry<'_>> =
+                hart_ip::DirectEntries(entries).flatten().collect();
+            if entries.len() > MAX_DIRECT_ENTRIES {
+                tracing::warn!(
+                    "hart-ip: refused a direct PDU from {} with {} commands (at most {MAX_DIRECT_ENTRIES})",
+                    s.peer,
+                    entries.len()
+                );
+                return Action::Reply(reply(status::INVALID_SELECTION, &[]));
+            }
+            // Commands to the gateway itself, each checked as a frame to its own address
+            // and answered in turn.
+            let own = hart_proto::frame::Address::long(shared.io.unique_id())
+                .with_master(hart_proto::frame::MasterKind::Primary);
             let mut out = vec![0u8, 0u8];
-            for e in hart_ip::DirectEntries(entries).flatten() {
-                let (code, data) = if !allowed(shared, s, e.command, None) {
+            for e in entries {
+                let spec = hart_proto::frame::FrameSpec {
+                    extended: e.command > 255,
+                    ..hart_proto::frame::FrameSpec::request(own, e.command, e.data)
+                };
+                let pdu = crate::pdu(&spec);
+                let admitted = match Frame::parse_pdu(&pdu) {
+                    Ok(f) => admit(shared, s, &f, "direct PDU").await.is_ok(),
+                    Err(_) => false,
+                };
+                let (code, data) = if !admitted {
                     (hart_proto::tables::rc::ACCESS_RESTRICTED, vec![])
                 } else {
-                    if is_write(e.command) {
-                        audit(shared, s, "the I/O system (direct PDU)".into(), e.command);
-                    }
                     // Direct PDUs come from the session's host, a primary master.
                     let (code, _, data) = shared
                         .io
@@ -403,10 +434,11 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 } else {
                     data
                 };
+                let data = &data[..data.len().min(254)];
                 out.extend_from_slice(&e.command.to_be_bytes());
-                out.push((1 + data.len()).min(255) as u8);
+                out.push(1 + data.len() as u8);
                 out.push(code);
-                out.extend_from_slice(&data[..data.len().min(254)]);
+                out.extend_from_slice(data);
             }
             Action::Reply(reply(status::SUCCESS, &out))
         }

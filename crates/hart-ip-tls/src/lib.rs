@@ -38,15 +38,8 @@ pub const TLS13_CIPHERS: &str = "TLS_AES_128_GCM_SHA256:TLS_AES_128_CCM_SHA256";
 /// Largest DTLS datagram sent (leaves room for IP and UDP headers in a 1500-byte MTU).
 pub const DTLS_MTU: u32 = 1400;
 
-/// What an identity may do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Rights {
-    /// Every command.
-    #[default]
-    ReadWrite,
-    /// Commands that change a device are refused ("access restricted").
-    ReadOnly,
-}
+/// What an identity may do (hart-access's rights, the same for every front end).
+pub use hart_access::Rights;
 
 /// A pre-shared key and its identity.
 #[derive(Clone, PartialEq, Eq)]

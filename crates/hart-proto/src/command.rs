@@ -1009,8 +1009,12 @@ pub struct CommandInfo {
     pub title: &'static str,
     /// Universal, common practice or burst.
     pub kind: CommandKind,
-    /// True when the command changes the device (write protection applies).
+    /// True when the command changes the device's configuration (write protection
+    /// applies). Self test and device reset change the device without being
+    /// configuration writes: see [`CommandInfo::access`].
     pub writes: bool,
+    /// What the command does to the device, for access control.
+    pub access: Access,
     /// Fewest request data bytes.
     pub request_min: usize,
     /// Most request data bytes the layout uses.
@@ -1019,6 +1023,103 @@ pub struct CommandInfo {
     pub response_min: usize,
     /// Most reply data bytes.
     pub response_max: usize,
+}
+
+/// What a command does to a device, for access control (read-only sessions, allow
+/// lists, audits). Deny by default: only a command the project knows to read is
+/// [`Access::Read`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Only reads: the device's configuration, outputs and state stay as they are.
+    Read,
+    /// Changes the device: its configuration, its outputs (fixed current, trims) or
+    /// its state (self test, reset, lock, squawk).
+    Write,
+    /// Carries other commands (77 send command to sub-device, 78 aggregated
+    /// commands): the commands inside decide.
+    Wrapper,
+    /// Not known to the project: device-specific commands (128-253), reserved and
+    /// unlisted numbers. Access control counts them as writes unless a plant declares
+    /// a device's command a read.
+    Unknown,
+}
+
+/// Commands the project knows by number and title but does not type (their layouts
+/// are not implemented), with what they do. Common-practice titles as HART 7's
+/// common practice command specification names them (docs/protocol-decisions.md);
+/// only commands that certainly only read are [`Access::Read`]: a read counted as a
+/// write is refused to read-only sessions, a write counted as a read would reach the
+/// device, so doubtful ones are writes.
+pub static UNTYPED_COMMANDS: &[(u16, &str, Access)] = &[
+    (39, "EEPROM Control", Access::Write),
+    (47, "Write Primary Variable Transfer Function", Access::Write),
+    (49, "Write Primary Variable Transducer Serial Number", Access::Write),
+    (52, "Set Device Variable Zero", Access::Write),
+    (55, "Write Device Variable Damping Value", Access::Write),
+    (56, "Write Device Variable Transducer Serial Number", Access::Write),
+    (57, "Read Unit Tag, Descriptor, Date", Access::Read),
+    (58, "Write Unit Tag, Descriptor, Date", Access::Write),
+    (60, "Read Analog Channel and Percent of Range", Access::Read),
+    (61, "Read Dynamic Variables and Primary Variable Analog Channel", Access::Read),
+    (62, "Read Analog Channels", Access::Read),
+    (63, "Read Analog Channel Information", Access::Read),
+    (64, "Write Analog Channel Additional Damping Value", Access::Write),
+    (65, "Write Analog Channel Range Values", Access::Write),
+    (66, "Enter/Exit Fixed Analog Channel Mode", Access::Write),
+    (67, "Trim Analog Channel Zero", Access::Write),
+    (68, "Trim Analog Channel Gain", Access::Write),
+    (69, "Write Analog Channel Transfer Function", Access::Write),
+    (70, "Read Analog Channel Endpoint Values", Access::Read),
+    (71, "Lock Device", Access::Write),
+    (72, "Squawk", Access::Write),
+    // Answered only while armed (a button pressed), which it may end: a write.
+    (73, "Find Device", Access::Write),
+    (76, "Read Lock Device State", Access::Read),
+    (77, "Send Command to Sub-Device", Access::Wrapper),
+    (78, "Read Aggregated Commands", Access::Wrapper),
+    (80, "Read Device Variable Trim Points", Access::Read),
+    (81, "Read Device Variable Trim Guidelines", Access::Read),
+    (82, "Write Device Variable Trim Point", Access::Write),
+    (83, "Reset Device Variable Trim", Access::Write),
+    (85, "Read I/O Channel Statistics", Access::Read),
+    (86, "Read Sub-Device Statistics", Access::Read),
+    (87, "Write I/O System Master Mode", Access::Write),
+    (88, "Write I/O System Retry Count", Access::Write),
+    (89, "Set Real-Time Clock", Access::Write),
+    (91, "Read Trend Configuration", Access::Read),
+    (92, "Write Trend Configuration", Access::Write),
+    (93, "Read Trend", Access::Read),
+    (94, "Read I/O System Client-Side Communication Statistics", Access::Read),
+    (96, "Read Synchronous Action", Access::Read),
+    (97, "Configure Synchronous Action", Access::Write),
+    (98, "Read Command Action", Access::Read),
+    (99, "Configure Command Action", Access::Write),
+    (100, "Write Primary Variable Alarm Code", Access::Write),
+    (106, "Flush Delayed Responses", Access::Write),
+    (512, "Read Country Code", Access::Read),
+    (513, "Write Country Code", Access::Write),
+];
+
+/// What `command` does to a device: from the typed table ([`COMMANDS`]), then the
+/// untyped one ([`UNTYPED_COMMANDS`]); [`Access::Unknown`] for any other number.
+pub fn access(command: u16) -> Access {
+    if let Some(i) = info(command) {
+        return i.access;
+    }
+    UNTYPED_COMMANDS
+        .iter()
+        .find(|c| c.0 == command)
+        .map_or(Access::Unknown, |c| c.2)
+}
+
+/// The title of `command`, typed or not.
+pub fn title(command: u16) -> Option<&'static str> {
+    info(command).map(|i| i.title).or_else(|| {
+        UNTYPED_COMMANDS
+            .iter()
+            .find(|c| c.0 == command)
+            .map(|c| c.1)
+    })
 }
 
 /// Looks up a command in the table.
@@ -1063,6 +1164,7 @@ macro_rules! commands {
                 title: $title,
                 kind: CommandKind::$kind,
                 writes: commands!(@rw $rw),
+                access: commands!(@access $rw),
                 request_min: <$req as Wire>::MIN_LEN,
                 request_max: <$req as Wire>::MAX_LEN,
                 response_min: <$resp as Wire>::MIN_LEN,
@@ -1146,6 +1248,10 @@ macro_rules! commands {
     };
     (@rw read) => { false };
     (@rw write) => { true };
+    (@rw action) => { false };
+    (@access read) => { Access::Read };
+    (@access write) => { Access::Write };
+    (@access action) => { Access::Write };
 }
 
 commands! {
@@ -1176,8 +1282,8 @@ commands! {
     37  SetPvLowerRange CommonPractice write "Set Primary Variable Lower Range Value" : Empty => Empty;
     38  ResetConfigurationChanged Universal write "Reset Configuration Changed Flag" : ResetConfigChanged => ResetConfigChanged;
     40  EnterExitFixedCurrent CommonPractice write "Enter/Exit Fixed Current Mode" : FixedCurrent => FixedCurrent;
-    41  PerformSelfTest CommonPractice read "Perform Self Test" : Empty => Empty;
-    42  PerformDeviceReset CommonPractice read "Perform Device Reset" : Empty => Empty;
+    41  PerformSelfTest CommonPractice action "Perform Self Test" : Empty => Empty;
+    42  PerformDeviceReset CommonPractice action "Perform Device Reset" : Empty => Empty;
     43  SetPvZero CommonPractice write "Set Primary Variable Zero" : Empty => Empty;
     44  WritePvUnits CommonPractice write "Write Primary Variable Units" : PvUnits => PvUnits;
     45  TrimLoopCurrentZero CommonPractice write "Trim Loop Current Zero" : TrimCurrent => TrimCurrent;
@@ -1207,5 +1313,41 @@ commands! {
 impl fmt::Display for CommandInfo {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{} {}", self.number, self.title)
+    }
+}
+
+#[cfg(test)]
+mod access_tests {
+    use super::*;
+
+    #[test]
+    fn access_denies_by_default() {
+        // The reviewed reads.
+        for c in [0, 1, 2, 3, 9, 11, 12, 13, 15, 20, 48, 57, 76, 84, 105, 512] {
+            assert_eq!(access(c), Access::Read, "{c}");
+        }
+        // Writes, actions (self test, reset), wrappers, and what is not known.
+        for c in [6, 17, 18, 38, 40, 41, 42, 71, 72, 73, 89, 102, 109, 513] {
+            assert_eq!(access(c), Access::Write, "{c}");
+        }
+        assert_eq!(access(77), Access::Wrapper);
+        assert_eq!(access(78), Access::Wrapper);
+        for c in [4, 5, 10, 23, 31, 128, 129, 200, 253, 254, 255, 514, 4096, 65535] {
+            assert_eq!(access(c), Access::Unknown, "{c}");
+        }
+        // Self test and reset change the device but write protection does not stop
+        // them.
+        assert!(!info(41).unwrap().writes && !info(42).unwrap().writes);
+    }
+
+    #[test]
+    fn untyped_commands_are_not_typed_and_listed_once() {
+        let mut seen = std::collections::BTreeSet::new();
+        for &(n, title, _) in UNTYPED_COMMANDS {
+            assert!(info(n).is_none(), "{n} is typed");
+            assert!(seen.insert(n), "{n} listed twice");
+            assert_eq!(super::title(n), Some(title));
+        }
+        assert_eq!(title(17), Some("Write Message"));
     }
 }
