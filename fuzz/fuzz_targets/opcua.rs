@@ -32,6 +32,7 @@ fn gateway() -> (SocketAddr, SocketAddr) {
                     users: vec![],
                     pki_dir: pki,
                     read_only: false,
+                    audit: Default::default(),
                 },
             )
             .unwrap();

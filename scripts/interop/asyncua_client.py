@@ -5,8 +5,17 @@ Run by crates/hartkit/tests/gateway_opcua.rs as a separate process. Browses
 Objects/HART/<loop>/<device>, reads each device's PV with its EngineeringUnits, status
 code and source time stamp, subscribes to every PV and counts the data changes, calls
 SetDamping on the first device and reads Damping back, calls LoopTest on a multidrop
-device (which refuses it), and prints one JSON object. With --user/--password/--cert it
-connects to the Basic256Sha256 endpoint, signed and encrypted.
+device (which refuses it), tries to write the Damping variable (always refused), and
+prints one JSON object. With --user/--password/--cert it connects to the Basic256Sha256
+endpoint, signed and encrypted.
+
+With --access RUNS (a JSON list of runs, each {"name", "cert", "key", "user",
+"password", "damping"}, all but "name" optional) it checks access instead, one session
+per run in turn: connects (anonymously, or as the user; with a certificate, to the
+Basic256Sha256 endpoint), reads the Damping of the device at polling address 1 and its
+SetDamping's UserExecutable, calls SetDamping, tries to write the Damping variable,
+and when the call went through waits until the device's damping reads back. One JSON
+object per run, one line each; "connect" is "ok" or the error that refused it.
 """
 import argparse
 import asyncio
@@ -25,6 +34,76 @@ class Changes:
         self.count[k] = self.count.get(k, 0) + 1
 
 
+def err_name(e):
+    """The error's type: asyncua names status errors after the status (BadUserAccessDenied)."""
+    return type(e).__name__
+
+
+async def access_run(url, run, wait):
+    out = {"name": run.get("name")}
+    c = Client(url, timeout=10)
+    try:
+        if run.get("cert"):
+            await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{run['cert']},{run['key']}")
+        if run.get("user"):
+            c.set_user(run["user"])
+            c.set_password(run.get("password", ""))
+        await c.connect()
+    except Exception as e:
+        out["connect"] = err_name(e)
+        out["error"] = str(e)[:400]
+        try:
+            await c.disconnect()
+        except Exception:
+            pass
+        return out
+    out["connect"] = "ok"
+    try:
+        ns = await c.get_namespace_index("urn:hartkit:gateway:hart")
+        hart = await c.nodes.objects.get_child([f"{ns}:HART"])
+        target = None
+        deadline = time.time() + wait
+        while target is None and time.time() < deadline:
+            for lp in await hart.get_children():
+                for dev in await lp.get_children():
+                    pa = await (await dev.get_child([f"{ns}:PollingAddress"])).read_data_value(raise_on_bad_status=False)
+                    dmp = await (await dev.get_child([f"{ns}:Damping"])).read_data_value(raise_on_bad_status=False)
+                    if pa.Value.Value == 1 and dmp.StatusCode_.is_good():
+                        target = (lp, dev)
+            if target is None:
+                await asyncio.sleep(0.3)
+        if target is None:
+            out["device"] = None
+            return out
+        lp, dev = target
+        out["device"] = "HART/" + (await lp.read_browse_name()).Name + "/" + (await dev.read_browse_name()).Name
+        damping = await dev.get_child([f"{ns}:Damping"])
+        out["damping_before"] = await damping.read_value()
+        method = await dev.get_child([f"{ns}:SetDamping"])
+        out["user_executable"] = (await method.read_attribute(ua.AttributeIds.UserExecutable)).Value.Value
+        value = float(run.get("damping", 3.0))
+        try:
+            await dev.call_method(f"{ns}:SetDamping", ua.Variant(value, ua.VariantType.Float))
+            out["set_damping"] = "ok"
+        except ua.UaStatusCodeError as e:
+            out["set_damping"] = type(e).__name__
+        try:
+            await damping.write_value(ua.DataValue(ua.Variant(value + 1.0, ua.VariantType.Float)))
+            out["write"] = "ok"
+        except ua.UaStatusCodeError as e:
+            out["write"] = type(e).__name__
+        after = await damping.read_value()
+        if out["set_damping"] == "ok":
+            deadline = time.time() + 20
+            while abs(after - value) > 1e-6 and time.time() < deadline:
+                await asyncio.sleep(0.2)
+                after = await damping.read_value()
+        out["damping_after"] = after
+    finally:
+        await c.disconnect()
+    return out
+
+
 async def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--url", required=True)
@@ -35,7 +114,12 @@ async def main():
     ap.add_argument("--key")
     ap.add_argument("--damping", type=float, default=2.0)
     ap.add_argument("--wait", type=float, default=60)
+    ap.add_argument("--access", help="JSON list of access runs (see above)")
     a = ap.parse_args()
+    if a.access:
+        for run in json.loads(a.access):
+            print(json.dumps(await access_run(a.url, run, a.wait)), flush=True)
+        return
     c = Client(a.url, timeout=10)
     if a.cert:
         await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{a.cert},{a.key}")
@@ -117,6 +201,12 @@ async def main():
             out["bad_argument"] = "ok"
         except ua.UaStatusCodeError as e:
             out["bad_argument"] = type(e).__name__
+        try:
+            await (await target.get_child([f"{ns}:Damping"])).write_value(
+                ua.DataValue(ua.Variant(a.damping + 1.0, ua.VariantType.Float)))
+            out["write"] = "ok"
+        except ua.UaStatusCodeError as e:
+            out["write"] = type(e).__name__
     print(json.dumps(out))
 
 

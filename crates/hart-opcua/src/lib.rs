@@ -12,6 +12,11 @@
 //!
 //! The server runs on a runtime of its own (a thread with two workers), so the gateway's
 //! loops and its other front ends keep their thread.
+//!
+//! Access: who may connect and who may call methods follows [`access::Rules`] (users
+//! and anonymous sessions by endpoint; variables are never written); client
+//! certificates are trusted only from the trust list ([`trust`]); every method call let
+//! through is recorded in the [`hart_access::Audit`].
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -21,17 +26,20 @@ use std::time::{Instant, SystemTime};
 
 use hart_poller::{DeviceImage, Engine, Quality};
 use opcua::server::address_space::{MethodBuilder, ObjectBuilder, VariableBuilder};
-use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::{simple_node_manager, SimpleNodeManager};
-use opcua::server::{
-    ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache,
-};
+use opcua::server::node_manager::memory::InMemoryNodeManagerBuilder;
+use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
 use opcua::types::{
     DataTypeId, DataValue, DateTime, ExtensionObject, NodeId, ObjectId, ObjectTypeId,
     QualifiedName, StatusCode, VariableTypeId, Variant,
 };
 
+pub mod access;
+mod nodes;
+pub mod trust;
 pub mod units;
+
+use access::{Channel, Rules};
+use nodes::{Caller, HartNodeManager, HartNodes, MethodTarget};
 
 /// The namespace of the gateway's nodes.
 pub const NAMESPACE: &str = "urn:hartkit:gateway:hart";
@@ -42,28 +50,121 @@ pub const MAX_MONITORED_ITEMS: usize = 50_000;
 /// Endpoint security.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Security {
-    /// No security, anonymous (for a gateway on localhost, and tests).
+    /// SecurityPolicy None only, anonymous (for a gateway on localhost, and tests); no
+    /// users (their passwords would travel in clear).
     None,
-    /// Basic256Sha256, signed and encrypted, with the gateway's self-signed certificate;
-    /// users by name and password when any are configured, else anonymous.
+    /// Basic256Sha256, signed and encrypted, with the gateway's self-signed certificate,
+    /// for clients whose certificate is in the trust list; users by name and password
+    /// when any are configured, else anonymous.
     Basic256Sha256,
-    /// Both endpoints.
+    /// Both endpoints; anonymous sessions on the None one only read.
     Both,
 }
 
+impl Security {
+    /// `none`, `basic256sha256`, `both`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Security::None => "none",
+            Security::Basic256Sha256 => "basic256sha256",
+            Security::Both => "both",
+        }
+    }
+}
+
 /// Settings of the OPC UA front end.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Config {
     /// Address to listen on (port 4840 is OPC UA's).
     pub bind: SocketAddr,
     /// Endpoints offered.
     pub security: Security,
-    /// Users (name, password) of the secure endpoint.
+    /// Users (name, password) of the secure endpoint. With any, anonymous sessions
+    /// only read; they need [`Security::Basic256Sha256`] or [`Security::Both`].
     pub users: Vec<(String, String)>,
-    /// Where the certificate and private key are kept (made at the first start).
+    /// Where the certificate and private key are kept (made at the first start), and
+    /// the trust list of client certificates (`trusted`, `rejected`; see [`trust`]).
     pub pki_dir: PathBuf,
-    /// Refuse the write methods (BadUserAccessDenied).
+    /// Refuse every method call (BadUserAccessDenied).
     pub read_only: bool,
+    /// Where method calls let through are recorded.
+    pub audit: hart_access::Audit,
+}
+
+impl std::fmt::Debug for Config {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Never the passwords.
+        f.debug_struct("Config")
+            .field("bind", &self.bind)
+            .field("security", &self.security)
+            .field(
+                "users",
+                &self
+                    .users
+                    .iter()
+                    .map(|(u, _)| u.as_str())
+                    .collect::<Vec<_>>(),
+            )
+            .field("pki_dir", &self.pki_dir)
+            .field("read_only", &self.read_only)
+            .field("audit", &self.audit)
+            .finish()
+    }
+}
+
+impl Config {
+    /// The access rules of this configuration.
+    pub fn rules(&self) -> Rules {
+        Rules {
+            security: self.security,
+            users: !self.users.is_empty(),
+            read_only: self.read_only,
+        }
+    }
+
+    /// Refuses a configuration that would ignore or expose what it was given: users
+    /// with security none (their passwords would travel in clear), an empty or
+    /// repeated user name, an empty password.
+    pub fn check(&self) -> Result<(), String> {
+        if !self.users.is_empty() && self.security == Security::None {
+            return Err(
+                "users are configured but the only endpoint would be SecurityPolicy None, \
+                 where a password travels in clear: choose the security basic256sha256 \
+                 (users only, signed and encrypted) or both (anonymous read-only on None, \
+                 users on Basic256Sha256)"
+                    .into(),
+            );
+        }
+        for (i, (u, p)) in self.users.iter().enumerate() {
+            if u.is_empty() || p.is_empty() {
+                return Err(format!("user {:?}: give a name and a password", u));
+            }
+            if self.users[..i].iter().any(|(v, _)| v == u) {
+                return Err(format!("user {u:?} is given twice"));
+            }
+        }
+        Ok(())
+    }
+
+    /// One line on what the endpoints let in, for the start-up message and the log.
+    pub fn describe(&self) -> String {
+        let users = match self.users.len() {
+            0 => "anonymous".to_string(),
+            1 => "1 user".to_string(),
+            n => format!("{n} users"),
+        };
+        let mut s = match self.security {
+            Security::None => "none, anonymous".to_string(),
+            Security::Basic256Sha256 => format!("basic256sha256, {users}, trusted clients"),
+            Security::Both => {
+                format!("both: none anonymous read-only, basic256sha256 {users}, trusted clients")
+            }
+        };
+        if self.read_only {
+            s.push_str(", read only");
+        }
+        s
+    }
 }
 
 /// A running OPC UA server.
@@ -144,8 +245,11 @@ fn chrono_of(t: SystemTime) -> opcua::types::date_time::DateTimeUtc {
     opcua::types::date_time::DateTimeUtc::from(t)
 }
 
-/// Starts the server on a thread of its own; returns once it listens.
+/// Starts the server on a thread of its own; returns once it listens. Refuses a
+/// configuration [`Config::check`] refuses.
 pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
+    config.check()?;
+    let rules = config.rules();
     let std_listener =
         std::net::TcpListener::bind(config.bind).map_err(|e| format!("{}: {e}", config.bind))?;
     let addr = std_listener.local_addr().map_err(|e| e.to_string())?;
@@ -154,7 +258,6 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
         .map_err(|e| e.to_string())?;
     let host = addr.ip().to_string();
     let url = format!("opc.tcp://{host}:{}/", addr.port());
-    let user_ids: Vec<String> = config.users.iter().map(|(u, _)| u.clone()).collect();
     let mut builder = ServerBuilder::new()
         .application_name("hartkit HART gateway")
         .application_uri("urn:hartkit:gateway")
@@ -165,39 +268,39 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
         .certificate_path("own/cert.der")
         .private_key_path("private/private.pem")
         .create_sample_keypair(true)
-        .trust_client_certs(true)
+        // Client certificates only from the trust list: an unknown one is refused and
+        // lands in <pki>/rejected for an operator to trust (`hartkit opcua trust`).
+        .trust_client_certs(false)
         .discovery_urls(vec![url.clone()])
-        .with_node_manager(simple_node_manager(
-            NamespaceMetadata {
-                namespace_uri: NAMESPACE.to_owned(),
-                ..Default::default()
-            },
-            "hart",
-        ));
+        .with_authenticator(Arc::new(access::GatewayAuth::new(
+            rules,
+            config.users.clone(),
+        )))
+        .with_node_manager(InMemoryNodeManagerBuilder::new(HartNodes::builder(
+            NAMESPACE,
+            engine.clone(),
+            rules,
+            config.audit.clone(),
+        )));
     // A SCADA watching every variable of a large plant: room for 50 000 monitored items
     // in one subscription (the library's default is 1 000).
     builder
         .limits_mut()
         .subscriptions
         .max_monitored_items_per_sub = MAX_MONITORED_ITEMS;
-    for (user, pass) in &config.users {
-        builder = builder.add_user_token(
-            user.clone(),
-            ServerUserToken::user_pass(user.as_str(), pass.as_str()),
-        );
+    // The configuration's user tokens (async-opcua checks the endpoints name only
+    // known ones); the passwords are checked by access::GatewayAuth.
+    for (id, token) in access::user_tokens(&config.users) {
+        builder = builder.add_user_token(id, token);
     }
-    let anonymous = vec![opcua::server::ANONYMOUS_USER_TOKEN_ID.to_string()];
     let mut default = None;
-    if matches!(config.security, Security::None | Security::Both) {
-        builder = builder.add_endpoint("none", ServerEndpoint::new_none("/", &anonymous));
+    if rules.offers(Channel::None) {
+        let tokens = access::endpoint_token_ids(&rules, &config.users, Channel::None);
+        builder = builder.add_endpoint("none", ServerEndpoint::new_none("/", &tokens));
         default = Some("none");
     }
-    if matches!(config.security, Security::Basic256Sha256 | Security::Both) {
-        let tokens = if user_ids.is_empty() {
-            anonymous.clone()
-        } else {
-            user_ids.clone()
-        };
+    if rules.offers(Channel::Secure) {
+        let tokens = access::endpoint_token_ids(&rules, &config.users, Channel::Secure);
         builder = builder.add_endpoint(
             "basic256sha256",
             ServerEndpoint::new_basic256sha256_sign_encrypt("/", &tokens),
@@ -210,13 +313,17 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
     let (server, handle) = builder.build()?;
     let manager = handle
         .node_managers()
-        .get_of_type::<SimpleNodeManager>()
+        .get_of_type::<HartNodeManager>()
         .ok_or("the OPC UA node manager is missing")?;
     let ns = handle
         .get_namespace_index(NAMESPACE)
         .ok_or("the OPC UA namespace is missing")?;
     let subscriptions = handle.subscriptions().clone();
-    let read_only = config.read_only;
+    tracing::info!(
+        "opcua: {url} ({}); client certificates trusted from {}",
+        config.describe(),
+        trust::trusted_dir(&config.pki_dir).display()
+    );
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<(), String>>();
     let thread = std::thread::Builder::new()
         .name("opcua".into())
@@ -245,7 +352,6 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
                     manager,
                     subscriptions,
                     ns,
-                    read_only,
                     devices: Default::default(),
                     folders: Default::default(),
                 };
@@ -272,10 +378,9 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
 /// The address space kept in step with the engine's image.
 struct Model {
     engine: Engine,
-    manager: Arc<SimpleNodeManager>,
+    manager: Arc<HartNodeManager>,
     subscriptions: Arc<SubscriptionCache>,
     ns: u16,
-    read_only: bool,
     devices: HashMap<usize, DeviceNodes>,
     folders: HashMap<String, NodeId>,
 }
@@ -452,20 +557,17 @@ impl Model {
                     .insert(&mut *space);
             }
         }
+        // Calls are checked (the session's endpoint and user) and audited by the node
+        // manager, then carried out by `call`.
         for method in ["WriteTag", "SetRange", "SetDamping", "LoopTest"] {
-            let id = var_id(ns, &path, method);
-            let engine = self.engine.clone();
-            let position = d.position;
-            let read_only = self.read_only;
-            let rt = tokio::runtime::Handle::current();
-            self.manager.inner().add_method_callback(id, move |args| {
-                if read_only {
-                    return Err(StatusCode::BadUserAccessDenied);
-                }
-                let engine = engine.clone();
-                let args = args.to_vec();
-                tokio::task::block_in_place(|| rt.block_on(call(engine, position, method, args)))
-            });
+            self.manager.inner().add_method(
+                var_id(ns, &path, method),
+                MethodTarget {
+                    position: d.position,
+                    method,
+                    device: path.clone(),
+                },
+            );
         }
         tracing::info!("opcua: {path} added");
         self.devices
@@ -583,12 +685,14 @@ impl Model {
     }
 }
 
-/// Carries a method call to the device at `position`.
+/// Carries a method call to the device at `position` (the caller is let through: the
+/// node manager checked it); `who` records the write in the audit just before it goes.
 async fn call(
     engine: Engine,
     position: usize,
     method: &str,
     args: Vec<Variant>,
+    who: &Caller<'_>,
 ) -> Result<Vec<Variant>, StatusCode> {
     let float = |i: usize| match args.get(i) {
         Some(Variant::Float(f)) if f.is_finite() => Ok(*f),
@@ -626,6 +730,7 @@ async fn call(
         }
         _ => return Err(StatusCode::BadMethodInvalid),
     };
+    who.record(command, method, &args);
     let reply = engine
         .write(position, command, &data)
         .await

@@ -45,11 +45,12 @@ pub struct OpcUaSection {
     /// `ADDR[:PORT]` (port 4840 by default).
     #[serde(default)]
     pub bind: Option<String>,
-    /// `none`, `basic256sha256` or `both`; default `none` on a loopback address,
-    /// `basic256sha256` on any other.
+    /// `none`, `basic256sha256` or `both`; default `basic256sha256` when users are
+    /// configured, else `none` on a loopback address and `basic256sha256` on any other.
     #[serde(default)]
     pub security: Option<String>,
-    /// Users of the secure endpoint, `NAME:PASSWORD`.
+    /// Users of the secure endpoint, `NAME:PASSWORD` (with any, anonymous sessions only
+    /// read; not with security `none`).
     #[serde(default)]
     pub users: Vec<String>,
     /// Where the certificate and key are kept.
@@ -134,7 +135,7 @@ pub struct ServeOptions {
     pub plain: Option<String>,
     /// `--allow-commands`.
     pub allow_commands: Option<hart_ip_server::access::CommandAllowList>,
-    /// `--audit-file`.
+    /// `--audit-file`: every write let through by HART-IP or OPC UA, one JSON line each.
     pub audit_file: Option<PathBuf>,
     /// `--modbus ADDR[:PORT]`.
     pub modbus: Option<String>,
@@ -203,24 +204,6 @@ fn opcua_config(
         return Ok(None);
     };
     let bind = socket_addr("--opcua", &bind, 4840)?;
-    let security = match opts
-        .opcua_security
-        .clone()
-        .or(section.security.clone())
-        .as_deref()
-    {
-        None if bind.ip().is_loopback() => hart_opcua::Security::None,
-        None => hart_opcua::Security::Basic256Sha256,
-        Some("none") => hart_opcua::Security::None,
-        Some("basic256sha256") => hart_opcua::Security::Basic256Sha256,
-        Some("both") => hart_opcua::Security::Both,
-        Some(other) => {
-            return Err((
-                format!("--opcua-security {other}: give none, basic256sha256 or both"),
-                2,
-            ))
-        }
-    };
     let mut users = vec![];
     for u in opts.opcua_users.iter().chain(&section.users) {
         let Some((name, pass)) = u
@@ -234,23 +217,57 @@ fn opcua_config(
         };
         users.push((name.to_string(), pass.to_string()));
     }
+    // Where the security was chosen, for the messages.
+    let (security, from) = match (&opts.opcua_security, &section.security) {
+        (Some(s), _) => (Some(s.as_str()), format!("--opcua-security {s}")),
+        (None, Some(s)) => (
+            Some(s.as_str()),
+            format!("[opcua] security = {s:?} in --config"),
+        ),
+        (None, None) => (None, String::new()),
+    };
+    let security = match security {
+        // Users are never ignored: they get the endpoint that takes them.
+        None if !users.is_empty() => hart_opcua::Security::Basic256Sha256,
+        None if bind.ip().is_loopback() => hart_opcua::Security::None,
+        None => hart_opcua::Security::Basic256Sha256,
+        Some("none") if !users.is_empty() => {
+            return Err((
+                format!(
+                    "{from} with users (--opcua-user or [opcua] users): a password over \
+                     SecurityPolicy None travels in clear; give --opcua-security \
+                     basic256sha256 (users only, signed and encrypted) or both (anonymous \
+                     read-only on None, users on Basic256Sha256)"
+                ),
+                2,
+            ))
+        }
+        Some("none") => hart_opcua::Security::None,
+        Some("basic256sha256") => hart_opcua::Security::Basic256Sha256,
+        Some("both") => hart_opcua::Security::Both,
+        Some(_) => return Err((format!("{from}: give none, basic256sha256 or both"), 2)),
+    };
     let pki_dir = opts
         .opcua_pki
         .clone()
         .or(section.pki_dir.clone())
         .unwrap_or_else(default_pki_dir);
-    Ok(Some(hart_opcua::Config {
+    let config = hart_opcua::Config {
         bind,
         security,
         users,
         pki_dir,
         read_only: opts.read_only,
-    }))
+        audit: hart_access::Audit::new(opts.audit_file.clone()),
+    };
+    config.check().map_err(|e| (format!("--opcua: {e}"), 2))?;
+    Ok(Some(config))
 }
 
-/// Where the OPC UA certificate is kept by default: `$XDG_DATA_HOME/hartkit/opcua-pki`,
-/// `~/.local/share/hartkit/opcua-pki`, or `./hartkit-opcua-pki`.
-fn default_pki_dir() -> PathBuf {
+/// Where the OPC UA certificate and the trust list of client certificates are kept by
+/// default: `$XDG_DATA_HOME/hartkit/opcua-pki`, `~/.local/share/hartkit/opcua-pki`, or
+/// `./hartkit-opcua-pki`.
+pub fn default_pki_dir() -> PathBuf {
     std::env::var_os("XDG_DATA_HOME")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/share")))
@@ -556,9 +573,10 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
         let mut opcua_server = None;
         if let Some(cfg) = opcua_cfg {
             let bind = cfg.bind;
+            let describe = cfg.describe();
             let server = hart_opcua::start(engine.clone(), cfg)
                 .map_err(|e| (format!("--opcua {bind}: {e}"), 5))?;
-            out.push(format!("opcua: {}", server.url));
+            out.push(format!("opcua: {} ({describe})", server.url));
             opcua_server = Some(server);
         }
         {
@@ -646,4 +664,66 @@ async fn console_view(engine: Engine, json: bool) {
         }
         let _ = out.flush();
     }
+}
+
+/// What `hartkit opcua trust` does.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum TrustAction {
+    /// `FILE`: a certificate file, or a rejected one by file name or thumbprint.
+    File(String),
+    /// `--all`: every rejected certificate.
+    All,
+    /// `--list`: show the rejected and trusted certificates.
+    List,
+}
+
+/// `hartkit opcua trust [--opcua-pki DIR] [FILE | --all | --list]`: moves client
+/// certificates into the gateway's trust list, or lists it; `pki` defaults to
+/// [`default_pki_dir`].
+pub fn opcua_trust(pki: Option<PathBuf>, action: TrustAction) -> Result<String, Failure> {
+    let pki = pki.unwrap_or_else(default_pki_dir);
+    let show = |c: &hart_opcua::trust::CertInfo| {
+        format!(
+            "{}  {}{}",
+            c.thumbprint,
+            c.subject,
+            c.not_after
+                .as_ref()
+                .map_or(String::new(), |t| format!("  (valid until {t})"))
+        )
+    };
+    let what = match action {
+        TrustAction::List => {
+            let l = hart_opcua::trust::list(&pki).map_err(|e| (e, 5))?;
+            let mut out = vec![];
+            for (name, dir, certs) in [
+                ("rejected", &l.rejected_dir, &l.rejected),
+                ("trusted", &l.trusted_dir, &l.trusted),
+            ] {
+                out.push(format!("{name} ({}):", dir.display()));
+                if certs.is_empty() {
+                    out.push("  none".into());
+                }
+                for c in certs {
+                    out.push(format!("  {}", show(c)));
+                    out.push(format!(
+                        "      {}",
+                        c.path.file_name().unwrap_or_default().to_string_lossy()
+                    ));
+                }
+            }
+            for (f, e) in &l.unreadable {
+                out.push(format!("not a certificate: {} ({e})", f.display()));
+            }
+            return Ok(out.join("\n"));
+        }
+        TrustAction::All => hart_opcua::trust::Trust::AllRejected,
+        TrustAction::File(f) => hart_opcua::trust::Trust::File(f),
+    };
+    let done = hart_opcua::trust::trust(&pki, &what).map_err(|e| (e, 2))?;
+    Ok(done
+        .iter()
+        .map(|c| format!("trusted {} -> {}", show(c), c.path.display()))
+        .collect::<Vec<_>>()
+        .join("\n"))
 }

@@ -114,6 +114,9 @@ enum Top {
     /// Modbus tools: a load generator for Modbus TCP servers (the gateway's front end).
     #[command(subcommand)]
     Modbus(ModbusCmd),
+    /// OPC UA tools: the gateway's trust list of client certificates.
+    #[command(subcommand)]
+    Opcua(OpcUaCmd),
     /// The software Bell 202 modem: frames to and from WAV files or raw samples.
     #[command(subcommand)]
     Modem(ModemCmd),
@@ -147,6 +150,39 @@ enum CaptureCmd {
         #[arg(long)]
         json: bool,
     },
+}
+
+#[derive(Subcommand)]
+enum OpcUaCmd {
+    /// Trust an OPC UA client's certificate: the gateway's Basic256Sha256 endpoint lets
+    /// in only clients whose certificate is trusted; an unknown one is refused and kept
+    /// in <DIR>/rejected. This moves it (FILE: its file name or the start of its
+    /// thumbprint, or any certificate file, DER or PEM; --all: every rejected one) into
+    /// <DIR>/trusted, where the running gateway finds it at the client's next attempt.
+    /// --list shows both folders.
+    Trust(OpcUaTrustArgs),
+}
+
+#[derive(Args)]
+struct OpcUaTrustArgs {
+    /// The gateway's PKI directory, as given to `hartkit serve --opcua-pki` (default
+    /// ~/.local/share/hartkit/opcua-pki, or under $XDG_DATA_HOME).
+    #[arg(long, value_name = "DIR")]
+    opcua_pki: Option<std::path::PathBuf>,
+    /// The certificate: a rejected one's file name or thumbprint (4 hex digits or
+    /// more), or a certificate file.
+    #[arg(
+        value_name = "FILE",
+        required_unless_present_any = ["all", "list"],
+        conflicts_with_all = ["all", "list"]
+    )]
+    file: Option<String>,
+    /// Trust every rejected certificate.
+    #[arg(long, conflicts_with = "list")]
+    all: bool,
+    /// List the rejected and trusted certificates (subject, thumbprint, validity).
+    #[arg(long)]
+    list: bool,
 }
 
 #[derive(Subcommand)]
@@ -1016,6 +1052,15 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
         Top::Serve(a) => hartkit::gateway::run(a.options()),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         Top::Modbus(ModbusCmd::Bench(a)) => modbus_bench(a),
+        Top::Opcua(OpcUaCmd::Trust(a)) => hartkit::gateway::opcua_trust(
+            a.opcua_pki.clone(),
+            match (&a.file, a.all, a.list) {
+                (_, _, true) => hartkit::gateway::TrustAction::List,
+                (_, true, _) => hartkit::gateway::TrustAction::All,
+                (Some(f), _, _) => hartkit::gateway::TrustAction::File(f.clone()),
+                (None, false, false) => unreachable!("clap requires FILE, --all or --list"),
+            },
+        ),
         _ => return None,
     })
 }
@@ -1349,14 +1394,19 @@ struct ServeCli {
     /// SV, TV, QV, LoopCurrent, PercentRange and methods.
     #[arg(long, value_name = "ADDR[:PORT]")]
     opcua: Option<String>,
-    /// OPC UA endpoint security: none, basic256sha256 or both (default: none on a
-    /// loopback address, basic256sha256 on any other).
+    /// OPC UA endpoint security: none, basic256sha256 or both (default: basic256sha256
+    /// with --opcua-user, else none on a loopback address and basic256sha256 on any
+    /// other). Basic256Sha256 lets in only clients whose certificate is trusted
+    /// (`hartkit opcua trust`); with both, anonymous sessions on None only read.
     #[arg(long, value_name = "MODE")]
     opcua_security: Option<String>,
-    /// A user of the secure OPC UA endpoint, NAME:PASSWORD (repeat for more).
+    /// A user of the secure OPC UA endpoint, NAME:PASSWORD (repeat for more): users may
+    /// call methods, anonymous sessions then only read. Not with --opcua-security none
+    /// (the password would travel in clear).
     #[arg(long = "opcua-user", value_name = "NAME:PASSWORD")]
     opcua_users: Vec<String>,
-    /// Directory of the OPC UA certificate and key (made at the first start).
+    /// Directory of the OPC UA certificate and key (made at the first start) and of the
+    /// trust list of client certificates (trusted/, rejected/).
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit.
@@ -1377,7 +1427,7 @@ struct ServeCli {
     #[arg(long, num_args = 0.., value_name = "PROFILE")]
     sim: Option<Vec<String>>,
     /// Refuse every command that changes a device (HART-IP: "access restricted";
-    /// Modbus: "illegal function").
+    /// Modbus: "illegal function"; OPC UA methods: BadUserAccessDenied).
     #[arg(long)]
     read_only: bool,
     /// Most HART-IP sessions at once.
@@ -1404,8 +1454,9 @@ struct ServeCli {
     /// command it wraps.
     #[arg(long, value_name = "LIST")]
     allow_commands: Option<hart_ip_server::access::CommandAllowList>,
-    /// Also append every accepted HART-IP write as a JSON line (time, session, peer,
-    /// identity, device, command) to FILE; the log on standard error has it anyway.
+    /// Also append every write let through, by HART-IP or by an OPC UA method call, as
+    /// a JSON line (time, front end, session, peer, identity, device, command, via,
+    /// operation) to FILE; the log on standard error has it anyway.
     #[arg(long, value_name = "FILE")]
     audit_file: Option<std::path::PathBuf>,
     /// Scan polling addresses 0..=N of each loop for devices (63: all).

@@ -7,11 +7,22 @@
 //! device refuses). Then the Basic256Sha256 endpoint, signed and encrypted, with a user
 //! and password, and a wrong password refused.
 //!
+//! Then access control (docs/gateway.md, "Security"), with asyncua as the client, for
+//! each security setting with and without users: anonymous, the right password, a
+//! wrong one, an untrusted client certificate (refused, then trusted with `hartkit
+//! opcua trust` and let in); SetDamping called where it may be (the damping read back,
+//! and over HART-IP from the device) and refused elsewhere (the damping unchanged),
+//! the Damping variable never written, and the audit file holding exactly the calls
+//! let through. Each gateway serves several client sessions from one asyncua process.
+//!
 //! Without the interop venv the checks say so and pass, unless
 //! `HARTKIT_REQUIRE_INTEROP=1`.
 
-use std::path::PathBuf;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::process::Command;
+
+use serde_json::Value;
 
 mod common;
 use common::{gateway, hartkit, workspace};
@@ -38,10 +49,159 @@ fn client(py: &PathBuf, url: &str, extra: &[&str]) -> Result<serde_json::Value, 
     serde_json::from_str(line).map_err(|e| format!("{e}: {stdout}"))
 }
 
+/// A fresh temporary directory for one test.
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hartkit-ua-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A client certificate and key made by openssl (asyncua needs one for a secure
+/// channel): `dir/NAME.der`, `dir/NAME.pem`.
+fn client_cert(dir: &Path, name: &str) -> (String, String) {
+    let (cert, key) = (
+        dir.join(format!("{name}.der")),
+        dir.join(format!("{name}.pem")),
+    );
+    let ok = Command::new("openssl")
+        .args([
+            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "30",
+        ])
+        .args(["-subj", &format!("/CN=hartkit test {name}")])
+        .args([
+            "-addext",
+            &format!("subjectAltName=URI:urn:hartkit:test:{name}"),
+        ])
+        .args(["-keyout", key.to_str().unwrap(), "-outform", "DER"])
+        .args(["-out", cert.to_str().unwrap()])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(ok, "openssl could not make a client certificate");
+    (
+        cert.to_string_lossy().into_owned(),
+        key.to_string_lossy().into_owned(),
+    )
+}
+
+/// Runs the client's access checks (`--access`): one session per run, in turn, in one
+/// process; the results by run name.
+fn access(py: &PathBuf, url: &str, runs: Value) -> HashMap<String, Value> {
+    let out = Command::new(py)
+        .arg(workspace().join("scripts/interop/asyncua_client.py"))
+        .args(["--url", url, "--wait", "20", "--access", &runs.to_string()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let results: HashMap<String, Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .map(|v| (v["name"].as_str().unwrap_or("").to_string(), v))
+        .collect();
+    assert_eq!(
+        results.len(),
+        runs.as_array().unwrap().len(),
+        "one result per run: {stdout}"
+    );
+    results
+}
+
+/// A run that connected, called SetDamping and saw the damping land; the variable
+/// write refused.
+fn assert_calls(r: &Value, damping: f64) {
+    assert_eq!(r["connect"], "ok", "{r}");
+    assert_eq!(r["user_executable"], true, "{r}");
+    assert_eq!(r["set_damping"], "ok", "{r}");
+    assert_eq!(r["damping_after"], damping, "the damping landed: {r}");
+    assert_eq!(
+        r["write"], "BadUserAccessDenied",
+        "variables are never written: {r}"
+    );
+}
+
+/// A run that connected but only reads: SetDamping refused, the damping unchanged, the
+/// variable write refused. (UserExecutable is checked by the callers where it can say
+/// no: async-opcua gives it the session's user, not its endpoint, and an anonymous
+/// session of `both` without users may call over Basic256Sha256.)
+fn assert_reads(r: &Value) {
+    assert_eq!(r["connect"], "ok", "{r}");
+    assert_eq!(r["set_damping"], "BadUserAccessDenied", "{r}");
+    assert_eq!(r["write"], "BadUserAccessDenied", "{r}");
+    assert_eq!(
+        r["damping_after"], r["damping_before"],
+        "nothing changed: {r}"
+    );
+}
+
+/// A run refused at connection.
+fn assert_refused(r: &Value) {
+    assert!(
+        r["connect"].is_string() && r["connect"] != "ok",
+        "must be refused: {r}"
+    );
+}
+
+/// The audit file's lines.
+fn audit_lines(file: &Path) -> Vec<Value> {
+    std::fs::read_to_string(file)
+        .unwrap_or_default()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
+/// The audit holds exactly these calls (identity, command, operation), from OPC UA.
+fn assert_audit(file: &Path, calls: &[(&str, u16, &str)]) {
+    let lines = audit_lines(file);
+    assert_eq!(lines.len(), calls.len(), "{lines:?}");
+    for (l, (who, command, operation)) in lines.iter().zip(calls) {
+        let method = match command {
+            34 => "SetDamping",
+            40 => "LoopTest",
+            _ => unreachable!(),
+        };
+        assert_eq!(l["front_end"], "opcua", "{l}");
+        assert_eq!(l["identity"], *who, "{l}");
+        assert_eq!(l["command"], *command, "{l}");
+        assert_eq!(l["via"], format!("method {method}"), "{l}");
+        assert_eq!(l["operation"], *operation, "{l}");
+        assert!(
+            l["device"].as_str().unwrap().starts_with("HART/sim/"),
+            "{l}"
+        );
+        assert_eq!(l["peer"], "-", "{l}");
+    }
+}
+
+/// The damping of the device at polling address 1, over HART-IP from the device.
+fn device_damping(gw: &common::Gateway) -> f64 {
+    let hip = format!("udp://{}", gw.1["hart-ip"]);
+    let (code, out, err) = hartkit(&["read", "--port", &hip, "--poll", "1", "info", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let info: Value = serde_json::from_str(&out).unwrap();
+    info["damping"].as_f64().unwrap_or_else(|| panic!("{info}"))
+}
+
+/// `hartkit opcua trust --opcua-pki PKI ARGS`, which must succeed: its output.
+fn trust(pki: &Path, args: &[&str]) -> String {
+    let mut all = vec!["opcua", "trust", "--opcua-pki", pki.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let (code, out, err) = hartkit(&all);
+    assert_eq!(code, 0, "hartkit {all:?}: {err}");
+    out
+}
+
 #[test]
 fn asyncua_browses_reads_subscribes_and_calls_methods() {
     let Some(py) = python() else { return };
-    let pki = std::env::temp_dir().join(format!("hartkit-ua-{}", std::process::id()));
+    let dir = temp_dir("plain");
+    let pki = dir.join("pki");
+    let audit = dir.join("audit.jsonl");
     let gw = gateway(
         &[
             "--sim",
@@ -53,6 +213,8 @@ fn asyncua_browses_reads_subscribes_and_calls_methods() {
             "127.0.0.1:0",
             "--opcua-pki",
             pki.to_str().unwrap(),
+            "--audit-file",
+            audit.to_str().unwrap(),
         ],
         3,
     );
@@ -106,46 +268,66 @@ fn asyncua_browses_reads_subscribes_and_calls_methods() {
     assert_eq!(r["damping"], 2.0);
     assert_eq!(r["loop_test"], "BadDeviceFailure", "multidrop: {r}");
     assert_eq!(r["bad_argument"], "BadInvalidArgument");
+    assert_eq!(
+        r["write"], "BadUserAccessDenied",
+        "variables are never written"
+    );
     // The damping is on the device.
-    let hip = format!("udp://{}", gw.1["hart-ip"]);
-    let (code, out, err) = hartkit(&["read", "--port", &hip, "--poll", "1", "info", "--json"]);
-    assert_eq!(code, 0, "{err}");
-    let info: serde_json::Value = serde_json::from_str(&out).unwrap();
-    assert_eq!(info["damping"], 2.0, "{info}");
+    assert_eq!(device_damping(&gw), 2.0);
+    // Security none on loopback, no users: anonymous calls (above, audited); no user
+    // logs in over None, and there is no secure endpoint.
+    let (cert, key) = client_cert(&dir, "client");
+    let runs = access(
+        &py,
+        &gw.1["opcua"],
+        serde_json::json!([
+            {"name": "user", "user": "operator", "password": "s3cret"},
+            {"name": "cert", "cert": cert, "key": key},
+        ]),
+    );
+    assert_refused(&runs["user"]);
+    assert_refused(&runs["cert"]);
+    // The LoopTest the device refused went out too: both calls were let through (the
+    // wrong argument was not).
+    assert_audit(
+        &audit,
+        &[
+            ("anonymous", 34, "damping 2 s"),
+            ("anonymous", 40, "loop current fixed at 12 mA"),
+        ],
+    );
     drop(gw);
-    let _ = std::fs::remove_dir_all(&pki);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn basic256sha256_with_a_user_and_password() {
     let Some(py) = python() else { return };
-    let dir = std::env::temp_dir().join(format!("hartkit-ua-sec-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    // The client's own certificate (asyncua needs one for a secure channel).
-    let (cert, key) = (dir.join("client.der"), dir.join("client.pem"));
-    let ok = Command::new("openssl")
-        .args([
-            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "30",
-        ])
-        .args(["-subj", "/CN=hartkit test client"])
-        .args(["-addext", "subjectAltName=URI:urn:hartkit:test:client"])
-        .args(["-keyout", key.to_str().unwrap(), "-outform", "DER"])
-        .args(["-out", cert.to_str().unwrap()])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    assert!(ok, "openssl could not make a client certificate");
+    let dir = temp_dir("sec");
+    let pki = dir.join("pki");
+    let audit = dir.join("audit.jsonl");
+    let (cert, key) = client_cert(&dir, "client");
+    let (stranger, stranger_key) = client_cert(&dir, "stranger");
+    // The operator trusts the client's certificate file before the first start.
+    let out = trust(&pki, &[&cert]);
+    assert!(
+        out.starts_with("trusted ") && out.contains("CN=hartkit test client"),
+        "{out}"
+    );
+    // Users without --opcua-security: the secure endpoint, not an ignored user on
+    // loopback's default None.
     let gw = gateway(
         &[
             "--sim",
             "--instant",
             "--opcua",
             "127.0.0.1:0",
-            "--opcua-security",
-            "basic256sha256",
             "--opcua-user",
             "operator:s3cret",
             "--opcua-pki",
-            dir.join("pki").to_str().unwrap(),
+            pki.to_str().unwrap(),
+            "--audit-file",
+            audit.to_str().unwrap(),
         ],
         1,
     );
@@ -156,9 +338,9 @@ fn basic256sha256_with_a_user_and_password() {
             url,
             &[
                 "--cert",
-                cert.to_str().unwrap(),
+                &cert,
                 "--key",
-                key.to_str().unwrap(),
+                &key,
                 "--user",
                 user,
                 "--password",
@@ -171,6 +353,7 @@ fn basic256sha256_with_a_user_and_password() {
     let r = secure("operator", "s3cret").unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(r["devices"].as_array().unwrap().len(), 4, "{r}");
     assert_eq!(r["set_damping"], "ok");
+    assert_eq!(r["write"], "BadUserAccessDenied");
     let refused = secure("operator", "wrong").expect_err("a wrong password must be refused");
     assert!(
         refused.contains("BadUserAccessDenied")
@@ -182,6 +365,276 @@ fn basic256sha256_with_a_user_and_password() {
     let plain =
         client(&py, url, &["--wait", "5"]).expect_err("anonymous without security must be refused");
     assert!(!plain.is_empty());
+    let runs = access(
+        &py,
+        url,
+        serde_json::json!([
+            {"name": "user", "cert": cert, "key": key, "user": "operator", "password": "s3cret", "damping": 3.5},
+            {"name": "anonymous", "cert": cert, "key": key},
+            {"name": "stranger", "cert": stranger, "key": stranger_key, "user": "operator", "password": "s3cret"},
+        ]),
+    );
+    assert_calls(&runs["user"], 3.5);
+    assert_refused(&runs["anonymous"]);
+    // The right password does not help an untrusted certificate; it waits in rejected/.
+    assert_eq!(
+        runs["stranger"]["connect"], "BadCertificateUntrusted",
+        "{}",
+        runs["stranger"]
+    );
+    let list = trust(&pki, &["--list"]);
+    let rejected = list.split("trusted (").next().unwrap();
+    assert!(rejected.contains("CN=hartkit test stranger"), "{list}");
+    assert_audit(
+        &audit,
+        &[
+            ("operator", 34, "damping 2 s"),
+            ("operator", 40, "loop current fixed at 12 mA"),
+            ("operator", 34, "damping 3.5 s"),
+        ],
+    );
     drop(gw);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Basic256Sha256 without users: the client certificate is the credential, so only a
+/// trusted one gets in: refused at first (it lands in rejected/), trusted by its
+/// thumbprint with `hartkit opcua trust`, then let in, anonymous, and calls.
+#[test]
+fn basic256sha256_without_users_trusts_only_listed_certificates() {
+    let Some(py) = python() else { return };
+    let dir = temp_dir("trust");
+    let pki = dir.join("pki");
+    let audit = dir.join("audit.jsonl");
+    let (cert, key) = client_cert(&dir, "newcomer");
+    let gw = gateway(
+        &[
+            "--sim",
+            "--instant",
+            "--opcua",
+            "127.0.0.1:0",
+            "--opcua-security",
+            "basic256sha256",
+            "--opcua-pki",
+            pki.to_str().unwrap(),
+            "--audit-file",
+            audit.to_str().unwrap(),
+        ],
+        1,
+    );
+    let url = &gw.1["opcua"];
+    assert!(!pki.join("trusted").read_dir().unwrap().any(|_| true));
+    let first = access(
+        &py,
+        url,
+        serde_json::json!([{"name": "anonymous", "cert": cert, "key": key}]),
+    );
+    assert_eq!(
+        first["anonymous"]["connect"], "BadCertificateUntrusted",
+        "never trusted on first use: {}",
+        first["anonymous"]
+    );
+    // The operator looks at the rejected certificate and trusts it by its thumbprint.
+    let list = trust(&pki, &["--list"]);
+    let line = list
+        .lines()
+        .find(|l| l.contains("CN=hartkit test newcomer"))
+        .unwrap_or_else(|| panic!("{list}"));
+    let thumbprint = line.split_whitespace().next().unwrap();
+    assert_eq!(thumbprint.len(), 40, "{line}");
+    let out = trust(&pki, &[&thumbprint[..10]]);
+    assert!(out.contains(thumbprint), "{out}");
+    let list = trust(&pki, &["--list"]);
+    assert!(
+        list.split("trusted (").nth(1).unwrap().contains(thumbprint),
+        "{list}"
+    );
+    // Nothing left to trust.
+    let (code, _, err) = hartkit(&[
+        "opcua",
+        "trust",
+        "--opcua-pki",
+        pki.to_str().unwrap(),
+        "--all",
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("no rejected certificate"), "{err}");
+    // The running gateway lets it in now; no user name is taken (no users).
+    let runs = access(
+        &py,
+        url,
+        serde_json::json!([
+            {"name": "anonymous", "cert": cert, "key": key, "damping": 1.5},
+            {"name": "user", "cert": cert, "key": key, "user": "operator", "password": "s3cret"},
+            {"name": "plain"},
+        ]),
+    );
+    assert_calls(&runs["anonymous"], 1.5);
+    assert_refused(&runs["user"]);
+    assert_refused(&runs["plain"]);
+    assert_audit(&audit, &[("anonymous", 34, "damping 1.5 s")]);
+    drop(gw);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Both endpoints: anonymous sessions on None only read, with or without users (else
+/// anyone could go round the trust list); without users anonymous sessions with a
+/// trusted certificate call, with users only the users do; a password is never taken
+/// over None; --read-only refuses everyone. The device's damping over HART-IP shows
+/// only the calls let through landed.
+#[test]
+fn both_endpoints_anonymous_without_security_only_reads() {
+    let Some(py) = python() else { return };
+    let dir = temp_dir("both");
+    let pki = dir.join("pki");
+    let (cert, key) = client_cert(&dir, "client");
+    // Trusted with --all after its first refusal (below, by the first gateway).
+    let start = |users: &[&str], audit: &Path, read_only: bool| {
+        let mut args = vec![
+            "--sim",
+            "--instant",
+            "--hart-ip",
+            "127.0.0.1:0",
+            "--opcua",
+            "127.0.0.1:0",
+            "--opcua-security",
+            "both",
+            "--opcua-pki",
+            pki.to_str().unwrap(),
+            "--audit-file",
+            audit.to_str().unwrap(),
+        ];
+        for u in users {
+            args.extend(["--opcua-user", u]);
+        }
+        if read_only {
+            args.push("--read-only");
+        }
+        gateway(&args, 2)
+    };
+
+    // No users.
+    let audit = dir.join("audit-anonymous.jsonl");
+    let gw = start(&[], &audit, false);
+    let url = &gw.1["opcua"];
+    let first = access(
+        &py,
+        url,
+        serde_json::json!([{"name": "secure", "cert": cert, "key": key}]),
+    );
+    assert_eq!(
+        first["secure"]["connect"], "BadCertificateUntrusted",
+        "{}",
+        first["secure"]
+    );
+    let out = trust(&pki, &["--all"]);
+    assert!(out.contains("CN=hartkit test client"), "{out}");
+    let runs = access(
+        &py,
+        url,
+        serde_json::json!([
+            {"name": "plain", "damping": 4.5},
+            {"name": "secure", "cert": cert, "key": key, "damping": 1.5},
+            {"name": "plain after", "damping": 4.5},
+        ]),
+    );
+    assert_reads(&runs["plain"]);
+    assert_calls(&runs["secure"], 1.5);
+    assert_reads(&runs["plain after"]);
+    assert_eq!(device_damping(&gw), 1.5);
+    assert_audit(&audit, &[("anonymous", 34, "damping 1.5 s")]);
+    drop(gw);
+
+    // Users.
+    let audit = dir.join("audit-users.jsonl");
+    let gw = start(&["operator:s3cret", "viewer:other"], &audit, false);
+    let url = &gw.1["opcua"];
+    let runs = access(
+        &py,
+        url,
+        serde_json::json!([
+            {"name": "plain", "damping": 4.5},
+            {"name": "user over none", "user": "operator", "password": "s3cret", "damping": 4.5},
+            {"name": "anonymous secure", "cert": cert, "key": key, "damping": 4.5},
+            {"name": "wrong password", "cert": cert, "key": key, "user": "operator", "password": "other"},
+            {"name": "user", "cert": cert, "key": key, "user": "operator", "password": "s3cret", "damping": 2.5},
+            {"name": "plain after", "damping": 4.5},
+        ]),
+    );
+    assert_reads(&runs["plain"]);
+    assert_eq!(runs["plain"]["user_executable"], false, "{}", runs["plain"]);
+    assert_refused(&runs["user over none"]);
+    assert_refused(&runs["anonymous secure"]);
+    assert_refused(&runs["wrong password"]);
+    assert_calls(&runs["user"], 2.5);
+    assert_reads(&runs["plain after"]);
+    assert_eq!(device_damping(&gw), 2.5);
+    assert_audit(&audit, &[("operator", 34, "damping 2.5 s")]);
+    drop(gw);
+
+    // --read-only: nobody calls.
+    let audit = dir.join("audit-read-only.jsonl");
+    let gw = start(&["operator:s3cret"], &audit, true);
+    let runs = access(
+        &py,
+        &gw.1["opcua"],
+        serde_json::json!([
+            {"name": "user", "cert": cert, "key": key, "user": "operator", "password": "s3cret", "damping": 4.5},
+            {"name": "plain", "damping": 4.5},
+        ]),
+    );
+    assert_reads(&runs["user"]);
+    assert_reads(&runs["plain"]);
+    assert_eq!(runs["user"]["user_executable"], false, "{}", runs["user"]);
+    assert_audit(&audit, &[]);
+    drop(gw);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Users are never silently ignored: with security none (given, or in the file) the
+/// gateway does not start and says why.
+#[test]
+fn users_with_security_none_are_refused_at_start() {
+    let (code, _, err) = hartkit(&[
+        "serve",
+        "--sim",
+        "--instant",
+        "--opcua",
+        "127.0.0.1:0",
+        "--opcua-security",
+        "none",
+        "--opcua-user",
+        "operator:s3cret",
+        "--run-for",
+        "5",
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--opcua-security none")
+            && err.contains("travels in clear")
+            && err.contains("basic256sha256"),
+        "{err}"
+    );
+    let dir = temp_dir("file");
+    let file = dir.join("gateway.toml");
+    std::fs::write(
+        &file,
+        "[opcua]\nbind = \"127.0.0.1:0\"\nsecurity = \"none\"\nusers = [\"operator:s3cret\"]\n",
+    )
+    .unwrap();
+    let (code, _, err) = hartkit(&[
+        "serve",
+        "--sim",
+        "--instant",
+        "--config",
+        file.to_str().unwrap(),
+        "--run-for",
+        "5",
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("[opcua] security") && err.contains("travels in clear"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
