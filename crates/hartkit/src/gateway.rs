@@ -1,5 +1,5 @@
 //! `hartkit serve`: the gateway. One polling engine (hart-poller) owns the loops; the
-//! front ends asked for (HART-IP, Modbus TCP, Modbus RTU) sit on it. This module only
+//! front ends asked for (HART-IP, Modbus TCP, Modbus RTU, OPC UA) sit on it. This module only
 //! reads the options and the configuration file and wires the parts together.
 
 use std::net::SocketAddr;
@@ -119,7 +119,8 @@ pub struct ServeOptions {
     pub sim: Option<Vec<String>>,
     /// `--instant`.
     pub instant: bool,
-    /// `--read-only`: HART-IP refuses changes, Modbus refuses writes.
+    /// `--read-only`: HART-IP refuses changes, Modbus refuses writes, OPC UA refuses
+    /// method calls.
     pub read_only: bool,
     /// `--max-sessions`.
     pub max_sessions: usize,

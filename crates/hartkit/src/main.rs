@@ -1361,7 +1361,7 @@ fn main() -> ExitCode {
 #[derive(Args)]
 struct ServeCli {
     /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
-    /// [modbus_rtu]; see docs/gateway.md). Options given here add to it.
+    /// [modbus_rtu], [opcua]; see docs/gateway.md). Options given here add to it.
     #[arg(long, value_name = "FILE")]
     config: Option<std::path::PathBuf>,
     /// Serve HART-IP here, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).
