@@ -712,3 +712,31 @@ async fn console_view(engine: Engine, json: bool) {
         let _ = out.flush();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The complete example of docs/gateway.md is a configuration the gateway reads.
+    #[test]
+    fn the_documented_example_reads() {
+        let doc = include_str!("../../../docs/gateway.md");
+        let start = doc
+            .find("```toml\n# Poll defaults")
+            .expect("the example in docs/gateway.md");
+        let body = &doc[start + "```toml\n".len()..];
+        let example = &body[..body.find("```").unwrap()];
+        let file: GatewayFile = toml::from_str(example).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.loops.len(), 2);
+        assert_eq!(
+            file.hart_ip.unwrap().plain_rights,
+            Some(hart_access::Rights::ReadOnly)
+        );
+        let commands = hart_access::DeviceCommands::from_entries(&file.device_commands).unwrap();
+        assert!(commands.reads(0x26F3, 128) && !commands.reads(0x26F3, 129));
+        let nets = file.modbus.unwrap().write_from.unwrap();
+        assert!(hart_access::NetList::parse(&nets)
+            .unwrap()
+            .contains("10.0.0.9".parse().unwrap()));
+    }
+}
