@@ -48,10 +48,12 @@ impl Audit {
     pub fn record(&self, w: &WriteRecord) {
         let session = w.session.map_or_else(|| "-".to_string(), |n| n.to_string());
         tracing::info!(
-            "write: {} session {session} peer {} identity {:?} device {} command {} via {}{}",
+            "write: {} session {session} peer {} identity {} device {} command {} via {}{}",
             w.front_end,
             w.peer,
-            w.identity.as_deref().unwrap_or("-"),
+            w.identity
+                .as_ref()
+                .map_or("-".to_string(), |i| format!("{i:?}")),
             w.device,
             w.command,
             w.via,

@@ -21,7 +21,7 @@ use std::fmt;
 
 mod allow;
 mod audit;
-mod devices;
+pub mod devices;
 mod nets;
 
 pub use allow::CommandAllowList;
@@ -224,7 +224,13 @@ impl Policy {
         frame: &Frame<'_>,
         device_type: Option<u16>,
     ) -> Result<Allowed, Refusal> {
-        self.check_command(rights, frame.address, frame.command, frame.data, device_type)
+        self.check_command(
+            rights,
+            frame.address,
+            frame.command,
+            frame.data,
+            device_type,
+        )
     }
 
     /// [`Policy::check`] for a command given apart from a frame (a Direct PDU entry,

@@ -61,7 +61,7 @@ fn read_only_sessions_send_only_known_reads_at_any_depth() {
         (35, &[0; 9], false),
         (41, &[], false),
         (42, &[], false),
-        (128, &[], true),  // declared a read for 26F1
+        (128, &[], true), // declared a read for 26F1
         (129, &[0x41, 0x48, 0, 0], false),
         (132, &[], false), // device-specific, not declared
         (39, &[0], false),
@@ -78,7 +78,9 @@ fn read_only_sessions_send_only_known_reads_at_any_depth() {
                 assert_eq!(rw, Ok(Allowed::Read), "{command} at {levels}");
             } else {
                 match ro {
-                    Err(Refusal::ReadOnly { command: c, depth, .. }) => {
+                    Err(Refusal::ReadOnly {
+                        command: c, depth, ..
+                    }) => {
                         assert_eq!((c, depth), (command, levels))
                     }
                     other => panic!("{command} at {levels}: {other:?}"),

@@ -367,6 +367,38 @@ impl HartIpTransport {
         let _ = self.send_message(MessageId::SessionClose, &[]).await;
     }
 
+    /// Sends one request message `id` with `body` and waits up to `timeout` for its
+    /// response: the header's status and the body (publish messages that come
+    /// meanwhile are kept for the loop's reader). For messages the transport does not
+    /// send by itself: a Direct PDU ([`direct_pdu_body`]), a token-passing PDU whose
+    /// HART-IP status matters.
+    pub async fn exchange(
+        &mut self,
+        id: MessageId,
+        body: &[u8],
+        timeout: Duration,
+    ) -> io::Result<(u8, Vec<u8>)> {
+        let seq = self.send_message(id, body).await?;
+        let deadline = Instant::now() + timeout;
+        while let Some((h, body)) = self.read_message(deadline).await? {
+            match (h.message_type, h.message_id) {
+                (MessageType::Response | MessageType::Nak, m) if m == id && h.sequence == seq => {
+                    return Ok((h.status, body));
+                }
+                (MessageType::Publish, MessageId::TokenPassingPdu) => self.deliver(&body),
+                _ => {}
+            }
+        }
+        Err(io::Error::new(
+            io::ErrorKind::TimedOut,
+            format!(
+                "HART-IP server {} did not answer message {seq} within {} ms",
+                self.peer,
+                timeout.as_millis()
+            ),
+        ))
+    }
+
     fn deliver(&mut self, pdu: &[u8]) {
         let now = self.now();
         self.pending
@@ -820,5 +852,36 @@ fn dispatch(
             let _ = publishes.try_send(body.to_vec());
         }
         _ => {}
+    }
+}
+
+/// The body of a Direct PDU request (message ID 4): device status and extended status
+/// 0, then each command with its byte count and data (data longer than 255 bytes is
+/// cut).
+pub fn direct_pdu_body(entries: &[(u16, &[u8])]) -> Vec<u8> {
+    let mut out = vec![0, 0];
+    for (command, data) in entries {
+        let data = &data[..data.len().min(255)];
+        out.extend_from_slice(&command.to_be_bytes());
+        out.push(data.len() as u8);
+        out.extend_from_slice(data);
+    }
+    out
+}
+
+/// The entries of a Direct PDU response body: command, response code, data.
+pub fn direct_pdu_reply(body: &[u8]) -> Vec<(u16, u8, Vec<u8>)> {
+    match body.get(2..) {
+        Some(entries) => hart_ip::DirectEntries(entries)
+            .flatten()
+            .map(|e| {
+                (
+                    e.command,
+                    e.data.first().copied().unwrap_or(0),
+                    e.data.get(1..).unwrap_or(&[]).to_vec(),
+                )
+            })
+            .collect(),
+        None => vec![],
     }
 }

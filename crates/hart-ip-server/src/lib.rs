@@ -25,6 +25,7 @@ mod audit;
 mod dtls;
 pub mod io_system;
 mod session;
+pub use session::MAX_DIRECT_ENTRIES;
 mod stream;
 mod subscriptions;
 mod udp;
@@ -419,9 +420,20 @@ pub(crate) fn message(
             // Longer than a HART-IP message can be (the server caps what it builds, so
             // this is a fault): answer "device-specific error" without a body rather
             // than send a broken header.
-            tracing::error!("hart-ip: a reply of {} bytes could not be encoded: {e}", body.len());
+            tracing::error!(
+                "hart-ip: a reply of {} bytes could not be encoded: {e}",
+                body.len()
+            );
             let mut out = vec![0u8; HEADER_LEN];
-            let _ = encode(version, ty, id, hart_ip::status::DEVICE_SPECIFIC, seq, &[], &mut out);
+            let _ = encode(
+                version,
+                ty,
+                id,
+                hart_ip::status::DEVICE_SPECIFIC,
+                seq,
+                &[],
+                &mut out,
+            );
             out
         }
     }

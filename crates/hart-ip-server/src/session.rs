@@ -7,10 +7,10 @@ use hart_ip::{status, Body, Header, MessageId, MessageType};
 use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
-use hart_access::{Allowed, Rights, WriteRecord};
 use crate::io_system::{LoopOutcome, Route};
 use crate::subscriptions::{subscription_command, Subscriptions};
 use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
+use hart_access::{Allowed, Rights, WriteRecord};
 
 /// What to do with one received message of a session.
 pub(crate) enum Action {

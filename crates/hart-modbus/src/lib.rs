@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use hart_poller::{Engine, WriteError};
+use hart_poller::{DeviceRefusal, Engine, WriteError, WriteFailure, WriteOp};
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
 pub mod load;
@@ -39,6 +39,12 @@ pub struct Config {
     pub read_only: bool,
     /// Most TCP connections at once; more are closed at once.
     pub max_connections: usize,
+    /// Modbus TCP clients that may write (loopback only by default); others' writes
+    /// are answered "illegal function". The RTU slave's master writes unless
+    /// `read_only`: whoever is wired to its port.
+    pub write_from: hart_access::NetList,
+    /// Where writes let through are recorded.
+    pub audit: hart_access::Audit,
 }
 
 impl Default for Config {
@@ -48,6 +54,8 @@ impl Default for Config {
             float_order: FloatOrder::default(),
             read_only: false,
             max_connections: 64,
+            write_from: hart_access::NetList::loopback(),
+            audit: hart_access::Audit::default(),
         }
     }
 }
@@ -81,6 +89,31 @@ enum Link {
     Rtu,
 }
 
+/// Who sent a request: a TCP client's address, or the RTU port's path.
+#[derive(Debug, Clone)]
+enum Peer {
+    Tcp(SocketAddr),
+    Rtu(Arc<str>),
+}
+
+impl Peer {
+    fn link(&self) -> Link {
+        match self {
+            Peer::Tcp(_) => Link::Tcp,
+            Peer::Rtu(_) => Link::Rtu,
+        }
+    }
+}
+
+impl std::fmt::Display for Peer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Peer::Tcp(a) => a.fmt(f),
+            Peer::Rtu(p) => write!(f, "serial {p}"),
+        }
+    }
+}
+
 impl Gateway {
     /// A gateway answering from `engine`'s image.
     pub fn new(engine: Engine, config: Config) -> Arc<Self> {
@@ -103,9 +136,9 @@ impl Gateway {
         self: Arc<Self>,
         unit: u8,
         request: Request<'static>,
-        link: Link,
+        peer: Peer,
     ) -> Result<Option<Response>, ExceptionCode> {
-        let r = self.answer(unit, request, link).await;
+        let r = self.answer(unit, request, &peer).await;
         match &r {
             Ok(Some(_)) => self.stats.answered.fetch_add(1, Ordering::Relaxed),
             Err(_) => self.stats.exceptions.fetch_add(1, Ordering::Relaxed),
@@ -118,8 +151,9 @@ impl Gateway {
         &self,
         unit: u8,
         request: Request<'static>,
-        link: Link,
+        peer: &Peer,
     ) -> Result<Option<Response>, ExceptionCode> {
+        let link = peer.link();
         let image = self.engine.image();
         let broadcast = link == Link::Rtu && unit == 0;
         let position = usize::from(unit).checked_sub(1);
@@ -154,7 +188,7 @@ impl Gateway {
                 _ => return Ok(None),
             };
             if let Ok(values) = values {
-                let _ = self.write_all(None, true, values).await;
+                let _ = self.write_all(None, true, values, peer).await;
             }
             return Ok(None);
         }
@@ -167,12 +201,12 @@ impl Gateway {
             }
             Request::WriteSingleRegister(register, word) => {
                 let values = self.config.map.decode_write(register, &[word], order)?;
-                self.write_all(position, false, values).await?;
+                self.write_all(position, false, values, peer).await?;
                 Response::WriteSingleRegister(register, word)
             }
             Request::WriteMultipleRegisters(start, words) => {
                 let values = self.config.map.decode_write(start, &words, order)?;
-                self.write_all(position, false, values).await?;
+                self.write_all(position, false, values, peer).await?;
                 Response::WriteMultipleRegisters(start, words.len() as u16)
             }
             _ => return Err(ExceptionCode::IllegalFunction),
@@ -180,15 +214,34 @@ impl Gateway {
         Ok(Some(response))
     }
 
+    /// Whether `peer` may write: not on a `read_only` gateway; over TCP only from
+    /// [`Config::write_from`]; over RTU, the port's master.
+    fn may_write(&self, peer: &Peer) -> Result<(), String> {
+        if self.config.read_only {
+            return Err("the gateway is read-only (--read-only)".into());
+        }
+        match peer {
+            Peer::Tcp(a) if !self.config.write_from.contains(a.ip()) => Err(format!(
+                "{} is not among the clients that may write ({}; --modbus-write-from, \
+                 [modbus] write_from)",
+                a.ip(),
+                self.config.write_from.nets().join(", ")
+            )),
+            _ => Ok(()),
+        }
+    }
+
     /// Carries the values of one write request to the device at `position` (every
-    /// device for an RTU broadcast), as few HART commands as they need.
+    /// device for an RTU broadcast), as typed writes (one HART command each).
     async fn write_all(
         &self,
         position: Option<usize>,
         broadcast: bool,
         values: Vec<(Value, f32)>,
+        peer: &Peer,
     ) -> Result<(), ExceptionCode> {
-        if self.config.read_only {
+        if let Err(why) = self.may_write(peer) {
+            tracing::warn!("modbus: refused a write from {peer}: {why}");
             return Err(ExceptionCode::IllegalFunction);
         }
         let targets: Vec<usize> = match (broadcast, position) {
@@ -196,109 +249,112 @@ impl Gateway {
             (false, Some(p)) => vec![p],
             (false, None) => return Err(ExceptionCode::GatewayPathUnavailable),
         };
+        let ops = operations(&values)?;
+        let origin = hart_poller::Origin {
+            audit: &self.config.audit,
+            record: hart_access::WriteRecord {
+                front_end: match peer.link() {
+                    Link::Tcp => "modbus-tcp",
+                    Link::Rtu => "modbus-rtu",
+                },
+                peer: peer.to_string(),
+                via: format!(
+                    "{}holding registers {}",
+                    if broadcast { "broadcast, " } else { "" },
+                    values
+                        .iter()
+                        .map(|(v, _)| v.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+                ..Default::default()
+            },
+        };
         let mut result = Ok(());
         for p in targets {
-            for (command, data) in self.commands(p, &values)? {
+            for op in &ops {
                 self.stats.writes.fetch_add(1, Ordering::Relaxed);
-                let r = self.engine.write(p, command, &data).await;
-                let r = judge(command, r);
-                if let Err(e) = r {
+                if let Err(e) = self.engine.apply(p, op, &origin).await {
                     tracing::warn!(
-                        "modbus: write to unit {} (command {command}) refused: {e:?}",
-                        p + 1
+                        "modbus: write to unit {} ({}) not done: {e}",
+                        p + 1,
+                        op.describe()
                     );
-                    result = Err(e);
+                    result = Err(exception(&e));
                     break;
                 }
             }
         }
         result
     }
-
-    /// The HART commands that set `values` on the device at `position`.
-    fn commands(
-        &self,
-        position: usize,
-        values: &[(Value, f32)],
-    ) -> Result<Vec<(u16, Vec<u8>)>, ExceptionCode> {
-        let range = self
-            .engine
-            .image()
-            .with(position, |d| d.range)
-            .ok_or(ExceptionCode::GatewayPathUnavailable)?;
-        let mut out = vec![];
-        let (mut upper, mut lower, mut units) = (None, None, None);
-        for &(value, x) in values {
-            match value {
-                Value::UpperRange => upper = Some(x),
-                Value::LowerRange => lower = Some(x),
-                Value::RangeUnits => {
-                    if !(0.0..=255.0).contains(&x) {
-                        return Err(ExceptionCode::IllegalDataValue);
-                    }
-                    units = Some(x as u8)
-                }
-                Value::Damping => out.push((34, x.to_be_bytes().to_vec())),
-                Value::FixedCurrent => out.push((40, x.to_be_bytes().to_vec())),
-                _ => return Err(ExceptionCode::IllegalDataAddress),
-            }
-        }
-        if upper.is_some() || lower.is_some() || units.is_some() {
-            // Command 35 sets both range values: the one not written keeps its value.
-            let Some(r) = range else {
-                // The range was never read (the device has not answered command 15).
-                return Err(ExceptionCode::GatewayTargetDevice);
-            };
-            let mut data = vec![units.unwrap_or(r.units)];
-            data.extend_from_slice(&upper.unwrap_or(r.upper).to_be_bytes());
-            data.extend_from_slice(&lower.unwrap_or(r.lower).to_be_bytes());
-            out.insert(0, (35, data));
-        }
-        Ok(out)
-    }
 }
 
-/// The Modbus answer to a HART write's outcome.
-fn judge(
-    command: u16,
-    r: Result<hart_poller::WriteReply, WriteError>,
-) -> Result<(), ExceptionCode> {
-    use hart_proto::tables::{rc, response_class, ResponseClass};
-    let reply = match r {
-        Ok(reply) => reply,
-        Err(WriteError::UnknownDevice) => return Err(ExceptionCode::GatewayPathUnavailable),
-        Err(WriteError::NoReply) => return Err(ExceptionCode::GatewayTargetDevice),
-        Err(WriteError::Busy) => return Err(ExceptionCode::ServerDeviceBusy),
-        Err(WriteError::BadReply(_)) => return Err(ExceptionCode::ServerDeviceFailure),
-    };
-    let code = reply.response_code;
-    if response_class(code) != ResponseClass::Error {
-        return Ok(());
-    }
-    Err(match (command, code) {
-        // Values the device will not take: invalid selection, too large, too small,
-        // a units code it does not know, and command 35's range limits (9-13).
-        (_, rc::INVALID_SELECTION | rc::TOO_LARGE | rc::TOO_SMALL | rc::INVALID_UNITS_CODE)
-        | (35, 9..=13) => ExceptionCode::IllegalDataValue,
-        (_, rc::BUSY | rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT) => {
-            ExceptionCode::ServerDeviceBusy
+/// The typed writes that set `values` (one write request's): the range parts together
+/// in one, then damping and fixed current.
+fn operations(values: &[(Value, f32)]) -> Result<Vec<WriteOp>, ExceptionCode> {
+    let mut out = vec![];
+    let (mut upper, mut lower, mut units) = (None, None, None);
+    for &(value, x) in values {
+        match value {
+            Value::UpperRange => upper = Some(x),
+            Value::LowerRange => lower = Some(x),
+            Value::RangeUnits => {
+                if !(0.0..=255.0).contains(&x) || x.fract() != 0.0 {
+                    return Err(ExceptionCode::IllegalDataValue);
+                }
+                units = Some(x as u8)
+            }
+            Value::Damping => out.push(WriteOp::Damping(x)),
+            Value::FixedCurrent => out.push(WriteOp::FixedCurrent(x)),
+            _ => return Err(ExceptionCode::IllegalDataAddress),
         }
-        (_, rc::NOT_IMPLEMENTED) => ExceptionCode::IllegalFunction,
-        // Write protected, access restricted, in multidrop mode (40), device-specific
-        // errors: the device will not do it now.
-        _ => ExceptionCode::ServerDeviceFailure,
-    })
+    }
+    if upper.is_some() || lower.is_some() || units.is_some() {
+        // Command 35 sets both range values: the one not written keeps its value.
+        out.insert(
+            0,
+            WriteOp::Range {
+                upper,
+                lower,
+                units,
+            },
+        );
+    }
+    Ok(out)
+}
+
+/// The Modbus answer to a typed write that was not done.
+fn exception(e: &WriteFailure) -> ExceptionCode {
+    match e {
+        WriteFailure::Invalid(_) => ExceptionCode::IllegalDataValue,
+        // The range was never read (the device has not answered command 15).
+        WriteFailure::NotReadYet(_) => ExceptionCode::GatewayTargetDevice,
+        WriteFailure::Link(WriteError::UnknownDevice) => ExceptionCode::GatewayPathUnavailable,
+        WriteFailure::Link(WriteError::NoReply) => ExceptionCode::GatewayTargetDevice,
+        WriteFailure::Link(WriteError::Busy) => ExceptionCode::ServerDeviceBusy,
+        WriteFailure::Link(WriteError::BadReply(_)) => ExceptionCode::ServerDeviceFailure,
+        WriteFailure::Refused { refusal, .. } => match refusal {
+            DeviceRefusal::OutOfRange => ExceptionCode::IllegalDataValue,
+            DeviceRefusal::Busy => ExceptionCode::ServerDeviceBusy,
+            DeviceRefusal::NotImplemented => ExceptionCode::IllegalFunction,
+            // Write protected, access restricted, in multidrop mode (40),
+            // device-specific errors: the device will not do it now.
+            DeviceRefusal::NotWritable | DeviceRefusal::Failed => {
+                ExceptionCode::ServerDeviceFailure
+            }
+        },
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn reply(code: u8) -> Result<hart_poller::WriteReply, WriteError> {
-        Ok(hart_poller::WriteReply {
-            response_code: code,
-            device_status: 0,
-            data: vec![],
+    fn refused(command: u16, code: u8) -> ExceptionCode {
+        exception(&WriteFailure::Refused {
+            command,
+            code,
+            refusal: DeviceRefusal::of(command, code).unwrap(),
         })
     }
 
@@ -358,27 +414,43 @@ mod tests {
 
     #[test]
     fn hart_outcomes_become_modbus_exceptions() {
-        assert_eq!(judge(34, reply(0)), Ok(()));
-        // Warning "set to nearest possible value": done.
-        assert_eq!(judge(34, reply(8)), Ok(()));
-        assert_eq!(judge(34, reply(3)), Err(ExceptionCode::IllegalDataValue));
-        assert_eq!(judge(35, reply(11)), Err(ExceptionCode::IllegalDataValue));
+        assert_eq!(refused(34, 3), ExceptionCode::IllegalDataValue);
+        assert_eq!(refused(35, 11), ExceptionCode::IllegalDataValue);
         // 11 for command 40 is "in multidrop mode": not the value's fault.
+        assert_eq!(refused(40, 11), ExceptionCode::ServerDeviceFailure);
+        assert_eq!(refused(34, 7), ExceptionCode::ServerDeviceFailure);
+        assert_eq!(refused(34, 32), ExceptionCode::ServerDeviceBusy);
+        assert_eq!(refused(40, 64), ExceptionCode::IllegalFunction);
         assert_eq!(
-            judge(40, reply(11)),
-            Err(ExceptionCode::ServerDeviceFailure)
-        );
-        assert_eq!(judge(34, reply(7)), Err(ExceptionCode::ServerDeviceFailure));
-        assert_eq!(judge(34, reply(32)), Err(ExceptionCode::ServerDeviceBusy));
-        assert_eq!(judge(40, reply(64)), Err(ExceptionCode::IllegalFunction));
-        assert_eq!(
-            judge(34, Err(WriteError::NoReply)),
-            Err(ExceptionCode::GatewayTargetDevice)
+            exception(&WriteFailure::Link(WriteError::NoReply)),
+            ExceptionCode::GatewayTargetDevice
         );
         assert_eq!(
-            judge(34, Err(WriteError::UnknownDevice)),
-            Err(ExceptionCode::GatewayPathUnavailable)
+            exception(&WriteFailure::Link(WriteError::UnknownDevice)),
+            ExceptionCode::GatewayPathUnavailable
         );
+    }
+
+    #[test]
+    fn range_parts_go_in_one_command() {
+        let ops = operations(&[
+            (Value::Damping, 2.0),
+            (Value::UpperRange, 200.0),
+            (Value::RangeUnits, 12.0),
+        ])
+        .unwrap();
+        assert_eq!(
+            ops,
+            vec![
+                WriteOp::Range {
+                    upper: Some(200.0),
+                    lower: None,
+                    units: Some(12)
+                },
+                WriteOp::Damping(2.0)
+            ]
+        );
+        assert!(operations(&[(Value::RangeUnits, 12.5)]).is_err());
     }
 }
 
@@ -386,7 +458,7 @@ mod tests {
 #[derive(Clone)]
 pub struct Service {
     gateway: Arc<Gateway>,
-    link: Link,
+    peer: Peer,
 }
 
 impl tokio_modbus::server::Service for Service {
@@ -398,7 +470,7 @@ impl tokio_modbus::server::Service for Service {
 
     fn call(&self, req: Self::Request) -> Self::Future {
         let gw = self.gateway.clone();
-        Box::pin(gw.call(req.slave, req.request, self.link))
+        Box::pin(gw.call(req.slave, req.request, self.peer.clone()))
     }
 }
 
@@ -554,7 +626,7 @@ pub async fn bind_tcp(
                 let _ = counted.stream.set_nodelay(true);
                 let service = Service {
                     gateway,
-                    link: Link::Tcp,
+                    peer: Peer::Tcp(peer),
                 };
                 Ok(Some((service, counted)))
             }
@@ -639,7 +711,7 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
     server
         .serve_forever(Service {
             gateway,
-            link: Link::Rtu,
+            peer: Peer::Rtu(port.path.as_str().into()),
         })
         .await
 }

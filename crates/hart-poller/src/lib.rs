@@ -26,6 +26,7 @@ pub mod line;
 pub mod request;
 pub mod schedule;
 mod task;
+pub mod write;
 
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
@@ -34,6 +35,7 @@ pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
 };
+pub use write::{Applied, DeviceRefusal, Origin, WriteFailure, WriteOp};
 
 /// A device found on a loop, for routing requests to it.
 #[derive(Debug, Clone)]

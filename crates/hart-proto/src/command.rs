@@ -1052,18 +1052,38 @@ pub enum Access {
 /// device, so doubtful ones are writes.
 pub static UNTYPED_COMMANDS: &[(u16, &str, Access)] = &[
     (39, "EEPROM Control", Access::Write),
-    (47, "Write Primary Variable Transfer Function", Access::Write),
-    (49, "Write Primary Variable Transducer Serial Number", Access::Write),
+    (
+        47,
+        "Write Primary Variable Transfer Function",
+        Access::Write,
+    ),
+    (
+        49,
+        "Write Primary Variable Transducer Serial Number",
+        Access::Write,
+    ),
     (52, "Set Device Variable Zero", Access::Write),
     (55, "Write Device Variable Damping Value", Access::Write),
-    (56, "Write Device Variable Transducer Serial Number", Access::Write),
+    (
+        56,
+        "Write Device Variable Transducer Serial Number",
+        Access::Write,
+    ),
     (57, "Read Unit Tag, Descriptor, Date", Access::Read),
     (58, "Write Unit Tag, Descriptor, Date", Access::Write),
     (60, "Read Analog Channel and Percent of Range", Access::Read),
-    (61, "Read Dynamic Variables and Primary Variable Analog Channel", Access::Read),
+    (
+        61,
+        "Read Dynamic Variables and Primary Variable Analog Channel",
+        Access::Read,
+    ),
     (62, "Read Analog Channels", Access::Read),
     (63, "Read Analog Channel Information", Access::Read),
-    (64, "Write Analog Channel Additional Damping Value", Access::Write),
+    (
+        64,
+        "Write Analog Channel Additional Damping Value",
+        Access::Write,
+    ),
     (65, "Write Analog Channel Range Values", Access::Write),
     (66, "Enter/Exit Fixed Analog Channel Mode", Access::Write),
     (67, "Trim Analog Channel Zero", Access::Write),
@@ -1089,7 +1109,11 @@ pub static UNTYPED_COMMANDS: &[(u16, &str, Access)] = &[
     (91, "Read Trend Configuration", Access::Read),
     (92, "Write Trend Configuration", Access::Write),
     (93, "Read Trend", Access::Read),
-    (94, "Read I/O System Client-Side Communication Statistics", Access::Read),
+    (
+        94,
+        "Read I/O System Client-Side Communication Statistics",
+        Access::Read,
+    ),
     (96, "Read Synchronous Action", Access::Read),
     (97, "Configure Synchronous Action", Access::Write),
     (98, "Read Command Action", Access::Read),
@@ -1332,7 +1356,9 @@ mod access_tests {
         }
         assert_eq!(access(77), Access::Wrapper);
         assert_eq!(access(78), Access::Wrapper);
-        for c in [4, 5, 10, 23, 31, 128, 129, 200, 253, 254, 255, 514, 4096, 65535] {
+        for c in [
+            4, 5, 10, 23, 31, 128, 129, 200, 253, 254, 255, 514, 4096, 65535,
+        ] {
             assert_eq!(access(c), Access::Unknown, "{c}");
         }
         // Self test and reset change the device but write protection does not stop

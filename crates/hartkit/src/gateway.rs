@@ -36,6 +36,10 @@ pub struct GatewayFile {
     /// The OPC UA front end (`[opcua]`).
     #[serde(default)]
     pub opcua: Option<OpcUaSection>,
+    /// Device-specific commands declared reads (`[[device_commands]]`, as the
+    /// `[[device]]` tables of `--device-commands FILE`).
+    #[serde(default)]
+    pub device_commands: Vec<hart_access::devices::DeviceEntry>,
 }
 
 /// `[opcua]`.
@@ -64,6 +68,10 @@ pub struct OpcUaSection {
 pub struct HartIpSection {
     /// `ADDR[:PORT]` (port 5094 by default).
     pub bind: String,
+    /// What plain sessions may do: `read-only` (the default with a PSK file) or
+    /// `read-write` (the default without).
+    #[serde(default)]
+    pub plain_rights: Option<hart_access::Rights>,
 }
 
 /// `[modbus]`.
@@ -83,6 +91,10 @@ pub struct ModbusSection {
     /// Most TCP connections at once (default 64).
     #[serde(default)]
     pub max_connections: Option<usize>,
+    /// Clients that may write, as networks (`["10.0.0.0/24"]`); loopback only by
+    /// default. Others' writes are answered "illegal function".
+    #[serde(default)]
+    pub write_from: Option<Vec<String>>,
 }
 
 /// `[modbus_rtu]`.
@@ -134,6 +146,12 @@ pub struct ServeOptions {
     pub psk_file: Option<PathBuf>,
     /// `--plain`.
     pub plain: Option<String>,
+    /// `--plain-rights`.
+    pub plain_rights: Option<hart_access::Rights>,
+    /// `--device-commands FILE`.
+    pub device_commands: Option<PathBuf>,
+    /// `--modbus-write-from NET...`.
+    pub modbus_write_from: Vec<String>,
     /// `--allow-commands`.
     pub allow_commands: Option<hart_ip_server::access::CommandAllowList>,
     /// `--audit-file`: every write let through by HART-IP or OPC UA, one JSON line each.
@@ -265,6 +283,21 @@ fn opcua_config(
     Ok(Some(config))
 }
 
+/// The device-specific commands declared reads: `--device-commands FILE` and the
+/// configuration's `[[device_commands]]`.
+fn device_commands(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<hart_access::DeviceCommands, Failure> {
+    let from_config = hart_access::DeviceCommands::from_entries(&file.device_commands)
+        .map_err(|e| (format!("--config: device_commands: {e}"), 2))?;
+    let from_file = match &opts.device_commands {
+        Some(p) => hart_access::DeviceCommands::load(p).map_err(|e| (e, 2))?,
+        None => hart_access::DeviceCommands::default(),
+    };
+    Ok(from_config.merge(from_file))
+}
+
 /// Where the OPC UA certificate and the trust list of client certificates are kept by
 /// default: `$XDG_DATA_HOME/hartkit/opcua-pki`, `~/.local/share/hartkit/opcua-pki`, or
 /// `./hartkit-opcua-pki`.
@@ -289,6 +322,14 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
         float_order: opts.float_order.or(section.float_order).unwrap_or_default(),
         read_only: opts.read_only,
         max_connections: section.max_connections.unwrap_or(64),
+        write_from: match (opts.modbus_write_from.is_empty(), &section.write_from) {
+            (false, _) => hart_access::NetList::parse(&opts.modbus_write_from)
+                .map_err(|e| (format!("--modbus-write-from: {e}"), 2))?,
+            (true, Some(nets)) => hart_access::NetList::parse(nets)
+                .map_err(|e| (format!("--config: [modbus] write_from: {e}"), 2))?,
+            (true, None) => hart_access::NetList::loopback(),
+        },
+        audit: hart_access::Audit::new(opts.audit_file.clone()),
     })
 }
 
@@ -454,6 +495,17 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
         .map(|p| hart_ip_tls::PskTable::load(p).map(std::sync::Arc::new))
         .transpose()
         .map_err(|e| (format!("--psk-file: {e}"), 2))?;
+    // Plain sessions are unauthenticated: beside secure ones they only read unless
+    // told otherwise.
+    let plain_rights = opts
+        .plain_rights
+        .or(file.hart_ip.as_ref().and_then(|h| h.plain_rights))
+        .unwrap_or(if psk.is_some() {
+            hart_access::Rights::ReadOnly
+        } else {
+            hart_access::Rights::ReadWrite
+        });
+    let device_commands = device_commands(&file, &opts)?;
     if !opts.print_map {
         init_log();
     }
@@ -518,6 +570,8 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                 scan_to: Some(opts.scan_to),
                 psk,
                 plain,
+                plain_rights,
+                device_commands,
                 allow_commands: opts.allow_commands.clone(),
                 audit_file: opts.audit_file.clone(),
                 ..hart_ip_server::Config::default()
@@ -535,13 +589,24 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                 } else {
                     ""
                 },
-                if opts.read_only { " (read only)" } else { "" }
+                if opts.read_only {
+                    " (read only)"
+                } else if !server.secure && plain_rights == hart_access::Rights::ReadOnly {
+                    " (read only: --plain-rights)"
+                } else {
+                    ""
+                }
             ));
             if server.plain_udp_addr.is_some() || server.plain_tcp_addr.is_some() {
                 out.push(format!(
-                    "hart-ip plain: udp {} tcp {}",
+                    "hart-ip plain: udp {} tcp {} ({})",
                     show(server.plain_udp_addr),
-                    show(server.plain_tcp_addr)
+                    show(server.plain_tcp_addr),
+                    if opts.read_only {
+                        hart_access::Rights::ReadOnly
+                    } else {
+                        plain_rights
+                    }
                 ));
             }
             servers.push(server);
@@ -727,4 +792,32 @@ pub fn opcua_trust(pki: Option<PathBuf>, action: TrustAction) -> Result<String, 
         .map(|c| format!("trusted {} -> {}", show(c), c.path.display()))
         .collect::<Vec<_>>()
         .join("\n"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The complete example of docs/gateway.md is a configuration the gateway reads.
+    #[test]
+    fn the_documented_example_reads() {
+        let doc = include_str!("../../../docs/gateway.md");
+        let start = doc
+            .find("```toml\n# Poll defaults")
+            .expect("the example in docs/gateway.md");
+        let body = &doc[start + "```toml\n".len()..];
+        let example = &body[..body.find("```").unwrap()];
+        let file: GatewayFile = toml::from_str(example).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.loops.len(), 2);
+        assert_eq!(
+            file.hart_ip.unwrap().plain_rights,
+            Some(hart_access::Rights::ReadOnly)
+        );
+        let commands = hart_access::DeviceCommands::from_entries(&file.device_commands).unwrap();
+        assert!(commands.reads(0x26F3, 128) && !commands.reads(0x26F3, 129));
+        let nets = file.modbus.unwrap().write_from.unwrap();
+        assert!(hart_access::NetList::parse(&nets)
+            .unwrap()
+            .contains("10.0.0.9".parse().unwrap()));
+    }
 }

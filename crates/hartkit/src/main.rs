@@ -1426,8 +1426,9 @@ struct ServeCli {
     /// 1, 2, ... (none: the demo plant).
     #[arg(long, num_args = 0.., value_name = "PROFILE")]
     sim: Option<Vec<String>>,
-    /// Refuse every command that changes a device (HART-IP: "access restricted";
-    /// Modbus: "illegal function"; OPC UA methods: BadUserAccessDenied).
+    /// Refuse every command not known to only read, on every front end and for every
+    /// identity (HART-IP: "access restricted"; Modbus: "illegal function"; OPC UA
+    /// methods: BadUserAccessDenied).
     #[arg(long)]
     read_only: bool,
     /// Most HART-IP sessions at once.
@@ -1449,9 +1450,22 @@ struct ServeCli {
     /// With --psk-file, also serve plain HART-IP (version 1) at this address.
     #[arg(long, value_name = "ADDR[:PORT]", requires = "psk_file")]
     plain: Option<String>,
+    /// What plain (unauthenticated) HART-IP sessions may do: read-only (the default
+    /// with --psk-file) or read-write (the default without).
+    #[arg(long, value_name = "RIGHTS")]
+    plain_rights: Option<hart_access::Rights>,
+    /// Device-specific commands (128-253 and others not known to hartkit) that only
+    /// read, per device type, in a TOML file of [[device]] tables (type = "26F1",
+    /// reads = "128,130-131"); every other one counts as a write (docs/hart-ip.md).
+    #[arg(long, value_name = "FILE")]
+    device_commands: Option<std::path::PathBuf>,
+    /// Modbus clients that may write, as addresses or networks (10.0.0.0/24); repeat
+    /// for more. Default: loopback only. Others' writes get exception 01.
+    #[arg(long = "modbus-write-from", value_name = "NET")]
+    modbus_write_from: Vec<String>,
     /// Only these commands may be sent over HART-IP (ranges, e.g. 0-22,48,74-84);
-    /// others are answered "access restricted" (16). Command 77 is checked with the
-    /// command it wraps.
+    /// others are answered "access restricted" (16). Every level of command 77 is
+    /// checked.
     #[arg(long, value_name = "LIST")]
     allow_commands: Option<hart_ip_server::access::CommandAllowList>,
     /// Also append every write let through, by HART-IP or by an OPC UA method call, as
@@ -1488,6 +1502,9 @@ impl ServeCli {
             scan_to: self.scan_to,
             psk_file: self.psk_file.clone(),
             plain: self.plain.clone(),
+            plain_rights: self.plain_rights,
+            device_commands: self.device_commands.clone(),
+            modbus_write_from: self.modbus_write_from.clone(),
             allow_commands: self.allow_commands.clone(),
             audit_file: self.audit_file.clone(),
             modbus: self.modbus.clone(),

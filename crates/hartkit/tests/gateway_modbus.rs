@@ -336,3 +336,62 @@ fn sub_devices_of_an_upstream_io_system_are_found_and_polled() {
         "{out}"
     );
 }
+
+/// Writes only from the clients listed (`--modbus-write-from`): a write from another
+/// address is answered "illegal function" and the device keeps its damping; one from a
+/// listed address lands and is in the audit file, with the client's address.
+#[test]
+fn modbus_writes_only_from_listed_clients() {
+    let Some(py) = python() else { return };
+    let audit = std::env::temp_dir().join(format!("hartkit-mb-audit-{}.jsonl", std::process::id()));
+    let _ = std::fs::remove_file(&audit);
+    let gw = gateway(
+        &[
+            "--sim",
+            "--instant",
+            "--modbus",
+            "127.0.0.1:0",
+            "--modbus-write-from",
+            "127.0.0.2",
+            "--audit-file",
+            audit.to_str().unwrap(),
+        ],
+        1,
+    );
+    let port = port_of(&gw.1["modbus"]);
+    let write = |source: &str, damping: &str| -> serde_json::Value {
+        let out = Command::new(&py)
+            .arg(workspace().join("scripts/interop/pymodbus_write.py"))
+            .args(["--port", &port, "--source", source, "--damping", damping])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+    };
+    let refused = write("127.0.0.1", "4.5");
+    assert_eq!(refused["exception"], 1, "illegal function: {refused}");
+    assert_eq!(refused["after"], refused["before"], "{refused}");
+    let done = write("127.0.0.2", "4.5");
+    assert_eq!(done["exception"], serde_json::Value::Null, "{done}");
+    assert_eq!(done["after"], 4.5, "{done}");
+    drop(gw);
+    let log = std::fs::read_to_string(&audit).unwrap_or_default();
+    let lines: Vec<serde_json::Value> = log
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 1, "one write let through: {log}");
+    assert_eq!(lines[0]["front_end"], "modbus-tcp");
+    assert_eq!(lines[0]["command"], 34);
+    assert_eq!(lines[0]["operation"], "damping 4.5 s");
+    assert!(
+        lines[0]["peer"].as_str().unwrap().starts_with("127.0.0.2:"),
+        "{log}"
+    );
+    let _ = std::fs::remove_file(&audit);
+}

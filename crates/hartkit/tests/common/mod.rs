@@ -117,10 +117,19 @@ pub fn gateway(args: &[&str], front_ends: usize) -> Gateway {
     for _ in 0..front_ends {
         let mut line = String::new();
         out.read_line(&mut line).unwrap();
-        // "hart-ip: udp ADDR tcp ADDR", "modbus: tcp ADDR (floats abcd)",
+        // "hart-ip: udp ADDR tcp ADDR", "hart-ip plain: udp ADDR tcp ADDR (read-only)",
+        // "modbus: tcp ADDR (floats abcd)",
         // "modbus-rtu: PATH 19200 8N1", "opcua: opc.tcp://HOST:PORT/"
+        // The name runs to the first word ending in ':' ("hart-ip plain: udp ...").
         let mut words = line.split_whitespace();
-        let name = words.next().unwrap_or("").trim_end_matches(':').to_string();
+        let mut name = vec![];
+        for w in words.by_ref() {
+            name.push(w.trim_end_matches(':'));
+            if w.ends_with(':') {
+                break;
+            }
+        }
+        let name = name.join(" ");
         let addr = words
             .find(|w| w.contains(':') || w.starts_with('/'))
             .unwrap_or_else(|| panic!("gateway did not start: {line:?}"));

@@ -1,0 +1,405 @@
+//! Typed writes: the changes the gateway's front ends offer (range, damping, units,
+//! fixed current, tag, descriptor, date, message, long tag), each turned into its HART
+//! command in one place, audited before it goes on the loop, and judged by one mapping
+//! of the device's response codes ([`DeviceRefusal`]) that every front end translates
+//! into its own words (Modbus exceptions, OPC UA status codes).
+
+use hart_access::{Audit, WriteRecord};
+use hart_proto::tables::{rc, response_class, ResponseClass};
+use hart_proto::types::{Date, Latin1String, PackedString};
+
+use crate::{Engine, WriteError, WriteReply};
+
+/// A change to one device.
+#[derive(Debug, Clone, PartialEq)]
+pub enum WriteOp {
+    /// PV range values (command 35); a part not given keeps the device's value.
+    Range {
+        /// Upper range value (20 mA).
+        upper: Option<f32>,
+        /// Lower range value (4 mA).
+        lower: Option<f32>,
+        /// Units code of the range values.
+        units: Option<u8>,
+    },
+    /// PV damping, seconds (command 34).
+    Damping(f32),
+    /// PV units code (command 44).
+    PvUnits(u8),
+    /// Fixed current mode, mA (command 40); 0 leaves it (the loop test's release).
+    FixedCurrent(f32),
+    /// Tag, 8 packed characters (command 18; descriptor and date kept).
+    Tag(String),
+    /// Descriptor, 16 packed characters (command 18; tag and date kept).
+    Descriptor(String),
+    /// Date (command 18; tag and descriptor kept).
+    Date(Date),
+    /// Message, 32 packed characters (command 17).
+    Message(String),
+    /// Long tag, 32 Latin-1 characters (command 22).
+    LongTag(String),
+}
+
+impl WriteOp {
+    /// The HART command that carries it.
+    pub fn command(&self) -> u16 {
+        match self {
+            WriteOp::Range { .. } => 35,
+            WriteOp::Damping(_) => 34,
+            WriteOp::PvUnits(_) => 44,
+            WriteOp::FixedCurrent(_) => 40,
+            WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => 18,
+            WriteOp::Message(_) => 17,
+            WriteOp::LongTag(_) => 22,
+        }
+    }
+
+    /// In words, for the audit and messages.
+    pub fn describe(&self) -> String {
+        let opt = |v: Option<f32>| v.map_or("kept".to_string(), |v| v.to_string());
+        match self {
+            WriteOp::Range {
+                upper,
+                lower,
+                units,
+            } => format!(
+                "range: upper {}, lower {}, units {}",
+                opt(*upper),
+                opt(*lower),
+                units.map_or("kept".to_string(), unit_name)
+            ),
+            WriteOp::Damping(s) => format!("damping {s} s"),
+            WriteOp::PvUnits(u) => format!("PV units {}", unit_name(*u)),
+            WriteOp::FixedCurrent(ma) if *ma == 0.0 => "leave fixed current mode".to_string(),
+            WriteOp::FixedCurrent(ma) => format!("fixed current {ma} mA"),
+            WriteOp::Tag(t) => format!("tag {t:?}"),
+            WriteOp::Descriptor(t) => format!("descriptor {t:?}"),
+            WriteOp::Date(d) => format!("date {d}"),
+            WriteOp::Message(t) => format!("message {t:?}"),
+            WriteOp::LongTag(t) => format!("long tag {t:?}"),
+        }
+    }
+
+    /// Checks the values before anything is sent (a tag too long, a damping that is
+    /// not a number).
+    pub fn validate(&self) -> Result<(), WriteFailure> {
+        let finite = |v: f32, what: &str| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(WriteFailure::Invalid(format!(
+                    "{what} must be a finite number"
+                )))
+            }
+        };
+        let packed = |t: &str, n: usize, what: &str| {
+            let ok = match n {
+                8 => PackedString::<6>::new(t).is_ok(),
+                16 => PackedString::<12>::new(t).is_ok(),
+                _ => PackedString::<24>::new(t).is_ok(),
+            };
+            if ok {
+                Ok(())
+            } else {
+                Err(WriteFailure::Invalid(format!(
+                    "{what} {t:?}: at most {n} characters of packed ASCII (letters, \
+                     stored upper-case, digits, space and @[\\]^_ !\"#$%&'()*+,-./:;<=>?)"
+                )))
+            }
+        };
+        match self {
+            WriteOp::Range { upper, lower, .. } => {
+                upper.map_or(Ok(()), |v| finite(v, "the upper range value"))?;
+                lower.map_or(Ok(()), |v| finite(v, "the lower range value"))
+            }
+            WriteOp::Damping(s) => finite(*s, "the damping"),
+            WriteOp::FixedCurrent(ma) => finite(*ma, "the loop current"),
+            WriteOp::PvUnits(_) | WriteOp::Date(_) => Ok(()),
+            WriteOp::Tag(t) => packed(t, 8, "tag"),
+            WriteOp::Descriptor(t) => packed(t, 16, "descriptor"),
+            WriteOp::Message(t) => packed(t, 32, "message"),
+            WriteOp::LongTag(t) => Latin1String::<32>::new(t).map(|_| ()).map_err(|_| {
+                WriteFailure::Invalid(format!(
+                    "long tag {t:?}: at most 32 characters of ISO Latin-1"
+                ))
+            }),
+        }
+    }
+}
+
+fn unit_name(u: u8) -> String {
+    hart_proto::tables::unit_symbol(u).map_or(format!("code {u}"), str::to_string)
+}
+
+/// What kind of "no" a device's response code is, for the front ends to translate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceRefusal {
+    /// The value is not acceptable: invalid selection, too large, too small, a units
+    /// code it does not know, command 35's range limits.
+    OutOfRange,
+    /// Write protected, or access restricted.
+    NotWritable,
+    /// Busy, or a delayed response under way: try again.
+    Busy,
+    /// The device does not implement the command.
+    NotImplemented,
+    /// Anything else: the device will not do it now (in multidrop mode for a fixed
+    /// current, device-specific errors).
+    Failed,
+}
+
+impl DeviceRefusal {
+    /// The refusal a response code to `command` means; `None` when the code is
+    /// success or a warning (the write was done).
+    pub fn of(command: u16, code: u8) -> Option<DeviceRefusal> {
+        if response_class(code) != ResponseClass::Error {
+            return None;
+        }
+        Some(match (command, code) {
+            (_, rc::INVALID_SELECTION | rc::TOO_LARGE | rc::TOO_SMALL | rc::INVALID_UNITS_CODE)
+            | (35, 9..=13) => DeviceRefusal::OutOfRange,
+            (_, rc::WRITE_PROTECTED | rc::ACCESS_RESTRICTED) => DeviceRefusal::NotWritable,
+            (_, rc::BUSY | rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT) => {
+                DeviceRefusal::Busy
+            }
+            (_, rc::NOT_IMPLEMENTED) => DeviceRefusal::NotImplemented,
+            _ => DeviceRefusal::Failed,
+        })
+    }
+}
+
+/// Why a typed write was not done.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum WriteFailure {
+    /// The value cannot be sent (checked before anything went on the loop).
+    Invalid(String),
+    /// What the write needs from the device is not known yet (its range before
+    /// command 15 was answered).
+    NotReadYet(&'static str),
+    /// The request did not reach the device, or its answer was not a reply.
+    Link(WriteError),
+    /// The device refused it with response code `code`.
+    Refused {
+        /// The command refused.
+        command: u16,
+        /// The response code.
+        code: u8,
+        /// What kind of refusal.
+        refusal: DeviceRefusal,
+    },
+}
+
+impl std::fmt::Display for WriteFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WriteFailure::Invalid(m) => f.write_str(m),
+            WriteFailure::NotReadYet(what) => write!(
+                f,
+                "the device's {what} is not known yet (not polled since the start); try again in a few seconds"
+            ),
+            WriteFailure::Link(e) => e.fmt(f),
+            WriteFailure::Refused { command, code, .. } => write!(
+                f,
+                "the device refused command {command}: response code {code} ({})",
+                hart_proto::tables::response_code_name(*command, *code).unwrap_or("no name")
+            ),
+        }
+    }
+}
+
+impl std::error::Error for WriteFailure {}
+
+/// A write done: the device's reply (its response code may be a warning, e.g. 8 "set
+/// to nearest possible value").
+pub type Applied = WriteReply;
+
+/// Who asks for a write, for the audit: everything of a [`WriteRecord`] but the device
+/// and the command, which the engine fills in.
+#[derive(Debug, Clone)]
+pub struct Origin<'a> {
+    /// Where writes are recorded.
+    pub audit: &'a Audit,
+    /// The front end, its session, peer, identity and path (`via`).
+    pub record: WriteRecord,
+}
+
+impl Engine {
+    /// Carries out `op` on the device at image `position`, ahead of the loop's polls:
+    /// checks the values, reads what the command keeps (the range's other value, the
+    /// tag's descriptor and date), records the write in `origin`'s audit just before it
+    /// goes on the loop, and judges the reply.
+    pub async fn apply(
+        &self,
+        position: usize,
+        op: &WriteOp,
+        origin: &Origin<'_>,
+    ) -> Result<Applied, WriteFailure> {
+        op.validate()?;
+        let command = op.command();
+        let data = self.encode(position, op).await?;
+        let device = self
+            .image()
+            .with(position, |d| {
+                format!(
+                    "{} ({}, unit {})",
+                    d.display_name(),
+                    d.unique_id()
+                        .map_or("unique ID not known".to_string(), |u| format!(
+                            "unique ID {u}"
+                        )),
+                    d.position + 1
+                )
+            })
+            .ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
+        origin.audit.record(&WriteRecord {
+            device,
+            command,
+            operation: Some(op.describe()),
+            ..origin.record.clone()
+        });
+        let reply = self
+            .write(position, command, &data)
+            .await
+            .map_err(WriteFailure::Link)?;
+        match DeviceRefusal::of(command, reply.response_code) {
+            None => Ok(reply),
+            Some(refusal) => Err(WriteFailure::Refused {
+                command,
+                code: reply.response_code,
+                refusal,
+            }),
+        }
+    }
+
+    /// The request data of `op` for the device at `position`.
+    async fn encode(&self, position: usize, op: &WriteOp) -> Result<Vec<u8>, WriteFailure> {
+        let f32s = |v: &[f32]| v.iter().flat_map(|x| x.to_be_bytes()).collect::<Vec<u8>>();
+        Ok(match op {
+            WriteOp::Range {
+                upper,
+                lower,
+                units,
+            } => {
+                let known = self
+                    .image()
+                    .with(position, |d| d.range)
+                    .ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
+                let (u, up, lo) = match (units, upper, lower, known) {
+                    (Some(u), Some(up), Some(lo), _) => (*u, *up, *lo),
+                    (_, _, _, Some(r)) => (
+                        units.unwrap_or(r.units),
+                        upper.unwrap_or(r.upper),
+                        lower.unwrap_or(r.lower),
+                    ),
+                    (_, _, _, None) => return Err(WriteFailure::NotReadYet("range")),
+                };
+                let mut d = vec![u];
+                d.extend(f32s(&[up, lo]));
+                d
+            }
+            WriteOp::Damping(s) => f32s(&[*s]),
+            WriteOp::FixedCurrent(ma) => f32s(&[*ma]),
+            WriteOp::PvUnits(u) => vec![*u],
+            WriteOp::Message(t) => PackedString::<24>::new(t)
+                .map_err(|_| WriteFailure::Invalid(format!("message {t:?}")))?
+                .0
+                .to_vec(),
+            WriteOp::LongTag(t) => Latin1String::<32>::new(t)
+                .map_err(|_| WriteFailure::Invalid(format!("long tag {t:?}")))?
+                .0
+                .to_vec(),
+            WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => {
+                // Command 18 writes tag, descriptor and date together: read the ones
+                // kept (command 13) first.
+                let current = self
+                    .write(position, 13, &[])
+                    .await
+                    .map_err(WriteFailure::Link)?;
+                if let Some(refusal) = DeviceRefusal::of(13, current.response_code) {
+                    return Err(WriteFailure::Refused {
+                        command: 13,
+                        code: current.response_code,
+                        refusal,
+                    });
+                }
+                let mut d = current
+                    .data
+                    .get(..21)
+                    .ok_or_else(|| {
+                        WriteFailure::Link(WriteError::BadReply(
+                            "command 13's reply is shorter than 21 bytes".into(),
+                        ))
+                    })?
+                    .to_vec();
+                match op {
+                    WriteOp::Tag(t) => d[..6].copy_from_slice(
+                        &PackedString::<6>::new(t)
+                            .map_err(|_| WriteFailure::Invalid(format!("tag {t:?}")))?
+                            .0,
+                    ),
+                    WriteOp::Descriptor(t) => d[6..18].copy_from_slice(
+                        &PackedString::<12>::new(t)
+                            .map_err(|_| WriteFailure::Invalid(format!("descriptor {t:?}")))?
+                            .0,
+                    ),
+                    WriteOp::Date(date) => {
+                        let mut b = [0u8; 3];
+                        let _ = hart_proto::wire::Wire::encode(
+                            date,
+                            &mut hart_proto::wire::Writer::new(&mut b),
+                        );
+                        d[18..21].copy_from_slice(&b);
+                    }
+                    _ => {}
+                }
+                d
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn response_codes_become_refusals() {
+        assert_eq!(DeviceRefusal::of(34, 0), None);
+        // Warning "set to nearest possible value": done.
+        assert_eq!(DeviceRefusal::of(34, 8), None);
+        assert_eq!(DeviceRefusal::of(34, 3), Some(DeviceRefusal::OutOfRange));
+        assert_eq!(DeviceRefusal::of(35, 11), Some(DeviceRefusal::OutOfRange));
+        // 11 for command 40 is "in multidrop mode": not the value's fault.
+        assert_eq!(DeviceRefusal::of(40, 11), Some(DeviceRefusal::Failed));
+        assert_eq!(DeviceRefusal::of(34, 7), Some(DeviceRefusal::NotWritable));
+        assert_eq!(DeviceRefusal::of(34, 16), Some(DeviceRefusal::NotWritable));
+        assert_eq!(DeviceRefusal::of(34, 32), Some(DeviceRefusal::Busy));
+        assert_eq!(
+            DeviceRefusal::of(40, 64),
+            Some(DeviceRefusal::NotImplemented)
+        );
+    }
+
+    #[test]
+    fn values_are_checked_before_sending() {
+        assert!(WriteOp::Tag("PT-101".into()).validate().is_ok());
+        assert!(WriteOp::Tag("far-too-long".into()).validate().is_err());
+        assert!(WriteOp::Tag("PT~101".into()).validate().is_err());
+        assert!(WriteOp::Damping(f32::NAN).validate().is_err());
+        assert!(WriteOp::Range {
+            upper: Some(f32::INFINITY),
+            lower: None,
+            units: None
+        }
+        .validate()
+        .is_err());
+        assert!(WriteOp::LongTag("Reactor feed pressure".into())
+            .validate()
+            .is_ok());
+        assert_eq!(
+            WriteOp::FixedCurrent(0.0).describe(),
+            "leave fixed current mode"
+        );
+        assert_eq!(WriteOp::Damping(2.5).describe(), "damping 2.5 s");
+    }
+}
