@@ -24,7 +24,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Instant, SystemTime};
 
-use hart_poller::{DeviceImage, Engine, Quality};
+use hart_poller::{DeviceImage, Engine, Quality, WriteFailure, WriteOp};
 use opcua::server::address_space::{MethodBuilder, ObjectBuilder, VariableBuilder};
 use opcua::server::node_manager::memory::InMemoryNodeManagerBuilder;
 use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
@@ -685,8 +685,8 @@ impl Model {
     }
 }
 
-/// Carries a method call to the device at `position` (the caller is let through: the
-/// node manager checked it); `who` records the write in the audit just before it goes.
+/// Carries a method call to the device at `position` as one of the engine's typed
+/// writes (audited there, with `who`).
 async fn call(
     engine: Engine,
     position: usize,
@@ -699,64 +699,46 @@ async fn call(
         Some(Variant::Double(f)) if f.is_finite() => Ok(*f as f32),
         _ => Err(StatusCode::BadInvalidArgument),
     };
-    let (command, data) = match method {
-        "SetDamping" => (34, float(0)?.to_be_bytes().to_vec()),
-        "LoopTest" => (40, float(0)?.to_be_bytes().to_vec()),
-        "SetRange" => {
-            let units = engine
-                .image()
-                .with(position, |d| d.range.map(|r| r.units))
-                .flatten()
-                .ok_or(StatusCode::BadWaitingForInitialData)?;
-            let mut data = vec![units];
-            data.extend_from_slice(&float(0)?.to_be_bytes());
-            data.extend_from_slice(&float(1)?.to_be_bytes());
-            (35, data)
-        }
-        "WriteTag" => {
-            let Some(Variant::String(tag)) = args.first() else {
-                return Err(StatusCode::BadInvalidArgument);
-            };
-            let tag = hart_proto::types::PackedString::<6>::new(tag.as_ref())
-                .map_err(|_| StatusCode::BadInvalidArgument)?;
-            // Command 18 writes tag, descriptor and date together: keep the others.
-            let current = engine.write(position, 13, &[]).await.map_err(write_error)?;
-            if current.response_code != 0 || current.data.len() < 21 {
-                return Err(StatusCode::BadDeviceFailure);
-            }
-            let mut data = tag.0.to_vec();
-            data.extend_from_slice(&current.data[6..21]);
-            (18, data)
-        }
+    let op = match method {
+        "SetDamping" => WriteOp::Damping(float(0)?),
+        "LoopTest" => WriteOp::FixedCurrent(float(0)?),
+        // The range units are kept.
+        "SetRange" => WriteOp::Range {
+            upper: Some(float(0)?),
+            lower: Some(float(1)?),
+            units: None,
+        },
+        "WriteTag" => match args.first() {
+            Some(Variant::String(tag)) => WriteOp::Tag(tag.as_ref().to_string()),
+            _ => return Err(StatusCode::BadInvalidArgument),
+        },
         _ => return Err(StatusCode::BadMethodInvalid),
     };
-    who.record(command, method, &args);
-    let reply = engine
-        .write(position, command, &data)
-        .await
-        .map_err(write_error)?;
-    use hart_proto::tables::{rc, response_class, ResponseClass};
-    if response_class(reply.response_code) != ResponseClass::Error {
-        return Ok(vec![]);
+    match engine.apply(position, &op, &who.origin(method)).await {
+        Ok(_) => Ok(vec![]),
+        Err(e) => {
+            tracing::warn!("opcua: {method} ({}) not done: {e}", op.describe());
+            Err(status_of(&e))
+        }
     }
-    Err(match (command, reply.response_code) {
-        (_, rc::INVALID_SELECTION | rc::TOO_LARGE | rc::TOO_SMALL) | (35, 9..=13) => {
-            StatusCode::BadOutOfRange
-        }
-        (_, rc::WRITE_PROTECTED | rc::ACCESS_RESTRICTED) => StatusCode::BadNotWritable,
-        (_, rc::BUSY | rc::DR_INITIATED | rc::DR_RUNNING | rc::DR_CONFLICT) => {
-            StatusCode::BadResourceUnavailable
-        }
-        (_, rc::NOT_IMPLEMENTED) => StatusCode::BadNotSupported,
-        _ => StatusCode::BadDeviceFailure,
-    })
 }
 
-fn write_error(e: hart_poller::WriteError) -> StatusCode {
+/// The OPC UA status of a typed write that was not done.
+fn status_of(e: &WriteFailure) -> StatusCode {
+    use hart_poller::{DeviceRefusal, WriteError};
     match e {
-        hart_poller::WriteError::UnknownDevice => StatusCode::BadNodeIdUnknown,
-        hart_poller::WriteError::NoReply => StatusCode::BadNoCommunication,
-        hart_poller::WriteError::Busy => StatusCode::BadResourceUnavailable,
-        hart_poller::WriteError::BadReply(_) => StatusCode::BadCommunicationError,
+        WriteFailure::Invalid(_) => StatusCode::BadInvalidArgument,
+        WriteFailure::NotReadYet(_) => StatusCode::BadWaitingForInitialData,
+        WriteFailure::Link(WriteError::UnknownDevice) => StatusCode::BadNodeIdUnknown,
+        WriteFailure::Link(WriteError::NoReply) => StatusCode::BadNoCommunication,
+        WriteFailure::Link(WriteError::Busy) => StatusCode::BadResourceUnavailable,
+        WriteFailure::Link(WriteError::BadReply(_)) => StatusCode::BadCommunicationError,
+        WriteFailure::Refused { refusal, .. } => match refusal {
+            DeviceRefusal::OutOfRange => StatusCode::BadOutOfRange,
+            DeviceRefusal::NotWritable => StatusCode::BadNotWritable,
+            DeviceRefusal::Busy => StatusCode::BadResourceUnavailable,
+            DeviceRefusal::NotImplemented => StatusCode::BadNotSupported,
+            DeviceRefusal::Failed => StatusCode::BadDeviceFailure,
+        },
     }
 }

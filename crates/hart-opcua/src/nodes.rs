@@ -39,41 +39,22 @@ pub(crate) struct Caller<'a> {
 }
 
 impl Caller<'_> {
-    /// Records a call let through: `command` is about to be sent.
-    pub(crate) fn record(&self, command: u16, method: &str, args: &[opcua::types::Variant]) {
-        self.audit.record(&hart_access::WriteRecord {
-            front_end: "opcua",
-            session: None,
-            // async-opcua does not tell a session's peer address.
-            peer: "-".to_string(),
-            identity: Some(self.identity.clone()),
-            device: self.device.to_string(),
-            command,
-            via: format!("method {method}"),
-            operation: operation(method, args),
-        });
+    /// The origin of a call of `method` for the engine's typed write, which records it
+    /// in the audit just before its command goes on the loop.
+    pub(crate) fn origin(&self, method: &str) -> hart_poller::Origin<'_> {
+        hart_poller::Origin {
+            audit: self.audit,
+            record: hart_access::WriteRecord {
+                front_end: "opcua",
+                session: None,
+                // async-opcua does not tell a session's peer address.
+                peer: "-".to_string(),
+                identity: Some(self.identity.clone()),
+                via: format!("method {method} of {}", self.device),
+                ..Default::default()
+            },
+        }
     }
-}
-
-/// What a method call does, in words (`damping 2 s`).
-fn operation(method: &str, args: &[opcua::types::Variant]) -> Option<String> {
-    use opcua::types::Variant;
-    let f = |i: usize| match args.get(i) {
-        Some(Variant::Float(f)) => Some(f64::from(*f)),
-        Some(Variant::Double(f)) => Some(*f),
-        _ => None,
-    };
-    Some(match method {
-        "SetDamping" => format!("damping {} s", f(0)?),
-        "SetRange" => format!("range upper {} lower {}", f(0)?, f(1)?),
-        "LoopTest" if f(0)? == 0.0 => "loop test off".to_string(),
-        "LoopTest" => format!("loop current fixed at {} mA", f(0)?),
-        "WriteTag" => match args.first() {
-            Some(Variant::String(s)) => format!("tag {:?}", s.as_ref()),
-            _ => return None,
-        },
-        _ => return None,
-    })
 }
 
 /// The implementation behind [`HartNodeManager`].
