@@ -347,32 +347,28 @@ fn the_allow_list_holds_at_every_depth_and_for_subscriptions() {
     });
 }
 
+/// A Direct PDU of `n` command 0 entries: the HART-IP status and the body.
+async fn direct_zeros(t: &mut HartIpTransport, n: usize) -> (u8, Vec<u8>) {
+    let entries: Vec<(u16, &[u8])> = vec![(0u16, &[][..]); n];
+    t.exchange(
+        MessageId::DirectPdu,
+        &direct_pdu_body(&entries),
+        Duration::from_secs(5),
+    )
+    .await
+    .unwrap()
+}
+
 #[test]
 fn direct_pdus_are_capped() {
     run(async {
         let s = server(Config::default()).await;
         let mut t = connect(s.udp_addr.unwrap(), None).await;
         let max = hart_ip_server::MAX_DIRECT_ENTRIES;
-        let entries: Vec<(u16, &[u8])> = vec![(0u16, &[][..]); max];
-        let (st, body) = t
-            .exchange(
-                MessageId::DirectPdu,
-                &direct_pdu_body(&entries),
-                Duration::from_secs(5),
-            )
-            .await
-            .unwrap();
+        let (st, body) = direct_zeros(&mut t, max).await;
         assert_eq!(st, 0);
         assert_eq!(direct_pdu_reply(&body).len(), max);
-        let entries: Vec<(u16, &[u8])> = vec![(0u16, &[][..]); max + 1];
-        let (st, body) = t
-            .exchange(
-                MessageId::DirectPdu,
-                &direct_pdu_body(&entries),
-                Duration::from_secs(5),
-            )
-            .await
-            .unwrap();
+        let (st, body) = direct_zeros(&mut t, max + 1).await;
         assert_eq!(st, hart_ip::status::INVALID_SELECTION);
         assert!(body.is_empty());
         t.close().await;

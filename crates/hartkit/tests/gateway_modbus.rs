@@ -10,10 +10,9 @@
 //! map, the terminal view) always run.
 
 use std::path::PathBuf;
-use std::process::Command;
 
 mod common;
-use common::{gateway, hartkit, pty_pair, workspace};
+use common::{gateway, hartkit, pty_pair};
 
 fn python() -> Option<PathBuf> {
     common::interop_python("pymodbus")
@@ -23,20 +22,10 @@ fn port_of(addr: &str) -> String {
     addr.rsplit(':').next().unwrap().to_string()
 }
 
-fn run_client(py: &PathBuf, port: &str, extra: &[&str]) -> serde_json::Value {
-    let out = Command::new(py)
-        .arg(workspace().join("scripts/interop/pymodbus_client.py"))
-        .args(["--port", port, "--units", "4"])
-        .args(extra)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "pymodbus client failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+fn run_client(py: &std::path::Path, port: &str, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["--port", port, "--units", "4"];
+    args.extend_from_slice(extra);
+    common::interop_json(py, "pymodbus_client.py", &args)
 }
 
 #[test]
@@ -266,18 +255,11 @@ fn pymodbus_rtu_master_on_a_serial_line() {
         ],
         1,
     );
-    let out = Command::new(&py)
-        .arg(workspace().join("scripts/interop/pymodbus_rtu_client.py"))
-        .args(["--device", pty.2.to_str().unwrap()])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "RTU master failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
+    let r = common::interop_json(
+        &py,
+        "pymodbus_rtu_client.py",
+        &["--device", pty.2.to_str().unwrap()],
     );
-    let r: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert_eq!(r["pv_units"], 12, "{r}");
     assert_eq!(r["quality"], 0, "{r}");
     assert_eq!(r["unknown_unit"], "silent", "{r}");
@@ -359,19 +341,12 @@ fn modbus_writes_only_from_listed_clients() {
         1,
     );
     let port = port_of(&gw.1["modbus"]);
-    let write = |source: &str, damping: &str| -> serde_json::Value {
-        let out = Command::new(&py)
-            .arg(workspace().join("scripts/interop/pymodbus_write.py"))
-            .args(["--port", &port, "--source", source, "--damping", damping])
-            .output()
-            .unwrap();
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "{stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+    let write = |source: &str, damping: &str| {
+        common::interop_json(
+            &py,
+            "pymodbus_write.py",
+            &["--port", &port, "--source", source, "--damping", damping],
+        )
     };
     let refused = write("127.0.0.1", "4.5");
     assert_eq!(refused["exception"], 1, "illegal function: {refused}");

@@ -25,26 +25,16 @@ use std::process::Command;
 use serde_json::Value;
 
 mod common;
-use common::{gateway, hartkit, workspace};
+use common::{gateway, hartkit};
 
 fn python() -> Option<PathBuf> {
     common::interop_python("asyncua")
 }
 
-fn client(py: &PathBuf, url: &str, extra: &[&str]) -> Result<serde_json::Value, String> {
-    let out = Command::new(py)
-        .arg(workspace().join("scripts/interop/asyncua_client.py"))
-        .args(["--url", url])
-        .args(extra)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    if !out.status.success() {
-        return Err(format!(
-            "{stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        ));
-    }
+fn client(py: &Path, url: &str, extra: &[&str]) -> Result<serde_json::Value, String> {
+    let mut args = vec!["--url", url];
+    args.extend_from_slice(extra);
+    let stdout = common::interop_script(py, "asyncua_client.py", &args)?;
     let line = stdout.lines().last().unwrap_or("");
     serde_json::from_str(line).map_err(|e| format!("{e}: {stdout}"))
 }
@@ -86,18 +76,14 @@ fn client_cert(dir: &Path, name: &str) -> (String, String) {
 
 /// Runs the client's access checks (`--access`): one session per run, in turn, in one
 /// process; the results by run name.
-fn access(py: &PathBuf, url: &str, runs: Value) -> HashMap<String, Value> {
-    let out = Command::new(py)
-        .arg(workspace().join("scripts/interop/asyncua_client.py"))
-        .args(["--url", url, "--wait", "20", "--access", &runs.to_string()])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+fn access(py: &Path, url: &str, runs: Value) -> HashMap<String, Value> {
+    let text = runs.to_string();
+    let stdout = common::interop_script(
+        py,
+        "asyncua_client.py",
+        &["--url", url, "--wait", "20", "--access", &text],
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     let results: HashMap<String, Value> = stdout
         .lines()
         .map(|l| serde_json::from_str::<Value>(l).unwrap_or_else(|e| panic!("{e}: {l}")))

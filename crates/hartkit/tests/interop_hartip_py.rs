@@ -20,20 +20,18 @@ fn python() -> Option<PathBuf> {
     common::interop_python("hartip")
 }
 
-fn run_client(py: &PathBuf, port: u16, transport: &str) -> Vec<serde_json::Value> {
-    let out = Command::new(py)
-        .arg(workspace().join("scripts/interop/hartip_py_client.py"))
-        .args(["--host", "127.0.0.1", "--port", &port.to_string()])
-        .args(["--transport", transport])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "hartip-py over {transport} failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout
+fn run_client(py: &std::path::Path, port: u16, transport: &str) -> Vec<serde_json::Value> {
+    let port = port.to_string();
+    let args = [
+        "--host",
+        "127.0.0.1",
+        "--port",
+        &port,
+        "--transport",
+        transport,
+    ];
+    common::interop_script(py, "hartip_py_client.py", &args)
+        .unwrap_or_else(|e| panic!("hartip-py over {transport}: {e}"))
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
         .collect()

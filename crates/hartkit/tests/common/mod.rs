@@ -87,6 +87,33 @@ pub fn interop_python(module: &str) -> Option<std::path::PathBuf> {
     None
 }
 
+/// Runs the outside client `scripts/interop/SCRIPT ARGS` with the interop venv's
+/// python `py` (a separate process, never imported): its standard output, or both of
+/// its outputs when it fails.
+pub fn interop_script(py: &std::path::Path, script: &str, args: &[&str]) -> Result<String, String> {
+    let out = std::process::Command::new(py)
+        .arg(workspace().join("scripts/interop").join(script))
+        .args(args)
+        .output()
+        .map_err(|e| format!("{script}: {e}"))?;
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    if !out.status.success() {
+        return Err(format!(
+            "{script} failed:\n{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        ));
+    }
+    Ok(stdout)
+}
+
+/// [`interop_script`] for a client that prints one JSON object last: that object
+/// (a failure or anything else panics with the client's output).
+pub fn interop_json(py: &std::path::Path, script: &str, args: &[&str]) -> Value {
+    let stdout = interop_script(py, script, args).unwrap_or_else(|e| panic!("{e}"));
+    let line = stdout.lines().last().unwrap_or("");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("{script}: {e}: {stdout}"))
+}
+
 /// `hartkit serve ARGS --run-for 300`, killed when dropped, and the addresses its front
 /// ends printed, by name (`hart-ip` its UDP address, `modbus` its TCP address,
 /// `modbus-rtu` its serial port, `opcua` its endpoint URL).
