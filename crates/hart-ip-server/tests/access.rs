@@ -8,6 +8,8 @@
 //! the innermost device and command. Subscriptions (533) change only the session and
 //! pass for read-only sessions, but not past an allow-list.
 
+mod common;
+use common::{frame, run};
 use std::time::Duration;
 
 use hart_host::hartip::{direct_pdu_body, direct_pdu_reply, HartIpTransport};
@@ -15,15 +17,7 @@ use hart_host::transport::Plant;
 use hart_ip::MessageId;
 use hart_ip_server::access::{DeviceCommands, Rights};
 use hart_ip_server::{start_in_memory, Config, Server};
-use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, UniqueId};
-
-fn run(test: impl std::future::Future<Output = ()>) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    tokio::task::LocalSet::new().block_on(&rt, test);
-}
+use hart_proto::frame::{Address, Frame, UniqueId};
 
 const KEY_RW: &str = "00112233445566778899AABBCCDDEEFF";
 const KEY_RO: &str = "FFEEDDCCBBAA99887766554433221100";
@@ -31,16 +25,6 @@ const KEY_RO: &str = "FFEEDDCCBBAA99887766554433221100";
 /// The I/O system's own address (the default identity).
 fn gateway() -> Address {
     Address::long(UniqueId::new(0x26FF, 1))
-}
-
-fn frame(address: Address, command: u16, data: &[u8]) -> Vec<u8> {
-    FrameBuf::encode(&FrameSpec {
-        extended: command > 255,
-        ..FrameSpec::request(address, command, data)
-    })
-    .unwrap()
-    .as_slice()
-    .to_vec()
 }
 
 /// Command 77's data around the frame `pdu` (card 0, channel 0, 5 preambles, without

@@ -3,27 +3,14 @@
 //! sub-device list up to `scan_to` and devices learnt beyond it, transparent polling
 //! address 0, commands 11/21 found by tag, burst messages with alternating master bits.
 
+mod common;
+use common::{frame, run};
 use std::time::Duration;
 
 use hart_host::hartip::HartIpSession;
 use hart_host::transport::{Plant, PlantBurst, PlantDevice};
 use hart_ip_server::{start_in_memory, Config};
-use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, FrameType, MasterKind, UniqueId};
-
-fn run(test: impl std::future::Future<Output = ()>) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    tokio::task::LocalSet::new().block_on(&rt, test);
-}
-
-fn frame(address: Address, command: u16, data: &[u8]) -> Vec<u8> {
-    FrameBuf::encode(&FrameSpec::request(address, command, data))
-        .unwrap()
-        .as_slice()
-        .to_vec()
-}
+use hart_proto::frame::{Address, Frame, FrameType, MasterKind, UniqueId};
 
 /// The reply frame's (address, response code, data).
 async fn ask(

@@ -3,13 +3,15 @@
 //! device, and the I/O-system commands (38, 48, 74, 75, 77, 84, 101, 102) and the
 //! universal ones it answers itself.
 
+mod common;
+use common::{frame, run};
 use std::time::Duration;
 
 use hart_host::hartip::HartIpSession;
 use hart_host::target::open;
 use hart_host::Client;
 use hart_ip_server::{start, Config, Server};
-use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, UniqueId};
+use hart_proto::frame::{Address, Frame, UniqueId};
 
 /// The I/O system's unique ID (the default identity).
 fn gateway() -> UniqueId {
@@ -46,13 +48,6 @@ async fn server(loops: &[String], transparent: bool) -> Server {
     .unwrap()
 }
 
-fn frame(address: Address, command: u16, data: &[u8]) -> Vec<u8> {
-    FrameBuf::encode(&FrameSpec::request(address, command, data))
-        .unwrap()
-        .as_slice()
-        .to_vec()
-}
-
 /// Sends a request PDU and returns the reply: (response code, device status, data).
 async fn ask(s: &HartIpSession, address: Address, command: u16, data: &[u8]) -> (u8, u8, Vec<u8>) {
     let r = s
@@ -82,14 +77,6 @@ async fn scanned(s: &HartIpSession, n: u16) {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     panic!("the scan did not find {n} sub-devices");
-}
-
-fn run(test: impl std::future::Future<Output = ()>) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    tokio::task::LocalSet::new().block_on(&rt, test);
 }
 
 /// One loop with a device at polling address 0: the I/O system answers there, the
@@ -269,75 +256,6 @@ fn io_system_commands_and_status() {
     });
 }
 
-/// `allow_commands`: others are answered "access restricted" (16), command 77 with the
-/// command it wraps; every accepted write leaves a JSON line in the audit file;
-/// read-only applies to direct PDUs too.
-#[test]
-fn allow_list_read_only_and_audit_file() {
-    run(async {
-        let audit =
-            std::env::temp_dir().join(format!("hartkit-audit-{}.jsonl", std::process::id()));
-        let _ = std::fs::remove_file(&audit);
-        let clients = vec![Client::new(
-            open(&plant("acl", &[("pressure", 1)])).unwrap(),
-        )];
-        let server = start(
-            Config {
-                bind: "127.0.0.1:0".parse().unwrap(),
-                scan_to: Some(2),
-                allow_commands: Some("0-22,48,74-84".parse().unwrap()),
-                audit_file: Some(audit.clone()),
-                ..Config::default()
-            },
-            clients,
-        )
-        .await
-        .unwrap();
-        let s = HartIpSession::connect(&server.udp_addr.unwrap().to_string(), false, 60_000)
-            .await
-            .unwrap();
-        let gw = Address::long(gateway());
-        scanned(&s, 1).await;
-        let (_, _, id) = ask(&s, Address::short(1), 0, &[]).await;
-        let pt = Address::long(UniqueId::new(
-            u16::from_be_bytes([id[1], id[2]]),
-            u32::from_be_bytes([0, id[9], id[10], id[11]]),
-        ));
-        // Listed: read and write; not listed: refused without reaching the device.
-        assert_eq!(ask(&s, pt, 1, &[]).await.0, 0);
-        let msg = hart_proto::types::PackedString::<24>::new("AUDITED").unwrap();
-        assert_eq!(ask(&s, pt, 17, &msg.0).await.0, 0);
-        assert_eq!(ask(&s, pt, 35, &[0; 9]).await.0, 16);
-        assert_eq!(ask(&s, pt, 533, &[0; 7]).await.0, 16);
-        // Command 77 is judged with what it wraps (poll 1: cmd 1 allowed, cmd 44 not).
-        let wrap = |cmd: u8, data: &[u8]| {
-            let mut d = vec![0, 0, 5, 0x02, 0x81, cmd, data.len() as u8];
-            d.extend_from_slice(data);
-            d
-        };
-        assert_eq!(ask(&s, gw, 77, &wrap(1, &[])).await.0, 0);
-        assert_eq!(ask(&s, gw, 77, &wrap(44, &[12])).await.0, 16);
-        s.close().await;
-        server.stop();
-        let log = std::fs::read_to_string(&audit).unwrap();
-        let lines: Vec<serde_json::Value> = log
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect();
-        assert_eq!(lines.len(), 1, "one accepted write: {log}");
-        assert_eq!(lines[0]["command"], 17);
-        assert!(
-            lines[0]["device"].as_str().unwrap().contains("26F1"),
-            "{log}"
-        );
-        assert!(lines[0]["peer"].as_str().unwrap().starts_with("127.0.0.1:"));
-        assert!(lines[0]["time"].as_str().unwrap().starts_with("20"));
-        let _ = std::fs::remove_file(&audit);
-    });
-}
-
-/// Commands 102 and 103-109: a burst message of the I/O system mapped to a sub-device
-/// publishes that device's command 1 reply as a burst frame from its address.
 #[test]
 fn io_system_publishes_a_mapped_sub_device() {
     run(async {
