@@ -13,7 +13,6 @@ pub mod ip_bench;
 pub mod json;
 pub mod modem;
 pub mod modem_bench;
-pub mod pty;
 pub mod serve;
 pub mod sim;
 pub mod sound;
