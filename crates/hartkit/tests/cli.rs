@@ -371,3 +371,38 @@ fn sim_bench_rejects_bad_options() {
         assert!(err.contains(needle), "{args:?}: {err}");
     }
 }
+
+/// Shell completions and manual pages come from the command line's own definitions:
+/// every shell gets a script naming the commands, and every command a page.
+#[test]
+fn completions_and_manual_pages() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let (code, out, err) = hartkit(&["completions", shell]);
+        assert_eq!(code, 0, "{shell}: {err}");
+        for word in ["serve", "wells", "modem", "--psk-file"] {
+            assert!(out.contains(word), "{shell} completions lack {word}");
+        }
+    }
+    let (code, _, err) = hartkit(&["completions", "tcsh"]);
+    assert_eq!(code, 2, "{err}");
+    let dir = std::env::temp_dir().join(format!("hartkit-man-{}", std::process::id()));
+    let (code, out, err) = hartkit(&["manual", "--dir", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("manual pages in"), "{out}");
+    for page in [
+        "hartkit.1",
+        "hartkit-serve.1",
+        "hartkit-wells.1",
+        "hartkit-frame-decode.1",
+    ] {
+        let text =
+            std::fs::read_to_string(dir.join(page)).unwrap_or_else(|e| panic!("{page}: {e}"));
+        assert!(text.contains(".TH") && text.contains(".SH NAME"), "{page}");
+    }
+    let serve = std::fs::read_to_string(dir.join("hartkit-serve.1")).unwrap();
+    assert!(
+        serve.contains("plain\\-rights"),
+        "the options are in the page"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
