@@ -47,9 +47,18 @@ pub async fn client(
     verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
+    // A target that does not read, or a secure one without a key, is a usage error
+    // (exit 2); one that reads but cannot be opened or connected (a port missing, a
+    // server refusing the handshake) an I/O error (exit 5).
+    let target = hart_host::target::parse(port).map_err(usage)?;
+    if matches!(target, hart_host::target::Target::HartIp { secure: true, .. }) && psk.is_none() {
+        return Err(usage(format!(
+            "--port {port}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
+        )));
+    }
     let t = hart_host::target::open_async_with(port, psk)
         .await
-        .map_err(usage)?;
+        .map_err(|e| (e, 5))?;
     let kind = if secondary {
         hart_proto::MasterKind::Secondary
     } else {
