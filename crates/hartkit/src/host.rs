@@ -51,7 +51,11 @@ pub async fn client(
     // (exit 2); one that reads but cannot be opened or connected (a port missing, a
     // server refusing the handshake) an I/O error (exit 5).
     let target = hart_host::target::parse(port).map_err(usage)?;
-    if matches!(target, hart_host::target::Target::HartIp { secure: true, .. }) && psk.is_none() {
+    if matches!(
+        target,
+        hart_host::target::Target::HartIp { secure: true, .. }
+    ) && psk.is_none()
+    {
         return Err(usage(format!(
             "--port {port}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
         )));
