@@ -90,7 +90,7 @@ pub async fn client(
                 );
             }
             if verbose > 0 {
-                eprintln!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
+                tracing::debug!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
             }
             if verbose > 1 {
                 // Received bytes come in pieces: one deframer per direction keeps state.
@@ -100,7 +100,7 @@ pub async fn client(
                 };
                 d.feed(&e.bytes, |ev| {
                     if let DeframerEvent::Frame(f) = ev {
-                        eprintln!("{}", annotate::frame(&f).trim_end());
+                        tracing::trace!("\n{}", annotate::frame(&f).trim_end());
                     }
                 });
             }

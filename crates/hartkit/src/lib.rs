@@ -11,6 +11,7 @@ pub mod hex;
 pub mod host;
 pub mod ip_bench;
 pub mod json;
+pub mod logging;
 pub mod modem;
 pub mod modem_bench;
 pub mod serve;

@@ -15,6 +15,14 @@ use hartkit::{annotate, hex, json};
 struct Cli {
     #[command(subcommand)]
     command: Top,
+    /// Log level on standard error: error, warn, info, debug (the host commands' raw
+    /// traffic) or trace (frames decoded too). Default: RUST_LOG or HARTKIT_LOG, else
+    /// info for servers and warn for the rest.
+    #[arg(long, global = true, value_name = "LEVEL")]
+    log_level: Option<String>,
+    /// Log format: text, or json (one object a line, for a log collector).
+    #[arg(long, global = true, value_name = "FORMAT", default_value = "text")]
+    log_format: hartkit::logging::LogFormat,
 }
 
 #[derive(Subcommand)]
@@ -478,9 +486,6 @@ struct HostArgs {
     /// Print JSON instead of tables.
     #[arg(long)]
     json: bool,
-    /// error, warn, info, debug (raw traffic on stderr) or trace.
-    #[arg(long, default_value = "warn")]
-    log_level: String,
     /// Write every transfer as one JSON object per line to FILE.
     #[arg(long, value_name = "FILE")]
     trace: Option<std::path::PathBuf>,
@@ -926,20 +931,7 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
 async fn host_client(
     h: &HostArgs,
 ) -> Result<hart_host::Client<hart_host::target::AnyTransport>, (String, u8)> {
-    let verbose = match h.log_level.as_str() {
-        "debug" => 1,
-        "trace" => 2,
-        _ => 0,
-    };
-    if !["error", "warn", "info", "debug", "trace"].contains(&h.log_level.as_str()) {
-        return Err((
-            format!(
-                "--log-level {}: expected error, warn, info, debug or trace",
-                h.log_level
-            ),
-            2,
-        ));
-    }
+    let verbose = hartkit::logging::traffic();
     let psk = h.key()?;
     hartkit::host::client(
         &h.port,
@@ -1380,8 +1372,27 @@ fn self_description(top: &Top) -> Option<Result<String, (String, u8)>> {
     }
 }
 
+/// Servers log their life at `info` with times; the rest warn only.
+fn role(top: &Top) -> hartkit::logging::Role {
+    use hartkit::logging::Role;
+    use hartkit::wells::WellsCmd;
+    match top {
+        Top::Serve(_) | Top::Sim(SimCmd::Serve(_)) => Role::Server,
+        Top::Wells(WellsCmd::Sensor(_) | WellsCmd::Concentrator(_) | WellsCmd::Handheld(_)) => {
+            Role::Server
+        }
+        _ => Role::Command,
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Err(e) =
+        hartkit::logging::init(cli.log_level.as_deref(), cli.log_format, role(&cli.command))
+    {
+        eprintln!("hartkit: error: {e}");
+        return ExitCode::from(2);
+    }
     match self_description(&cli.command) {
         Some(Err((e, code))) => {
             eprintln!("hartkit: error: {e}");

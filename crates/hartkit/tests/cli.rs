@@ -406,3 +406,56 @@ fn completions_and_manual_pages() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// One log for every diagnostic: `--log-level debug` shows the raw traffic through it,
+/// `--log-format json` makes each line a JSON object, and a bad level is a usage error.
+#[test]
+fn logs_go_through_one_log_with_levels_and_json() {
+    let (code, out, err) = hartkit(&[
+        "read",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "pv",
+        "--log-level",
+        "debug",
+        "--log-format",
+        "json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!out.is_empty(), "the result on standard output");
+    let lines: Vec<Value> = err
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(
+        lines.iter().any(|l| l["level"] == "DEBUG"
+            && l["fields"]["message"]
+                .as_str()
+                .unwrap()
+                .contains(" tx FF FF")),
+        "{err}"
+    );
+    let (code, _, err) = hartkit(&[
+        "read",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "pv",
+        "--log-level",
+        "loud",
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("expected error, warn, info, debug or trace"),
+        "{err}"
+    );
+    // Without --log-level (nor RUST_LOG, HARTKIT_LOG) a command says only warnings.
+    if std::env::var_os("RUST_LOG").is_none() && std::env::var_os("HARTKIT_LOG").is_none() {
+        let (code, _, err) = hartkit(&["read", "-p", "sim?virtual", "--poll", "1", "pv"]);
+        assert_eq!(code, 0);
+        assert!(err.is_empty(), "{err}");
+    }
+}
