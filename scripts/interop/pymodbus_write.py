@@ -6,7 +6,8 @@ Run by crates/hartkit/tests/gateway_modbus.rs as a separate process, to check th
 writes are taken only from the clients listed (--modbus-write-from). Connects from
 --source, waits until the unit's quality is good, reads its damping (holding registers
 4-5), writes --damping there, reads it back, and prints one JSON object: the
-exception code of the write (null when it was done), the damping before and after.
+exception code of the write (null when it was done), the damping before, at once
+after the write, and after waiting for it.
 """
 import argparse
 import json
@@ -37,6 +38,9 @@ def main():
     before = c.convert_from_registers(h.registers, data_type=F32)
     w = c.write_registers(4, c.convert_to_registers(a.damping, data_type=F32), device_id=a.unit)
     code = getattr(w, "exception_code", None) if w.isError() else None
+    # The first read right after the write: the gateway shows what the device took.
+    h = c.read_holding_registers(4, count=2, device_id=a.unit)
+    at_once = None if h.isError() else c.convert_from_registers(h.registers, data_type=F32)
     after = before
     deadline = time.time() + (10 if code is None else 2)
     while time.time() < deadline:
@@ -47,7 +51,7 @@ def main():
                 break
         time.sleep(0.2)
     c.close()
-    print(json.dumps({"exception": code, "before": before, "after": after}))
+    print(json.dumps({"exception": code, "before": before, "after": after, "at_once": at_once}))
 
 
 if __name__ == "__main__":

@@ -369,9 +369,31 @@ impl Plant {
 
     /// A plant of `profiles` (built-in names or profile files) at polling addresses 1,
     /// 2, ... in the order given, none bursting: what `hartkit serve --sim PROFILES...`
-    /// puts behind the server. More than 63 profiles is an error (polling addresses end
-    /// at 63).
-    pub fn from_profiles(profiles: &[String]) -> Result<Self, String> {
+    /// puts behind the server. `xN` after a profile makes N devices of it (`pressure
+    /// x15`). More than 63 profiles is an error (polling addresses end at 63).
+    pub fn from_profiles(given: &[String]) -> Result<Self, String> {
+        // `PROFILE xN`: N devices of that profile.
+        let mut profiles: Vec<String> = vec![];
+        for p in given {
+            let count = p
+                .strip_prefix('x')
+                .filter(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+            match (count, profiles.last().cloned()) {
+                (Some(n), Some(last)) => {
+                    let n: usize = n.parse().unwrap_or(usize::MAX);
+                    if n == 0 || n > 63 {
+                        return Err(format!("{p}: give 1 to 63 devices"));
+                    }
+                    profiles.extend(std::iter::repeat_n(last, n - 1));
+                }
+                (Some(_), None) => {
+                    return Err(format!(
+                        "{p} repeats the profile before it; give one first (pressure {p})"
+                    ))
+                }
+                (None, _) => profiles.push(p.clone()),
+            }
+        }
         if profiles.len() > 63 {
             return Err(format!(
                 "{} profiles given; a loop has polling addresses 1-63 for them, so give at most 63",

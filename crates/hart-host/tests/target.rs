@@ -195,3 +195,29 @@ fn a_port_that_cannot_be_opened_says_what_to_check() {
         "{e}"
     );
 }
+
+/// `PROFILE xN` makes N devices of a profile, at the next polling addresses.
+#[test]
+fn plants_repeat_a_profile_with_xn() {
+    use hart_host::transport::Plant;
+    let p = Plant::from_profiles(&["pressure".into(), "x15".into(), "valve".into()]).unwrap();
+    assert_eq!(p.device.len(), 16);
+    assert!(p.device[..15].iter().all(|d| d.profile == "pressure"));
+    assert_eq!(
+        (p.device[15].profile.as_str(), p.device[15].poll),
+        ("valve", 16)
+    );
+    for bad in [&["x3"][..], &["pressure", "x0"], &["pressure", "x64"]] {
+        let given: Vec<String> = bad.iter().map(|s| s.to_string()).collect();
+        assert!(Plant::from_profiles(&given).is_err(), "{bad:?}");
+    }
+    let many: Vec<String> = vec![
+        "pressure".into(),
+        "x40".into(),
+        "valve".into(),
+        "x30".into(),
+    ];
+    assert!(Plant::from_profiles(&many)
+        .unwrap_err()
+        .contains("at most 63"));
+}

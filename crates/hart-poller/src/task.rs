@@ -275,14 +275,42 @@ impl LoopTask {
         let Some(position) = self.position_of(&req.address) else {
             return;
         };
-        if req.command == 40 {
-            let current = rep
-                .data
-                .get(..4)
-                .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]));
-            self.shared.image.update(position, |d| {
-                d.fixed_current = current.filter(|c| *c != 0.0);
-            });
+        // What the reply says the device now has goes into the image at once (a SCADA
+        // reading back its write sees it without waiting for the next configuration
+        // poll); the poll that follows confirms the rest.
+        let float = |i: usize| {
+            rep.data
+                .get(i..i + 4)
+                .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]))
+        };
+        match req.command {
+            40 => {
+                let current = float(0);
+                self.shared.image.update(position, |d| {
+                    d.fixed_current = current.filter(|c| *c != 0.0);
+                });
+            }
+            34 => {
+                if let Some(damping) = float(0) {
+                    self.shared.image.update(position, |d| {
+                        if let Some(r) = d.range.as_mut() {
+                            r.damping = damping;
+                        }
+                    });
+                }
+            }
+            35 => {
+                if let (Some(&units), Some(upper), Some(lower)) =
+                    (rep.data.first(), float(1), float(5))
+                {
+                    self.shared.image.update(position, |d| {
+                        if let Some(r) = d.range.as_mut() {
+                            (r.units, r.upper, r.lower) = (units, upper, lower);
+                        }
+                    });
+                }
+            }
+            _ => {}
         }
         let p = self.polled.entry(position).or_default();
         p.refresh = true;

@@ -1514,7 +1514,7 @@ struct ServeCli {
     #[arg(long = "port", short = 'p', value_name = "TARGET")]
     ports: Vec<String>,
     /// A simulated plant behind the gateway: these profiles at polling addresses
-    /// 1, 2, ... (none: the demo plant).
+    /// 1, 2, ... (none: the demo plant); `pressure x15` is 15 pressure transmitters.
     #[arg(long, num_args = 0.., value_name = "PROFILE")]
     sim: Option<Vec<String>>,
     /// Refuse every command not known to only read, on every front end and for every

@@ -354,6 +354,10 @@ fn modbus_writes_only_from_listed_clients() {
     let done = write("127.0.0.2", "4.5");
     assert_eq!(done["exception"], serde_json::Value::Null, "{done}");
     assert_eq!(done["after"], 4.5, "{done}");
+    assert_eq!(
+        done["at_once"], 4.5,
+        "the write shows in the registers at once: {done}"
+    );
     drop(gw);
     let log = std::fs::read_to_string(&audit).unwrap_or_default();
     let lines: Vec<serde_json::Value> = log
