@@ -542,7 +542,7 @@ impl Device {
     }
 
     fn time_of_day(now: Micros) -> HartTime {
-        HartTime(((now / 1000) % 86_400_000) as u32 * 32)
+        HartTime::time_of_day(now)
     }
 
     /// Answers one request; `None` means stay silent.

@@ -137,7 +137,10 @@ impl Node {
         if self.device.take_dirty() {
             if let Some(p) = &self.state_path {
                 if let Err(e) = persist::save(p, self.device.config()) {
-                    eprintln!("hart-device: cannot save {}: {e}", p.display());
+                    tracing::error!(
+                        "cannot save the device state to {}: {e}; its changes live on in memory only (check the directory exists and may be written)",
+                        p.display()
+                    );
                 }
             }
         }

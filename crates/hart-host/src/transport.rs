@@ -8,9 +8,7 @@
 //!   line, in real time or in virtual time (instant); the line either delivers whole
 //!   characters or is the 4-20 mA loop sample by sample ([`SimTransport::set_analog`]).
 
-use std::ffi::CString;
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -103,190 +101,43 @@ pub struct SerialOptions {
     pub carrier_detect: bool,
 }
 
+/// The decoder of marked input (parity and framing errors), hart-serial's.
+pub use hart_serial::ParmrkDecoder;
 /// Bit rates a serial transport can be opened at.
-pub const BAUD_RATES: [u32; 10] = [
-    300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
-];
-
-/// The termios speed of each of [`BAUD_RATES`], in the same order.
-const SPEEDS: [libc::speed_t; 10] = [
-    libc::B300,
-    libc::B600,
-    libc::B1200,
-    libc::B2400,
-    libc::B4800,
-    libc::B9600,
-    libc::B19200,
-    libc::B38400,
-    libc::B57600,
-    libc::B115200,
-];
-
-/// Decodes the input of a port configured with `PARMRK` and `INPCK`, without `IGNPAR`
-/// (how [`SerialTransport`] opens a port): the line discipline marks a character
-/// received with a parity or framing error as `0xFF 0x00 X`, and doubles a real
-/// `0xFF` (every HART preamble) to `0xFF 0xFF`; any other byte is itself.
-///
-/// The mark does not say which error it was: a marked `0x00` (what a break or a lost
-/// stop bit gives) counts as a framing error, any other marked character as a parity
-/// error. [`SerialTransport`] corrects this from the driver's error counters where
-/// the driver keeps them (`TIOCGICOUNT`). An escape split over two reads is carried
-/// over to the next call.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct ParmrkDecoder {
-    /// Bytes of an unfinished escape: 0 none, 1 after `0xFF`, 2 after `0xFF 0x00`.
-    held: u8,
-}
-
-impl ParmrkDecoder {
-    /// A decoder between characters.
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Decodes `raw` (as read from the port) onto `out`.
-    pub fn decode(&mut self, raw: &[u8], out: &mut Vec<(u8, UartFlags)>) {
-        for &b in raw {
-            match (self.held, b) {
-                (0, 0xFF) => self.held = 1,
-                (0, b) => out.push((b, UartFlags::OK)),
-                (1, 0xFF) => {
-                    self.held = 0;
-                    out.push((0xFF, UartFlags::OK));
-                }
-                (1, 0x00) => self.held = 2,
-                (1, b) => {
-                    // Not an escape the line discipline makes: pass both through.
-                    self.held = 0;
-                    out.push((0xFF, UartFlags::OK));
-                    out.push((b, UartFlags::OK));
-                }
-                (_, b) => {
-                    self.held = 0;
-                    let flags = UartFlags {
-                        parity: b != 0,
-                        framing: b == 0,
-                        overrun: false,
-                    };
-                    out.push((b, flags));
-                }
-            }
-        }
-    }
-
-    /// True while part of an escape has been read and the rest has not.
-    pub fn in_escape(&self) -> bool {
-        self.held != 0
-    }
-}
-
-/// The driver's error counters (`struct serial_icounter_struct`, Linux).
-#[cfg(target_os = "linux")]
-#[repr(C)]
-#[derive(Default, Clone, Copy)]
-struct IcounterRaw {
-    cts: libc::c_int,
-    dsr: libc::c_int,
-    rng: libc::c_int,
-    dcd: libc::c_int,
-    rx: libc::c_int,
-    tx: libc::c_int,
-    frame: libc::c_int,
-    overrun: libc::c_int,
-    parity: libc::c_int,
-    brk: libc::c_int,
-    buf_overrun: libc::c_int,
-    reserved: [libc::c_int; 9],
-}
-
-/// Error counts of the UART: parity, framing (breaks included), overruns (in the
-/// hardware and in the kernel's buffer).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-struct ErrorCounts {
-    parity: u32,
-    framing: u32,
-    overrun: u32,
-}
-
-/// Reads the driver's error counters; `None` where the driver keeps none (USB
-/// adapters without the call, pseudo-terminals, systems other than Linux).
-fn error_counts(fd: i32) -> Option<ErrorCounts> {
-    #[cfg(target_os = "linux")]
-    {
-        let mut c = IcounterRaw::default();
-        // SAFETY: TIOCGICOUNT fills a struct serial_icounter_struct, which IcounterRaw
-        // mirrors.
-        if unsafe { libc::ioctl(fd, libc::TIOCGICOUNT, &mut c) } != 0 {
-            return None;
-        }
-        Some(ErrorCounts {
-            parity: c.parity as u32,
-            framing: c.frame.wrapping_add(c.brk) as u32,
-            overrun: c.overrun.wrapping_add(c.buf_overrun) as u32,
-        })
-    }
-    #[cfg(not(target_os = "linux"))]
-    {
-        let _ = fd;
-        None
-    }
-}
-
-fn os_err(what: &str) -> io::Error {
-    let e = io::Error::last_os_error();
-    io::Error::new(e.kind(), format!("{what}: {e}"))
-}
+pub use hart_serial::BAUD_RATES;
 
 /// A serial port or pseudo-terminal.
 pub struct SerialTransport {
-    fd: AsyncFd<OwnedFd>,
+    fd: AsyncFd<hart_serial::Port>,
     opts: SerialOptions,
     profile: TimingProfile,
     start: Instant,
     echo: Vec<u8>,
-    /// `PARMRK` took effect: the input carries escapes to decode.
-    parmrk: bool,
-    decoder: ParmrkDecoder,
-    /// The driver's error counters as far as they have been accounted for, when it
-    /// keeps them.
-    counts: Option<ErrorCounts>,
-    /// An overrun was counted before any character came to carry it.
-    overrun_pending: bool,
+    /// Characters with their error flags from what the port gives.
+    reader: hart_serial::ErrorReader,
 }
 
 impl SerialTransport {
     /// Opens and configures the port (raw, 8 data bits, odd parity, 1 stop bit,
     /// characters with parity or framing errors marked, see [`ParmrkDecoder`]).
     pub fn open(opts: SerialOptions) -> io::Result<Self> {
-        let c = CString::new(opts.path.as_os_str().as_encoded_bytes())
-            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "path contains NUL"))?;
-        // SAFETY: plain libc calls on a descriptor we own.
-        let fd =
-            unsafe { libc::open(c.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK) };
-        if fd < 0 {
-            let e = io::Error::last_os_error();
-            return Err(io::Error::new(
-                e.kind(),
-                format!(
-                    "cannot open {}: {e}; check the path and your permission (dialout group)",
-                    opts.path.display()
-                ),
-            ));
+        let port = hart_serial::Port::open(
+            &opts.path,
+            &hart_serial::Line::hart(opts.baud),
+            hart_serial::OpenOptions {
+                mark_errors: true,
+                ..Default::default()
+            },
+        )?;
+        if opts.carrier_detect {
+            port.modem_lines().map_err(|e| {
+                io::Error::new(
+                    e.kind(),
+                    format!("carrier=dcd: {e}; leave out carrier=dcd for ports without a DCD line"),
+                )
+            })?;
         }
-        let fd = unsafe { OwnedFd::from_raw_fd(fd) };
-        let parmrk = configure(fd.as_raw_fd(), opts.baud)?;
-        if opts.carrier_detect && modem_lines(fd.as_raw_fd()).is_err() {
-            let e = io::Error::last_os_error();
-            return Err(io::Error::new(
-                e.kind(),
-                format!(
-                    "carrier=dcd: cannot read the modem lines of {}: {e}; leave out carrier=dcd \
-                     for ports without a DCD line (pseudo-terminals, most RS-485 adapters)",
-                    opts.path.display()
-                ),
-            ));
-        }
-        let counts = error_counts(fd.as_raw_fd());
+        let reader = hart_serial::ErrorReader::new(&port);
         let profile = if opts.rs485 && opts.baud > 1200 {
             TimingProfile::rs485(opts.baud)
         } else if opts.rs485 {
@@ -294,19 +145,16 @@ impl SerialTransport {
         } else {
             TimingProfile::fsk()
         };
-        // SAFETY: `fd` is an OwnedFd this transport owns; it stays open and refers to the
-        // same port until the AsyncFd is dropped.
-        let fd = unsafe { AsyncFd::register(fd) }?;
+        // SAFETY: the port owns its descriptor; it stays open and refers to the same
+        // port until the AsyncFd (which owns the port) is dropped.
+        let fd = unsafe { AsyncFd::register(port) }?;
         let t = SerialTransport {
             fd,
             opts,
             profile,
             start: Instant::now(),
             echo: vec![],
-            parmrk,
-            decoder: ParmrkDecoder::new(),
-            counts,
-            overrun_pending: false,
+            reader,
         };
         t.set_rts(false);
         Ok(t)
@@ -318,127 +166,8 @@ impl SerialTransport {
             Rts::HighTx => transmitting,
             Rts::LowTx => !transmitting,
         };
-        let bits: libc::c_int = libc::TIOCM_RTS;
-        let req = if level {
-            libc::TIOCMBIS
-        } else {
-            libc::TIOCMBIC
-        };
-        // SAFETY: ioctl with a pointer to a c_int, as TIOCMBIS/TIOCMBIC expect.
-        unsafe { libc::ioctl(self.fd.get_ref().as_raw_fd(), req, &bits) };
+        let _ = self.fd.get_ref().set_rts(level);
     }
-
-    /// Turns what one read returned into characters with their flags: escapes
-    /// decoded, error kinds and overruns taken from the driver's counters where it
-    /// keeps them.
-    fn decode(&mut self, raw: &[u8]) -> Vec<(u8, UartFlags)> {
-        let mut out = Vec::with_capacity(raw.len());
-        if !self.parmrk {
-            out.extend(raw.iter().map(|&b| (b, UartFlags::OK)));
-            return out;
-        }
-        self.decoder.decode(raw, &mut out);
-        let Some(seen) = self.counts else {
-            return out;
-        };
-        let Some(now) = error_counts(self.fd.get_ref().as_raw_fd()) else {
-            return out;
-        };
-        let mut seen = seen;
-        for (_, f) in out.iter_mut().filter(|(_, f)| f.parity || f.framing) {
-            // The counters include every error received so far; each marked character
-            // takes one count of the kind that has counts left.
-            if now.parity.wrapping_sub(seen.parity) as i32 > 0 {
-                seen.parity = seen.parity.wrapping_add(1);
-                (f.parity, f.framing) = (true, false);
-            } else if now.framing.wrapping_sub(seen.framing) as i32 > 0 {
-                seen.framing = seen.framing.wrapping_add(1);
-                (f.parity, f.framing) = (false, true);
-            }
-        }
-        if now.overrun != seen.overrun {
-            seen.overrun = now.overrun;
-            self.overrun_pending = true;
-        }
-        if self.overrun_pending {
-            if let Some((_, f)) = out.first_mut() {
-                // Characters were lost somewhere before the end of this read.
-                f.overrun = true;
-                self.overrun_pending = false;
-            }
-        }
-        self.counts = Some(seen);
-        out
-    }
-}
-
-/// Whether the port reports a hang-up (`POLLHUP`) or an error now.
-fn hung_up(fd: i32) -> bool {
-    let mut p = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    // SAFETY: poll on one pollfd we own, without waiting.
-    let n = unsafe { libc::poll(&mut p, 1, 0) };
-    n > 0 && p.revents & (libc::POLLHUP | libc::POLLERR) != 0
-}
-
-/// The modem control lines (`TIOCM_*` bits).
-fn modem_lines(fd: i32) -> Result<libc::c_int, ()> {
-    let mut bits: libc::c_int = 0;
-    // SAFETY: TIOCMGET writes one c_int.
-    if unsafe { libc::ioctl(fd, libc::TIOCMGET, &mut bits) } != 0 {
-        return Err(());
-    }
-    Ok(bits)
-}
-
-/// Configures the port; returns whether `PARMRK` took effect (it does on serial ports
-/// and pseudo-terminals alike; pseudo-terminals drop only the parity bit).
-fn configure(fd: i32, baud: u32) -> io::Result<bool> {
-    // SAFETY: termios is plain data filled by tcgetattr.
-    let mut t: libc::termios = unsafe { std::mem::zeroed() };
-    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
-        return Err(os_err("tcgetattr"));
-    }
-    unsafe { libc::cfmakeraw(&mut t) };
-    let Some(speed) = BAUD_RATES
-        .iter()
-        .zip(SPEEDS)
-        .find_map(|(&b, s)| (b == baud).then_some(s))
-    else {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            format!("baud rate {baud} not supported ({BAUD_RATES:?})"),
-        ));
-    };
-    unsafe {
-        libc::cfsetispeed(&mut t, speed);
-        libc::cfsetospeed(&mut t, speed);
-    }
-    t.c_cflag &= !(libc::CSIZE | libc::CSTOPB);
-    t.c_cflag |= libc::CS8 | libc::PARENB | libc::PARODD | libc::CLOCAL | libc::CREAD;
-    // Check parity, and mark damaged characters in the input (0xFF 0x00 X) instead of
-    // passing them on as 0x00 or dropping them; a real 0xFF then arrives doubled. A
-    // break is marked too (BRKINT and IGNBRK off, as cfmakeraw leaves them).
-    t.c_iflag |= libc::INPCK | libc::PARMRK;
-    t.c_iflag &= !(libc::IGNPAR | libc::ISTRIP);
-    t.c_cc[libc::VMIN] = 0;
-    t.c_cc[libc::VTIME] = 0;
-    if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-        // A pseudo-terminal has no parity; some C libraries refuse the request then.
-        t.c_cflag &= !(libc::PARENB | libc::PARODD);
-        t.c_iflag &= !libc::INPCK;
-        if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-            return Err(os_err("tcsetattr"));
-        }
-    }
-    // tcsetattr succeeds when any of the settings took: see what the port has.
-    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
-        return Err(os_err("tcgetattr"));
-    }
-    Ok(t.c_iflag & libc::PARMRK != 0)
 }
 
 impl Transport for SerialTransport {
@@ -455,26 +184,25 @@ impl Transport for SerialTransport {
         if !self.opts.rts_pre.is_zero() {
             tokio::time::sleep(self.opts.rts_pre).await;
         }
-        let fd = self.fd.get_ref().as_raw_fd();
+        let port = self.fd.get_ref();
         let mut rest = bytes;
         while !rest.is_empty() {
-            let n = unsafe { libc::write(fd, rest.as_ptr().cast(), rest.len()) };
-            if n < 0 {
-                let e = io::Error::last_os_error();
-                if e.kind() == io::ErrorKind::WouldBlock {
+            match port.write(rest) {
+                Ok(n) => rest = &rest[n..],
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
                     tokio::time::sleep(Duration::from_millis(1)).await;
-                    continue;
                 }
-                self.set_rts(false);
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!("write to {}: {e}", self.opts.path.display()),
-                ));
+                Err(e) => {
+                    self.set_rts(false);
+                    return Err(io::Error::new(
+                        e.kind(),
+                        format!("write to {}: {e}", self.opts.path.display()),
+                    ));
+                }
             }
-            rest = &rest[n as usize..];
         }
         // Wait until the UART has sent everything (a pseudo-terminal returns at once).
-        unsafe { libc::tcdrain(fd) };
+        port.drain();
         if !self.opts.rts_post.is_zero() {
             tokio::time::sleep(self.opts.rts_post).await;
         }
@@ -503,24 +231,25 @@ impl Transport for SerialTransport {
             };
             let mut guard = guard?;
             let mut buf = [0u8; 512];
-            let fd = self.fd.get_ref().as_raw_fd();
-            let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
-            if n < 0 {
-                let e = io::Error::last_os_error();
-                if e.kind() == io::ErrorKind::WouldBlock {
+            let port = self.fd.get_ref();
+            let n = match port.read(&mut buf) {
+                Ok(n) => n,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
                     guard.clear_ready();
                     continue;
                 }
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!("read from {}: {e}", self.opts.path.display()),
-                ));
-            }
+                Err(e) => {
+                    return Err(io::Error::new(
+                        e.kind(),
+                        format!("read from {}: {e}", self.opts.path.display()),
+                    ))
+                }
+            };
             if n == 0 {
                 // Nothing to read (a raw port with VMIN 0 answers 0), or the line hung
                 // up: a pseudo-terminal whose other end closed, a modem that dropped
                 // the line. A hang-up would otherwise look like silence forever.
-                if hung_up(fd) {
+                if port.hung_up() {
                     return Err(io::Error::new(
                         io::ErrorKind::BrokenPipe,
                         format!(
@@ -534,7 +263,7 @@ impl Transport for SerialTransport {
                 continue;
             }
             let t = self.now();
-            let chars = self.decode(&buf[..n as usize]);
+            let chars = self.reader.decode(self.fd.get_ref(), &buf[..n]);
             let n = chars.len();
             let mut out = Vec::with_capacity(n);
             for (i, (byte, flags)) in chars.into_iter().enumerate() {
@@ -561,8 +290,7 @@ impl Transport for SerialTransport {
         if !self.opts.carrier_detect {
             return None;
         }
-        let bits = modem_lines(self.fd.get_ref().as_raw_fd()).ok()?;
-        Some(bits & libc::TIOCM_CAR != 0)
+        Some(self.fd.get_ref().modem_lines().ok()?.carrier)
     }
 
     fn describe(&self) -> String {

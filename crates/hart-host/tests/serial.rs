@@ -2,9 +2,8 @@
 //! port and an RS-485 line played by a real pseudo-terminal pair, and what the client
 //! does with UART error flags and a carrier-detect line.
 
-use std::ffi::CStr;
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::time::Duration;
 
 use hart_host::target::open;
@@ -14,6 +13,7 @@ use hart_link::{Micros, TimingProfile};
 use hart_proto::frame::checksum;
 use hart_proto::tables::comm_error;
 use hart_proto::UartFlags;
+use hart_serial::Port;
 
 const PARITY: UartFlags = UartFlags {
     parity: true,
@@ -88,63 +88,52 @@ fn an_escape_split_over_two_reads_is_finished_by_the_next() {
 /// A pseudo-terminal pair: the far end (the master side, playing the modem and the
 /// devices) and the path of the slave side, which the transport opens.
 struct Pty {
-    far: OwnedFd,
+    /// The far end: what a device or an RS-485 line would be.
+    far: Port,
     path: String,
     /// Kept open so the far end never sees the line hang up between opens.
     slave: OwnedFd,
 }
 
 fn pty() -> Pty {
-    let (mut m, mut s) = (0, 0);
-    // SAFETY: openpty writes two descriptors; name, termios and winsize may be null.
-    let r = unsafe {
-        libc::openpty(
-            &mut m,
-            &mut s,
-            std::ptr::null_mut(),
-            std::ptr::null(),
-            std::ptr::null(),
-        )
-    };
-    assert_eq!(r, 0, "openpty: {}", io::Error::last_os_error());
-    let (far, slave) = unsafe { (OwnedFd::from_raw_fd(m), OwnedFd::from_raw_fd(s)) };
-    let mut t: libc::termios = unsafe { std::mem::zeroed() };
-    unsafe {
-        libc::tcgetattr(far.as_raw_fd(), &mut t);
-        libc::cfmakeraw(&mut t);
-        libc::tcsetattr(far.as_raw_fd(), libc::TCSANOW, &t);
+    let p = hart_serial::pty::open().unwrap();
+    Pty {
+        far: p.ours,
+        path: p.path.to_string_lossy().into_owned(),
+        slave: p.far,
     }
-    // ttyname_r: tests run in parallel threads, and ttyname's buffer is shared.
-    let mut name = [0 as libc::c_char; 256];
-    let r = unsafe { libc::ttyname_r(slave.as_raw_fd(), name.as_mut_ptr(), name.len()) };
-    assert_eq!(r, 0, "ttyname_r");
-    let path = unsafe { CStr::from_ptr(name.as_ptr()) }
-        .to_string_lossy()
-        .into_owned();
-    Pty { far, path, slave }
 }
 
-fn write_all(fd: i32, bytes: &[u8]) {
-    let n = unsafe { libc::write(fd, bytes.as_ptr().cast(), bytes.len()) };
-    assert_eq!(n, bytes.len() as isize, "{}", io::Error::last_os_error());
+fn write_all(port: &Port, bytes: &[u8]) {
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        match port.write(rest) {
+            Ok(n) => rest = &rest[n..],
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(1))
+            }
+            Err(e) => panic!("write: {e}"),
+        }
+    }
 }
 
 /// Reads one byte from the far end, waiting at most `within`.
-fn read_byte(fd: i32, within: Duration) -> Option<u8> {
-    let mut p = libc::pollfd {
-        fd,
-        events: libc::POLLIN,
-        revents: 0,
-    };
-    if unsafe { libc::poll(&mut p, 1, within.as_millis() as i32) } != 1 {
-        return None;
+fn read_byte(port: &Port, within: Duration) -> Option<u8> {
+    let end = std::time::Instant::now() + within;
+    let mut b = [0u8];
+    loop {
+        if let Ok(1) = port.read(&mut b) {
+            return Some(b[0]);
+        }
+        if std::time::Instant::now() >= end {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(1));
     }
-    let mut b = 0u8;
-    (unsafe { libc::read(fd, (&mut b as *mut u8).cast(), 1) } == 1).then_some(b)
 }
 
 /// Reads one request (preambles through check byte) arriving at the far end.
-fn read_request(fd: i32, within: Duration) -> Option<Vec<u8>> {
+fn read_request(fd: &Port, within: Duration) -> Option<Vec<u8>> {
     let mut req = vec![];
     let mut b = read_byte(fd, within)?;
     while b == 0xFF {
@@ -181,15 +170,15 @@ fn identity_reply() -> Vec<u8> {
 /// sender (the echo), followed 50 ms later (a device's turnaround, long enough for
 /// the line to fall quiet in between) by `reply` when there is one. Returns the
 /// requests seen once the line has been quiet for a second.
-fn rs485_line(far: &OwnedFd, reply: Option<Vec<u8>>) -> std::thread::JoinHandle<Vec<Vec<u8>>> {
-    let fd = far.as_raw_fd();
+fn rs485_line(far: &Port, reply: Option<Vec<u8>>) -> std::thread::JoinHandle<Vec<Vec<u8>>> {
+    let port = far.try_clone().unwrap();
     std::thread::spawn(move || {
         let mut seen = vec![];
-        while let Some(req) = read_request(fd, Duration::from_secs(1)) {
-            write_all(fd, &req);
+        while let Some(req) = read_request(&port, Duration::from_secs(1)) {
+            write_all(&port, &req);
             if let Some(reply) = &reply {
                 std::thread::sleep(Duration::from_millis(50));
-                write_all(fd, reply);
+                write_all(&port, reply);
             }
             seen.push(req);
         }
@@ -240,14 +229,13 @@ async fn a_serial_port_reads_ff_bytes_and_look_alike_marks_as_sent() {
     let p = pty();
     let mut t = open(&format!("serial:{}", p.path)).unwrap();
     // The port is set to mark damaged characters, and a pseudo-terminal honours it.
-    let mut tio: libc::termios = unsafe { std::mem::zeroed() };
-    assert_eq!(unsafe { libc::tcgetattr(p.slave.as_raw_fd(), &mut tio) }, 0);
-    assert_ne!(tio.c_iflag & libc::PARMRK, 0, "PARMRK set");
-    assert_ne!(tio.c_iflag & libc::INPCK, 0, "INPCK set");
-    assert_eq!(tio.c_iflag & libc::IGNPAR, 0, "IGNPAR clear");
+    let checks = hart_serial::input_checks(&p.slave).unwrap();
+    assert!(checks.marked, "PARMRK set");
+    assert!(checks.parity_checked, "INPCK set");
+    assert!(!checks.ignored, "IGNPAR clear");
     // Data that looks like a mark is data: the line discipline doubles each 0xFF.
     let sent = [0xFF, 0x00, 0x41, 0xFF, 0xFF, 0x7E, 0xFF];
-    write_all(p.far.as_raw_fd(), &sent);
+    write_all(&p.far, &sent);
     let mut got: Vec<RxChar> = vec![];
     let deadline = t.now() + 2_000_000;
     while got.len() < sent.len() && t.now() < deadline {

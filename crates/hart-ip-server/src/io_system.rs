@@ -924,8 +924,8 @@ fn pdu_of(spec: &hart_proto::frame::FrameSpec<'_>) -> Vec<u8> {
 
 /// Time of day for command 9's time stamp.
 fn time_of_day() -> hart_proto::types::HartTime {
-    let ms = std::time::SystemTime::now()
+    let us = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() % 86_400_000) as u32;
-    hart_proto::types::HartTime(ms.wrapping_mul(32))
+        .map_or(0, |d| d.as_micros() as u64);
+    hart_proto::types::HartTime::time_of_day(us)
 }

@@ -372,6 +372,13 @@ impl HartTime {
         HartTime(ms.saturating_mul(Self::TICKS_PER_MS))
     }
 
+    /// The time of day of an instant given in microseconds since any midnight (a Unix
+    /// time, a device's clock started at midnight): whole milliseconds since the last
+    /// midnight, as command 9's time stamp and command 90's clock carry them.
+    pub fn time_of_day(micros: u64) -> Self {
+        HartTime(((micros / 1000) % 86_400_000) as u32 * Self::TICKS_PER_MS)
+    }
+
     /// Whole milliseconds.
     pub fn as_millis(&self) -> u32 {
         self.0 / Self::TICKS_PER_MS
@@ -953,6 +960,11 @@ mod tests {
         }
         .is_valid());
         assert_eq!(HartTime(0x5265_C000).as_millis(), 12 * 3_600_000);
+        // Noon on any day, from a Unix time in microseconds.
+        assert_eq!(
+            HartTime::time_of_day((20_000 * 86_400 + 12 * 3_600) * 1_000_000 + 999),
+            HartTime(0x5265_C000)
+        );
         assert_eq!(std::format!("{}", HartTime(0x5265_C000)), "12:00:00.000");
     }
 

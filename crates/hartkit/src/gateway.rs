@@ -333,16 +333,13 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
     })
 }
 
-/// Logs to standard error, filtered by `HARTKIT_LOG` (default `info`).
+/// Sets up the log for a server when the command line has not ([`crate::logging`]).
 pub(crate) fn init_log() {
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_target(false)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("HARTKIT_LOG")
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .try_init();
+    let _ = crate::logging::init(
+        None,
+        crate::logging::LogFormat::Text,
+        crate::logging::Role::Server,
+    );
 }
 
 /// Runs `hartkit serve` until interrupted (or `--run-for`).

@@ -47,9 +47,22 @@ pub async fn client(
     verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
+    // A target that does not read, or a secure one without a key, is a usage error
+    // (exit 2); one that reads but cannot be opened or connected (a port missing, a
+    // server refusing the handshake) an I/O error (exit 5).
+    let target = hart_host::target::parse(port).map_err(usage)?;
+    if matches!(
+        target,
+        hart_host::target::Target::HartIp { secure: true, .. }
+    ) && psk.is_none()
+    {
+        return Err(usage(format!(
+            "--port {port}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
+        )));
+    }
     let t = hart_host::target::open_async_with(port, psk)
         .await
-        .map_err(usage)?;
+        .map_err(|e| (e, 5))?;
     let kind = if secondary {
         hart_proto::MasterKind::Secondary
     } else {
@@ -77,7 +90,7 @@ pub async fn client(
                 );
             }
             if verbose > 0 {
-                eprintln!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
+                tracing::debug!("{:>12} µs {dir} {}", e.time_us, hex::spaced(&e.bytes));
             }
             if verbose > 1 {
                 // Received bytes come in pieces: one deframer per direction keeps state.
@@ -87,7 +100,7 @@ pub async fn client(
                 };
                 d.feed(&e.bytes, |ev| {
                     if let DeframerEvent::Frame(f) = ev {
-                        eprintln!("{}", annotate::frame(&f).trim_end());
+                        tracing::trace!("\n{}", annotate::frame(&f).trim_end());
                     }
                 });
             }

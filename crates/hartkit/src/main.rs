@@ -15,6 +15,14 @@ use hartkit::{annotate, hex, json};
 struct Cli {
     #[command(subcommand)]
     command: Top,
+    /// Log level on standard error: error, warn, info, debug (the host commands' raw
+    /// traffic) or trace (frames decoded too). Default: RUST_LOG or HARTKIT_LOG, else
+    /// info for servers and warn for the rest.
+    #[arg(long, global = true, value_name = "LEVEL")]
+    log_level: Option<String>,
+    /// Log format: text, or json (one object a line, for a log collector).
+    #[arg(long, global = true, value_name = "FORMAT", default_value = "text")]
+    log_format: hartkit::logging::LogFormat,
 }
 
 #[derive(Subcommand)]
@@ -123,6 +131,20 @@ enum Top {
     /// The 4-20 mA loop: cable length from the network's RC time constant.
     #[command(subcommand)]
     Loop(LoopCmd),
+    /// Shell completions on standard output, e.g. `hartkit completions bash >
+    /// ~/.local/share/bash-completion/completions/hartkit`.
+    Completions {
+        /// bash, zsh, fish, elvish or powershell.
+        shell: clap_complete::Shell,
+    },
+    /// Manual pages made from the same definitions as --help: hartkit.1 and one per
+    /// command (hartkit-serve.1, hartkit-wells-pc.1, ...) in DIR; `man -l
+    /// DIR/hartkit.1` shows one.
+    Manual {
+        /// Where to write them.
+        #[arg(long, value_name = "DIR", default_value = ".")]
+        dir: std::path::PathBuf,
+    },
     /// The simulated plant: devices found by scan, shown live until Ctrl-C.
     Demo {
         /// Stop after this many seconds.
@@ -464,9 +486,6 @@ struct HostArgs {
     /// Print JSON instead of tables.
     #[arg(long)]
     json: bool,
-    /// error, warn, info, debug (raw traffic on stderr) or trace.
-    #[arg(long, default_value = "warn")]
-    log_level: String,
     /// Write every transfer as one JSON object per line to FILE.
     #[arg(long, value_name = "FILE")]
     trace: Option<std::path::PathBuf>,
@@ -912,20 +931,7 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
 async fn host_client(
     h: &HostArgs,
 ) -> Result<hart_host::Client<hart_host::target::AnyTransport>, (String, u8)> {
-    let verbose = match h.log_level.as_str() {
-        "debug" => 1,
-        "trace" => 2,
-        _ => 0,
-    };
-    if !["error", "warn", "info", "debug", "trace"].contains(&h.log_level.as_str()) {
-        return Err((
-            format!(
-                "--log-level {}: expected error, warn, info, debug or trace",
-                h.log_level
-            ),
-            2,
-        ));
-    }
+    let verbose = hartkit::logging::traffic();
     let psk = h.key()?;
     hartkit::host::client(
         &h.port,
@@ -1314,8 +1320,92 @@ fn loop_cmd(cmd: &LoopCmd) -> Result<String, String> {
     }
 }
 
+/// Writes the manual pages of `cmd` and of every command under it into `dir`, named
+/// `PREFIX-NAME.1`; returns the files written.
+fn manual_pages(
+    cmd: &clap::Command,
+    dir: &std::path::Path,
+    name: &str,
+    out: &mut Vec<String>,
+) -> std::io::Result<()> {
+    let page = cmd.clone().name(name.to_string());
+    let mut buf = vec![];
+    clap_mangen::Man::new(page).render(&mut buf)?;
+    let file = dir.join(format!("{name}.1"));
+    std::fs::write(&file, buf)?;
+    out.push(file.display().to_string());
+    for sub in cmd.get_subcommands().filter(|c| c.get_name() != "help") {
+        manual_pages(sub, dir, &format!("{name}-{}", sub.get_name()), out)?;
+    }
+    Ok(())
+}
+
+/// `hartkit completions` and `hartkit manual`: both from the command line's own
+/// definitions.
+fn self_description(top: &Top) -> Option<Result<String, (String, u8)>> {
+    use clap::CommandFactory;
+    match top {
+        Top::Completions { shell } => {
+            let mut cmd = Cli::command();
+            let mut buf = vec![];
+            clap_complete::generate(*shell, &mut cmd, "hartkit", &mut buf);
+            Some(Ok(String::from_utf8_lossy(&buf).trim_end().to_string()))
+        }
+        Top::Manual { dir } => {
+            let mut cmd = Cli::command();
+            cmd.build();
+            let mut files = vec![];
+            let r = std::fs::create_dir_all(dir)
+                .and_then(|_| manual_pages(&cmd, dir, "hartkit", &mut files));
+            Some(match r {
+                Ok(()) => Ok(format!("{} manual pages in {}", files.len(), dir.display())),
+                Err(e) => Err((
+                    format!(
+                        "--dir {}: {e}; check the directory may be written",
+                        dir.display()
+                    ),
+                    5,
+                )),
+            })
+        }
+        _ => None,
+    }
+}
+
+/// Servers log their life at `info` with times; the rest warn only.
+fn role(top: &Top) -> hartkit::logging::Role {
+    use hartkit::logging::Role;
+    use hartkit::wells::WellsCmd;
+    match top {
+        Top::Serve(_) | Top::Sim(SimCmd::Serve(_)) => Role::Server,
+        Top::Wells(WellsCmd::Sensor(_) | WellsCmd::Concentrator(_) | WellsCmd::Handheld(_)) => {
+            Role::Server
+        }
+        _ => Role::Command,
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Err(e) =
+        hartkit::logging::init(cli.log_level.as_deref(), cli.log_format, role(&cli.command))
+    {
+        eprintln!("hartkit: error: {e}");
+        return ExitCode::from(2);
+    }
+    match self_description(&cli.command) {
+        Some(Err((e, code))) => {
+            eprintln!("hartkit: error: {e}");
+            return ExitCode::from(code);
+        }
+        Some(Ok(text)) => {
+            // A closed pipe (e.g. `| head`) is not an error worth a message.
+            use std::io::Write as _;
+            let _ = writeln!(std::io::stdout(), "{text}");
+            return ExitCode::SUCCESS;
+        }
+        None => {}
+    }
     if let Some(result) = run_host(&cli.command) {
         return match result {
             Ok(text) => {
@@ -1361,7 +1451,8 @@ fn main() -> ExitCode {
 #[derive(Args)]
 struct ServeCli {
     /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
-    /// [modbus_rtu], [opcua]; see docs/gateway.md). Options given here add to it.
+    /// [modbus_rtu], [opcua], [[device_commands]]; see docs/gateway.md). Options given
+    /// here add to it.
     #[arg(long, value_name = "FILE")]
     config: Option<std::path::PathBuf>,
     /// Serve HART-IP here, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).

@@ -442,8 +442,8 @@ pub fn rx(
                 }
                 if card.dropped() > reported {
                     reported = card.dropped();
-                    eprintln!(
-                        "\nhartkit: {reported} block(s) of samples lost so far: the decoder fell behind the card (a busy machine?); frames across a gap are lost"
+                    tracing::warn!(
+                        "{reported} block(s) of samples lost so far: the decoder fell behind the card (a busy machine?); frames across a gap are lost"
                     );
                 }
             }
@@ -621,8 +621,8 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
     }
     let _ = out.flush();
     if clipped > 0 {
-        eprintln!(
-            "hartkit: {clipped} sample(s) beyond full scale were clipped: raise --volts-per-fs \
+        tracing::warn!(
+            "{clipped} sample(s) beyond full scale were clipped: raise --volts-per-fs \
              (it is {v} V; the analog current alone puts up to 25 mA × --loop-ohm on the line)"
         );
     }
@@ -671,12 +671,12 @@ pub fn read_wav_blocks(
     let (format, channels, rate, offset, declared) = header;
     check_rate(rate)?;
     if channels != 1 {
-        eprintln!("hartkit: note: {name} has {channels} channels; decoding the first");
+        tracing::warn!("{name} has {channels} channels; decoding the first");
     }
     let available = len.saturating_sub(offset);
     let data_len = declared.map_or(available, |d| d.min(available));
     if declared.is_some_and(|d| d > available) {
-        eprintln!("hartkit: note: {name} is cut short; decoding what is there");
+        tracing::warn!("{name} is cut short (the header promises more samples than the file holds); decoding what is there");
     }
     let frame = u64::from(channels) * format.bytes() as u64;
     file.seek(SeekFrom::Start(offset))

@@ -350,7 +350,9 @@ pub fn run(o: &Options) -> Result<String, String> {
         .collect();
     let minimodem = o.minimodem && minimodem::available();
     if o.minimodem && !minimodem {
-        eprintln!("hartkit: note: minimodem is not installed; running without it");
+        tracing::warn!(
+            "minimodem is not installed; running without it (apt-get install minimodem)"
+        );
     }
     let mut rows = Vec::new();
     for (i, c) in picked.iter().enumerate() {

@@ -2,7 +2,7 @@
 //! in real time. All devices share the line (multidrop): each hears the requests and
 //! the other devices' replies, as on a real loop.
 
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -43,99 +43,29 @@ pub struct ServeOptions {
     pub run_for: Option<Duration>,
 }
 
-fn errno(what: &str) -> String {
-    format!("{what}: {}", std::io::Error::last_os_error())
-}
-
-/// Puts `fd` in raw mode; for a serial port also sets the baud rate and 8O1.
-fn configure(fd: i32, baud: Option<u32>) -> Result<(), String> {
-    // SAFETY: termios is plain data; tcgetattr fills it for a valid descriptor.
-    let mut t: libc::termios = unsafe { std::mem::zeroed() };
-    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
-        return Err(errno("tcgetattr"));
-    }
-    unsafe { libc::cfmakeraw(&mut t) };
-    if let Some(b) = baud {
-        let speed = match b {
-            300 => libc::B300,
-            600 => libc::B600,
-            1200 => libc::B1200,
-            2400 => libc::B2400,
-            4800 => libc::B4800,
-            9600 => libc::B9600,
-            19200 => libc::B19200,
-            38400 => libc::B38400,
-            57600 => libc::B57600,
-            115200 => libc::B115200,
-            _ => return Err(format!("baud rate {b} is not supported (300-115200)")),
-        };
-        unsafe {
-            libc::cfsetispeed(&mut t, speed);
-            libc::cfsetospeed(&mut t, speed);
-        }
-        t.c_cflag &= !(libc::CSIZE | libc::CSTOPB);
-        t.c_cflag |= libc::CS8 | libc::PARENB | libc::PARODD | libc::CLOCAL | libc::CREAD;
-        // Characters with parity errors are delivered as 0x00 (INPCK without PARMRK).
-        t.c_iflag |= libc::INPCK;
-    }
-    t.c_cc[libc::VMIN] = 0;
-    t.c_cc[libc::VTIME] = 0;
-    if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-        // A pseudo-terminal has no parity; some C libraries refuse the request then.
-        t.c_cflag &= !(libc::PARENB | libc::PARODD);
-        t.c_iflag &= !libc::INPCK;
-        if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
-            return Err(errno("tcsetattr"));
-        }
-    }
-    Ok(())
-}
-
-/// Opens the port: the descriptor to use, and for a PTY the path for the host and the
-/// slave side kept open (so the host can close and reopen it).
-fn open(port: &Port) -> Result<(OwnedFd, Option<(String, OwnedFd)>), String> {
+/// Opens the port: the port to use, and for a PTY the path for the host and the slave
+/// side kept open (so the host can close and reopen it). A serial port is 8O1 at its
+/// baud rate, this process's only, with damaged characters marked so that each
+/// device hears them as damaged, as the host does.
+fn open(port: &Port) -> Result<(hart_serial::Port, Option<(String, OwnedFd)>), String> {
     match port {
         Port::Pty => {
-            let (master, slave, path) = crate::pty::open()?;
-            configure(slave.as_raw_fd(), None)?;
-            configure(master.as_raw_fd(), None)?;
-            Ok((master, Some((path, slave))))
+            let p = hart_serial::pty::open().map_err(|e| e.to_string())?;
+            Ok((p.ours, Some((p.path.to_string_lossy().into_owned(), p.far))))
         }
         Port::Serial(path, baud) => {
-            let c = std::ffi::CString::new(path.as_os_str().as_encoded_bytes())
-                .map_err(|_| "serial path contains a NUL byte".to_string())?;
-            let fd =
-                unsafe { libc::open(c.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK) };
-            if fd < 0 {
-                return Err(format!(
-                    "{}: {}; check the path and that you may open it (dialout group)",
-                    path.display(),
-                    std::io::Error::last_os_error()
-                ));
-            }
-            let fd = unsafe { OwnedFd::from_raw_fd(fd) };
-            configure(fd.as_raw_fd(), Some(*baud))?;
-            Ok((fd, None))
+            let port = hart_serial::Port::open(
+                path,
+                &hart_serial::Line::hart(*baud),
+                hart_serial::OpenOptions {
+                    exclusive: true,
+                    mark_errors: true,
+                },
+            )
+            .map_err(|e| e.to_string())?;
+            Ok((port, None))
         }
     }
-}
-
-fn write_all(fd: i32, mut bytes: &[u8]) -> Result<(), String> {
-    while !bytes.is_empty() {
-        let n = unsafe { libc::write(fd, bytes.as_ptr().cast(), bytes.len()) };
-        if n < 0 {
-            let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::WouldBlock
-                || e.kind() == std::io::ErrorKind::Interrupted
-            {
-                std::thread::sleep(Duration::from_millis(1));
-                continue;
-            }
-            return Err(format!("write: {e}"));
-        }
-        bytes = &bytes[n as usize..];
-    }
-    Ok(())
 }
 
 /// Builds the devices (from their state files when present).
@@ -184,7 +114,8 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
         _ => TimingProfile::fsk(),
     };
     let mut nodes = build_nodes(opts, profile)?;
-    let (fd, pty) = open(&opts.port)?;
+    let (port, pty) = open(&opts.port)?;
+    let mut reader = hart_serial::ErrorReader::new(&port);
     if let Some((path, _)) = &pty {
         announce(&format!("pty: {path}"));
     }
@@ -224,7 +155,7 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
         if sending.is_none() {
             for k in 0..nodes.len() {
                 if let Some(bytes) = nodes[k].0.poll(now) {
-                    write_all(fd.as_raw_fd(), &bytes)?;
+                    port.write_all(&bytes).map_err(|e| e.to_string())?;
                     // The other devices on the line hear it, one character at a time.
                     for (j, (other, _)) in nodes.iter_mut().enumerate() {
                         if j != k {
@@ -243,46 +174,43 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
             Some((_, end)) => Some(deadline.map_or(end, |d| d.min(end))),
             None => deadline,
         };
-        let wait_ms = deadline.map_or(100, |d| (d.saturating_sub(now) / 1000).clamp(0, 100)) as i32;
-        let mut pfd = libc::pollfd {
-            fd: fd.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        };
-        let r = unsafe { libc::poll(&mut pfd, 1, wait_ms.max(1)) };
-        if r < 0 {
-            let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::Interrupted {
-                continue;
-            }
-            return Err(format!("poll: {e}"));
-        }
-        if r > 0 && pfd.revents & libc::POLLIN != 0 {
-            let n = unsafe { libc::read(fd.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len()) };
-            if n > 0 {
-                let n = n as usize;
+        let wait_ms = deadline.map_or(100, |d| (d.saturating_sub(now) / 1000).clamp(1, 100));
+        match port
+            .wait(Duration::from_millis(wait_ms))
+            .map_err(|e| e.to_string())?
+        {
+            hart_serial::Ready::Input => {
+                let n = match port.read(&mut buf) {
+                    Ok(n) => n,
+                    Err(e)
+                        if e.kind() == std::io::ErrorKind::WouldBlock
+                            || e.kind() == std::io::ErrorKind::Interrupted =>
+                    {
+                        0
+                    }
+                    Err(e) => return Err(format!("read from {}: {e}", port.path().display())),
+                };
+                if n == 0 {
+                    continue;
+                }
+                let chars = reader.decode(&port, &buf[..n]);
                 let t = now_us();
                 // A read returns what arrived since the last one: space the characters
                 // back from now, one character time apart, as they came over the line.
-                let first = t.saturating_sub((n as Micros - 1) * ct).max(last_rx + 1);
-                for (i, &b) in buf[..n].iter().enumerate() {
+                let first = t
+                    .saturating_sub((chars.len() as Micros).saturating_sub(1) * ct)
+                    .max(last_rx + 1);
+                for (i, &(b, flags)) in chars.iter().enumerate() {
                     let at = first + i as Micros * ct;
                     for (node, _) in &mut nodes {
-                        node.receive(b, UartFlags::OK, at);
+                        node.receive(b, flags, at);
                     }
                     last_rx = at;
                 }
-            } else if n < 0 {
-                let e = std::io::Error::last_os_error();
-                if e.kind() != std::io::ErrorKind::WouldBlock
-                    && e.kind() != std::io::ErrorKind::Interrupted
-                {
-                    return Err(format!("read: {e}"));
-                }
             }
-        } else if r > 0 && pfd.revents & (libc::POLLHUP | libc::POLLERR) != 0 {
             // The host closed its side of the PTY; wait for it to reopen.
-            std::thread::sleep(Duration::from_millis(20));
+            hart_serial::Ready::HungUp => std::thread::sleep(Duration::from_millis(20)),
+            hart_serial::Ready::Nothing => {}
         }
     }
 }

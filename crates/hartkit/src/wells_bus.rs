@@ -4,56 +4,42 @@
 //! drop sends reaches the master end only, as on a four-wire bus where the slaves'
 //! transmit pair goes to the master's receiver.
 
-use std::os::fd::{AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 
 /// One pseudo-terminal of the bus: our end, and the far end kept open so reads do not
 /// fail while no program has it open.
 struct Pty {
-    ours: OwnedFd,
-    _far: OwnedFd,
+    ours: hart_serial::Port,
+    _far: std::os::fd::OwnedFd,
     link: PathBuf,
 }
 
 fn open_pty(link: &Path) -> Result<Pty, String> {
-    let (ours, far, path) = crate::pty::open()?;
-    for fd in [ours.as_raw_fd(), far.as_raw_fd()] {
-        // SAFETY: termios is plain data filled by tcgetattr.
-        let mut t: libc::termios = unsafe { std::mem::zeroed() };
-        if unsafe { libc::tcgetattr(fd, &mut t) } == 0 {
-            unsafe { libc::cfmakeraw(&mut t) };
-            unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) };
-        }
-    }
-    // SAFETY: fcntl on a descriptor we own.
-    unsafe {
-        let fl = libc::fcntl(ours.as_raw_fd(), libc::F_GETFL);
-        libc::fcntl(ours.as_raw_fd(), libc::F_SETFL, fl | libc::O_NONBLOCK);
-    }
+    let p = hart_serial::pty::open().map_err(|e| e.to_string())?;
     let _ = std::fs::remove_file(link);
-    std::os::unix::fs::symlink(&path, link).map_err(|e| {
+    std::os::unix::fs::symlink(&p.path, link).map_err(|e| {
         format!(
-            "cannot make the link {} to {path}: {e}; check the directory exists and is writable",
-            link.display()
+            "cannot make the link {} to {}: {e}; check the directory exists and is writable",
+            link.display(),
+            p.path.display()
         )
     })?;
     Ok(Pty {
-        ours,
-        _far: far,
+        ours: p.ours,
+        _far: p.far,
         link: link.to_path_buf(),
     })
 }
 
-fn write_some(fd: i32, bytes: &[u8]) {
-    // A drop nobody reads fills its buffer; what does not fit is lost, as on a bus.
+/// Writes what the drop's buffer takes: a drop nobody reads fills its buffer, and what
+/// does not fit is lost, as on a bus.
+fn write_some(port: &hart_serial::Port, bytes: &[u8]) {
     let mut rest = bytes;
-    while !rest.is_empty() {
-        // SAFETY: write from a valid slice to a descriptor we own.
-        let n = unsafe { libc::write(fd, rest.as_ptr().cast(), rest.len()) };
-        if n <= 0 {
+    while let Ok(n @ 1..) = port.write(rest) {
+        rest = &rest[n..];
+        if rest.is_empty() {
             return;
         }
-        rest = &rest[n as usize..];
     }
 }
 
@@ -76,41 +62,26 @@ pub fn run(master: &Path, drops: &[PathBuf]) -> Result<String, String> {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    let mut fds: Vec<libc::pollfd> = ptys
-        .iter()
-        .map(|p| libc::pollfd {
-            fd: p.ours.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        })
-        .collect();
+    let ports: Vec<&hart_serial::Port> = ptys.iter().map(|p| &p.ours).collect();
     let mut buf = [0u8; 4096];
     loop {
-        // SAFETY: poll on an array of pollfd we own.
-        let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, 1000) };
-        if n < 0 {
-            let e = std::io::Error::last_os_error();
-            if e.kind() == std::io::ErrorKind::Interrupted {
+        let ready = hart_serial::wait_any(&ports, std::time::Duration::from_secs(1))
+            .map_err(|e| e.to_string())?;
+        for (i, r) in ready.into_iter().enumerate() {
+            if r != hart_serial::Ready::Input {
                 continue;
             }
-            return Err(format!("poll: {e}"));
-        }
-        for i in 0..fds.len() {
-            if fds[i].revents & libc::POLLIN == 0 {
-                continue;
-            }
-            // SAFETY: read into a buffer we own.
-            let n = unsafe { libc::read(fds[i].fd, buf.as_mut_ptr().cast(), buf.len()) };
-            if n <= 0 {
-                continue;
-            }
-            let bytes = &buf[..n as usize];
+            let n = match ports[i].read(&mut buf) {
+                Ok(n) if n > 0 => n,
+                _ => continue,
+            };
+            let bytes = &buf[..n];
             if i == 0 {
-                for f in &fds[1..] {
-                    write_some(f.fd, bytes);
+                for p in &ports[1..] {
+                    write_some(p, bytes);
                 }
             } else {
-                write_some(fds[0].fd, bytes);
+                write_some(ports[0], bytes);
             }
         }
     }

@@ -371,3 +371,91 @@ fn sim_bench_rejects_bad_options() {
         assert!(err.contains(needle), "{args:?}: {err}");
     }
 }
+
+/// Shell completions and manual pages come from the command line's own definitions:
+/// every shell gets a script naming the commands, and every command a page.
+#[test]
+fn completions_and_manual_pages() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let (code, out, err) = hartkit(&["completions", shell]);
+        assert_eq!(code, 0, "{shell}: {err}");
+        for word in ["serve", "wells", "modem", "--psk-file"] {
+            assert!(out.contains(word), "{shell} completions lack {word}");
+        }
+    }
+    let (code, _, err) = hartkit(&["completions", "tcsh"]);
+    assert_eq!(code, 2, "{err}");
+    let dir = std::env::temp_dir().join(format!("hartkit-man-{}", std::process::id()));
+    let (code, out, err) = hartkit(&["manual", "--dir", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("manual pages in"), "{out}");
+    for page in [
+        "hartkit.1",
+        "hartkit-serve.1",
+        "hartkit-wells.1",
+        "hartkit-frame-decode.1",
+    ] {
+        let text =
+            std::fs::read_to_string(dir.join(page)).unwrap_or_else(|e| panic!("{page}: {e}"));
+        assert!(text.contains(".TH") && text.contains(".SH NAME"), "{page}");
+    }
+    let serve = std::fs::read_to_string(dir.join("hartkit-serve.1")).unwrap();
+    assert!(
+        serve.contains("plain\\-rights"),
+        "the options are in the page"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// One log for every diagnostic: `--log-level debug` shows the raw traffic through it,
+/// `--log-format json` makes each line a JSON object, and a bad level is a usage error.
+#[test]
+fn logs_go_through_one_log_with_levels_and_json() {
+    let (code, out, err) = hartkit(&[
+        "read",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "pv",
+        "--log-level",
+        "debug",
+        "--log-format",
+        "json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!out.is_empty(), "the result on standard output");
+    let lines: Vec<Value> = err
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(
+        lines.iter().any(|l| l["level"] == "DEBUG"
+            && l["fields"]["message"]
+                .as_str()
+                .unwrap()
+                .contains(" tx FF FF")),
+        "{err}"
+    );
+    let (code, _, err) = hartkit(&[
+        "read",
+        "-p",
+        "sim?virtual",
+        "--poll",
+        "1",
+        "pv",
+        "--log-level",
+        "loud",
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("expected error, warn, info, debug or trace"),
+        "{err}"
+    );
+    // Without --log-level (nor RUST_LOG, HARTKIT_LOG) a command says only warnings.
+    if std::env::var_os("RUST_LOG").is_none() && std::env::var_os("HARTKIT_LOG").is_none() {
+        let (code, _, err) = hartkit(&["read", "-p", "sim?virtual", "--poll", "1", "pv"]);
+        assert_eq!(code, 0);
+        assert!(err.is_empty(), "{err}");
+    }
+}

@@ -156,7 +156,10 @@ fn secure_hart_ip_with_pre_shared_keys() {
         "1",
         "pv",
     ]);
-    assert_ne!(code, 0);
+    assert_eq!(
+        code, 5,
+        "a refused handshake is an I/O error, not a usage error"
+    );
     assert!(err.contains("refused the TLS handshake"), "{err}");
     let (code, _, _) = hartkit(&[
         "read",
