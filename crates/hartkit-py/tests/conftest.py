@@ -1,6 +1,8 @@
 """Fixtures: the hartkit command line (HARTKIT_BIN, set by scripts/python-test), the
-public test vectors, and a `hartkit serve --sim --hart-ip` on a free loopback port."""
+public test vectors, and a `hartkit serve --sim --hart-ip` on a free loopback port,
+plain or with a PSK file."""
 
+import contextlib
 import os
 import pathlib
 import socket
@@ -36,18 +38,17 @@ def free_port(kind=socket.SOCK_DGRAM) -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture
-def hart_ip_server(hartkit_bin):
-    """`hartkit serve --sim --hart-ip 127.0.0.1:PORT`: the demo plant behind a HART-IP
-    server, in another process. Yields the udp:// target."""
+@contextlib.contextmanager
+def serve_hart_ip(hartkit_bin, *extra):
+    """`hartkit serve --sim --hart-ip 127.0.0.1:PORT EXTRA...` in another process, up
+    when it answers a TCP connect (it listens on both UDP and TCP). Yields the port."""
     port = free_port()
     proc = subprocess.Popen(
-        [hartkit_bin, "serve", "--sim", "--hart-ip", f"127.0.0.1:{port}"],
+        [hartkit_bin, "serve", "--sim", "--hart-ip", f"127.0.0.1:{port}", *extra],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
     try:
-        # Up when it answers a TCP connect (it listens on both).
         deadline = time.monotonic() + 20
         while True:
             try:
@@ -57,7 +58,30 @@ def hart_ip_server(hartkit_bin):
                 if proc.poll() is not None or time.monotonic() > deadline:
                     raise RuntimeError(f"hartkit serve did not start: {proc.stderr.read().decode()}")
                 time.sleep(0.1)
-        yield f"udp://127.0.0.1:{port}"
+        yield port
     finally:
         proc.kill()
         proc.wait()
+
+
+@pytest.fixture
+def hart_ip_server(hartkit_bin):
+    """`hartkit serve --sim --hart-ip 127.0.0.1:PORT`: the demo plant behind a HART-IP
+    server, in another process. Yields the udp:// target."""
+    with serve_hart_ip(hartkit_bin) as port:
+        yield f"udp://127.0.0.1:{port}"
+
+
+PSK = "plant-host:00112233445566778899aabbccddeeff"
+
+
+@pytest.fixture
+def secure_hart_ip_server(hartkit_bin, tmp_path):
+    """The same with `--psk-file` (HART-IP version 2: TLS over TCP, DTLS over UDP, key
+    PSK), its devices answering at once (--instant). The server is the CLI (the
+    system's OpenSSL, or whatever it was built with); the client is the installed
+    wheel's own. Yields the port."""
+    keys = tmp_path / "plant.psk"
+    keys.write_text(PSK + "\n")
+    with serve_hart_ip(hartkit_bin, "--instant", "--psk-file", str(keys)) as port:
+        yield port
