@@ -141,8 +141,21 @@ pub enum DemodEvent<'a> {
     Frame(RxFrame<'a>),
 }
 
-/// Length of the sample ring (prefix sums), a power of two covering 6 bits at 192 kHz.
+/// Samples of history the detector may read back in the running sums (6 bits at
+/// 192 kHz).
 const RING: usize = 1024;
+/// Length of the rings of running sums: the history plus the samples the front end runs
+/// ahead of the detector (at most [`PIECE`]), a power of two.
+const RING_LEN: usize = 2 * RING;
+/// The front end (high-pass, mixers, running sums) runs over pieces of at most this many
+/// samples, aligned on multiples of it, before the carrier detect, the clock recovery and
+/// the detector catch up with the events in the piece: tight loops instead of a check of
+/// every stage at every sample. Divides [`REBASE`].
+const PIECE: usize = 512;
+/// The running sums are rebased and the oscillators re-derived every this many samples.
+const REBASE: u64 = 4096;
+/// The high-pass filter's sums are re-added from scratch every this many samples.
+const HP_READD: usize = 65536;
 /// Survivors: the last `STATE_BITS` bits.
 const STATE_BITS: u32 = 3;
 const STATES: usize = 1 << STATE_BITS;
@@ -206,6 +219,30 @@ impl C64 {
     }
 }
 
+/// The running sums of both tones at one sample, lane 0 mark, lane 1 space: the
+/// front end updates both with the same packed operations.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Lanes {
+    re: [f64; 2],
+    im: [f64; 2],
+}
+
+impl Lanes {
+    const ZERO: Lanes = Lanes {
+        re: [0.0; 2],
+        im: [0.0; 2],
+    };
+    fn lane(self, l: usize) -> C64 {
+        C64::new(self.re[l], self.im[l])
+    }
+    fn sub(self, o: Lanes) -> Lanes {
+        Lanes {
+            re: [self.re[0] - o.re[0], self.re[1] - o.re[1]],
+            im: [self.im[0] - o.im[0], self.im[1] - o.im[1]],
+        }
+    }
+}
+
 /// Linear-phase high-pass: the input delayed by the group delay of a cascade of three
 /// moving averages, each about one mark cycle long, minus the cascade's output. The
 /// averages have nulls at 1200 Hz and 2400 Hz and pass only -60 dB at 2200 Hz, so both
@@ -219,12 +256,16 @@ struct LinearHighPass {
     /// Delay of the cascade, samples.
     delay: usize,
     sums: [f64; 3],
-    /// Inputs of each stage (stage 0 holds raw samples, used for the delayed path too).
-    hist: [[f64; HP_RING]; 3],
+    /// Inputs of each stage: the last [`HP_HIST`] before the piece being filtered, then
+    /// the piece (stage 0 holds raw samples, used for the delayed path too).
+    hist: [[f64; HP_HIST + PIECE]; 3],
+    /// Samples filtered.
     n: usize,
 }
 
-const HP_RING: usize = 1024;
+/// Inputs each stage of the high-pass keeps from before the piece: at least the
+/// longest average (161 samples at 192 kHz) and the delay (239 samples).
+const HP_HIST: usize = 256;
 
 impl LinearHighPass {
     fn new(fs: f64) -> Self {
@@ -237,37 +278,71 @@ impl LinearHighPass {
             [m, m + 1, m]
         };
         let delay = (len[0] + len[1] + len[2] - 3) / 2;
+        debug_assert!(delay <= HP_HIST && len.iter().all(|&l| l <= HP_HIST));
         LinearHighPass {
             len,
             inv_len: len.map(|l| 1.0 / l as f64),
             delay,
             sums: [0.0; 3],
-            hist: [[0.0; HP_RING]; 3],
+            hist: [[0.0; HP_HIST + PIECE]; 3],
             n: 0,
         }
     }
 
-    #[inline]
-    fn run(&mut self, x: f64) -> f64 {
-        let i = self.n & (HP_RING - 1);
-        let mut v = x;
-        for st in 0..3 {
-            let old = self.hist[st][(self.n.wrapping_sub(self.len[st])) & (HP_RING - 1)];
-            self.hist[st][i] = v;
-            self.sums[st] += v - old;
-            v = self.sums[st] * self.inv_len[st];
+    /// Filters a piece of at most [`PIECE`] samples (that does not cross a multiple of
+    /// [`HP_READD`]), scaled by `vpu`, and hands each output to `sink` in order.
+    #[inline(always)]
+    fn run_piece(&mut self, piece: &[f32], vpu: f64, mut sink: impl FnMut(f64)) {
+        const H: usize = HP_HIST;
+        let p = piece.len();
+        let [l0, l1, l2] = self.len;
+        let [i0, i1, i2] = self.inv_len;
+        let d = self.delay;
+        assert!(p <= PIECE && l0 <= H && l1 <= H && l2 <= H && d <= H);
+        let (b0, b1, b2, bd) = (H - l0, H - l1, H - l2, H - d);
+        let [mut s0, mut s1, mut s2] = self.sums;
+        let [h0, h1, h2] = &mut self.hist;
+        for (o, &x) in h0[H..H + p].iter_mut().zip(piece) {
+            let x = f64::from(x) * vpu;
+            // Untrusted input: NaN and infinities become silence.
+            *o = if x.is_finite() { x } else { 0.0 };
         }
-        let delayed = self.hist[0][(self.n.wrapping_sub(self.delay)) & (HP_RING - 1)];
-        self.n = self.n.wrapping_add(1);
-        if self.n % 65536 == 0 {
-            // Re-add the windows from scratch so rounding cannot accumulate.
+        let h0 = &h0[..];
+        // Stages 1 and 2 read their inputs `len` samples back while writing the newest:
+        // cells let both views of the one buffer go through the loop together.
+        let h1 = core::cell::Cell::from_mut(&mut h1[..]).as_slice_of_cells();
+        let h2 = core::cell::Cell::from_mut(&mut h2[..]).as_slice_of_cells();
+        let stage0 = h0[H..H + p].iter().zip(&h0[b0..b0 + p]);
+        let stage1 = h1[H..H + p].iter().zip(&h1[b1..b1 + p]);
+        let stage2 = h2[H..H + p].iter().zip(&h2[b2..b2 + p]);
+        let delayed = &h0[bd..bd + p];
+        for ((((&x, &old0), (in1, old1)), (in2, old2)), &d) in
+            stage0.zip(stage1).zip(stage2).zip(delayed)
+        {
+            s0 += x - old0;
+            let v0 = s0 * i0;
+            in1.set(v0);
+            s1 += v0 - old1.get();
+            let v1 = s1 * i1;
+            in2.set(v1);
+            s2 += v1 - old2.get();
+            let v2 = s2 * i2;
+            sink(d - v2);
+        }
+        self.sums = [s0, s1, s2];
+        self.n = self.n.wrapping_add(p);
+        if self.n % HP_READD == 0 {
+            // Re-add the windows from scratch so rounding cannot accumulate (newest
+            // first).
             for st in 0..3 {
-                self.sums[st] = (1..=self.len[st])
-                    .map(|k| self.hist[st][(self.n.wrapping_sub(k)) & (HP_RING - 1)])
-                    .sum();
+                let end = H + p;
+                self.sums[st] = self.hist[st][end - self.len[st]..end].iter().rev().sum();
             }
         }
-        delayed - v
+        // Keep the newest inputs for the next piece.
+        for h in self.hist.iter_mut() {
+            h.copy_within(p..p + H, 0);
+        }
     }
 }
 
@@ -325,13 +400,14 @@ pub struct Demodulator {
     lo_s: C64,
     rot_m: C64,
     rot_s: C64,
-    /// Running sums of x·LO for each tone; `pm[i & (RING-1)]` is the sum over samples
-    /// before sample i.
-    pm: [C64; RING],
-    ps: [C64; RING],
-    /// Samples seen.
+    /// Running sums of x·LO for both tones; `sums[i & (RING_LEN-1)]` is the sum over
+    /// samples before sample i (since the last rebase).
+    sums: [Lanes; RING_LEN],
+    /// The detector's clock: the sample count its events are at (between pieces, the
+    /// samples seen).
     n: u64,
-    block_left: u32,
+    /// Sample count of the next carrier-detect update.
+    next_block: u64,
     // Carrier detect.
     level: f64,
     /// Level averaged over about eight bits: a jump above it is a new burst.
@@ -773,10 +849,9 @@ impl Demodulator {
             lo_s: C64::new(1.0, 0.0),
             rot_m: C64::expj(-crate::MARK_HZ / fs),
             rot_s: C64::expj(-crate::SPACE_HZ / fs),
-            pm: [C64::ZERO; RING],
-            ps: [C64::ZERO; RING],
+            sums: [Lanes::ZERO; RING_LEN],
             n: 0,
-            block_left: block,
+            next_block: u64::from(block),
             level: 0.0,
             slow_level: 0.0,
             contrast: 0.0,
@@ -834,34 +909,88 @@ impl Demodulator {
 
     /// Feeds samples; events are reported as they are found.
     pub fn push(&mut self, samples: &[f32], mut on_event: impl FnMut(DemodEvent<'_>)) {
-        let vpu = self.config.volts_per_unit;
-        for &x in samples {
-            let x = f64::from(x) * vpu;
-            // Untrusted input: NaN and infinities become silence.
-            let x = if x.is_finite() { x } else { 0.0 };
-            let y = self.hp.run(x);
-            let i = (self.n as usize) & (RING - 1);
-            let j = (self.n as usize + 1) & (RING - 1);
-            self.pm[j] = self.pm[i].add(self.lo_m.scale(y));
-            self.ps[j] = self.ps[i].add(self.lo_s.scale(y));
-            self.n += 1;
-            self.lo_m = self.lo_m.mul(self.rot_m);
-            self.lo_s = self.lo_s.mul(self.rot_s);
-            if self.n % 4096 == 0 {
+        let mut rest = samples;
+        while !rest.is_empty() {
+            // A piece up to the next multiple of PIECE: the front end over all of it,
+            // then the events in it, each at its own sample count as if the samples had
+            // come one by one.
+            let room = PIECE - (self.n % PIECE as u64) as usize;
+            let (piece, tail) = rest.split_at(room.min(rest.len()));
+            rest = tail;
+            self.front_end(piece);
+            let end = self.n + piece.len() as u64;
+            if end % REBASE == 0 {
+                self.run_events(end - 1, &mut on_event);
+                self.n = end;
                 // Re-derive the oscillators from the sample count so rounding cannot
-                // accumulate.
-                self.lo_m = lo_at(crate::MARK_HZ as u64, self.n, self.config.sample_rate);
-                self.lo_s = lo_at(crate::SPACE_HZ as u64, self.n, self.config.sample_rate);
+                // accumulate, and keep the running sums small.
+                self.lo_m = lo_at(crate::MARK_HZ as u64, end, self.config.sample_rate);
+                self.lo_s = lo_at(crate::SPACE_HZ as u64, end, self.config.sample_rate);
                 self.rebase();
             }
-            self.block_left -= 1;
-            if self.block_left == 0 {
-                self.block_left = self.block;
-                self.on_block(&mut on_event);
+            self.run_events(end, &mut on_event);
+            self.n = end;
+        }
+    }
+
+    /// The front end over a piece (within one multiple of [`PIECE`]) starting at sample
+    /// `self.n`: high-pass, mixers, running sums. Writes the sums up to sample
+    /// `self.n + piece.len()`; `self.n` is left for the detector's clock.
+    fn front_end(&mut self, piece: &[f32]) {
+        const M: usize = RING_LEN - 1;
+        let mut i = self.n as usize;
+        let mut acc = self.sums[i & M];
+        // Both oscillators, and their turn per sample, as lanes: the same arithmetic
+        // as C64::mul and C64::scale, tone by tone.
+        let (lm, ls) = (self.lo_m, self.lo_s);
+        let (mut lo_re, mut lo_im) = ([lm.re, ls.re], [lm.im, ls.im]);
+        let (rot_re, rot_im) = ([self.rot_m.re, self.rot_s.re], [self.rot_m.im, self.rot_s.im]);
+        let sums = &mut self.sums;
+        self.hp
+            .run_piece(piece, self.config.volts_per_unit, |v| {
+                for l in 0..2 {
+                    acc.re[l] += lo_re[l] * v;
+                    acc.im[l] += lo_im[l] * v;
+                }
+                i = i.wrapping_add(1);
+                sums[i & M] = acc;
+                let re = [
+                    lo_re[0] * rot_re[0] - lo_im[0] * rot_im[0],
+                    lo_re[1] * rot_re[1] - lo_im[1] * rot_im[1],
+                ];
+                lo_im = [
+                    lo_re[0] * rot_im[0] + lo_im[0] * rot_re[0],
+                    lo_re[1] * rot_im[1] + lo_im[1] * rot_re[1],
+                ];
+                lo_re = re;
+            });
+        self.lo_m = C64::new(lo_re[0], lo_im[0]);
+        self.lo_s = C64::new(lo_re[1], lo_im[1]);
+    }
+
+    /// The carrier detect, clock recovery and detection events up to sample count
+    /// `upto`, in order, each with the detector's clock at its sample count: the
+    /// carrier-detect update every `block` samples, then the bits that are due.
+    fn run_events(&mut self, upto: u64, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        loop {
+            let bit_due = if self.carrier {
+                // The first sample count n with n >= next_bit + period + 1.
+                ceil_count(self.next_bit + self.period + 1.0)
+            } else {
+                u64::MAX
+            };
+            let at = self.next_block.min(bit_due).max(self.n);
+            if at > upto {
+                return;
+            }
+            self.n = at;
+            if at == self.next_block {
+                self.next_block += u64::from(self.block);
+                self.on_block(on_event);
             }
             if self.carrier {
                 while self.n as f64 >= self.next_bit + self.period + 1.0 {
-                    self.detect_bit(&mut on_event);
+                    self.detect_bit(on_event);
                 }
             }
         }
@@ -876,35 +1005,55 @@ impl Demodulator {
 
     /// Keeps the running sums small: subtract the newest value from the whole ring
     /// (differences are unchanged).
+    /// Only the last [`RING`] sums are ever read again.
     fn rebase(&mut self) {
-        let i = (self.n as usize) & (RING - 1);
-        let (bm, bs) = (self.pm[i], self.ps[i]);
-        for v in self.pm.iter_mut() {
-            *v = v.sub(bm);
-        }
-        for v in self.ps.iter_mut() {
-            *v = v.sub(bs);
+        const M: usize = RING_LEN - 1;
+        let n = self.n as usize;
+        let base = self.sums[n & M];
+        for k in 0..RING {
+            let i = n.wrapping_sub(k) & M;
+            self.sums[i] = self.sums[i].sub(base);
         }
     }
 
     /// Running sum at a fractional sample position (linear between samples). The
     /// position must lie within the ring.
-    fn prefix(ring: &[C64; RING], t: f64) -> C64 {
-        let i = floor_fast(t);
-        let f = t - i;
-        let i = i as usize;
-        let a = ring[i & (RING - 1)];
-        let b = ring[(i + 1) & (RING - 1)];
+    #[inline]
+    fn prefix(&self, t: f64) -> Lanes {
+        let (i, fl) = floor_parts(t);
+        let f = t - fl;
+        let a = self.sums[i & (RING_LEN - 1)];
+        if f == 0.0 {
+            // What the line below gives for f = 0 (the sums are finite and never -0).
+            return a;
+        }
+        let b = self.sums[(i + 1) & (RING_LEN - 1)];
+        let mut out = a;
+        for l in 0..2 {
+            out.re[l] = a.re[l] + (b.re[l] - a.re[l]) * f;
+            out.im[l] = a.im[l] + (b.im[l] - a.im[l]) * f;
+        }
+        out
+    }
+
+    /// [`Self::prefix`] for one tone (lane 0 mark, 1 space).
+    #[inline]
+    fn prefix_lane(&self, t: f64, l: usize) -> C64 {
+        let (i, fl) = floor_parts(t);
+        let f = t - fl;
+        let a = self.sums[i & (RING_LEN - 1)].lane(l);
+        if f == 0.0 {
+            return a;
+        }
+        let b = self.sums[(i + 1) & (RING_LEN - 1)].lane(l);
         a.add(b.sub(a).scale(f))
     }
 
     /// Correlations with both tones over [a, b) (samples), global oscillator phase.
     #[inline]
     fn corr(&self, a: f64, b: f64) -> (C64, C64) {
-        (
-            Self::prefix(&self.pm, b).sub(Self::prefix(&self.pm, a)),
-            Self::prefix(&self.ps, b).sub(Self::prefix(&self.ps, a)),
-        )
+        let d = self.prefix(b).sub(self.prefix(a));
+        (d.lane(0), d.lane(1))
     }
 
     fn t_of(&self, samples: f64) -> f64 {
@@ -1077,13 +1226,13 @@ impl Demodulator {
     /// [`Self::bit_corr`] for one tone (mark when `mark`).
     #[inline]
     fn tone_corr(&self, a: f64, len: f64, mark: bool) -> C64 {
-        let (ring, f) = if mark {
-            (&self.pm, crate::MARK_HZ as u64)
+        let (l, f) = if mark {
+            (0, crate::MARK_HZ as u64)
         } else {
-            (&self.ps, crate::SPACE_HZ as u64)
+            (1, crate::SPACE_HZ as u64)
         };
-        Self::prefix(ring, a + len)
-            .sub(Self::prefix(ring, a))
+        self.prefix_lane(a + len, l)
+            .sub(self.prefix_lane(a, l))
             .mul(lo_frac(f, a, self.config.sample_rate))
             .scale(2.0 / len)
     }
@@ -1428,6 +1577,29 @@ fn floor_fast(x: f64) -> f64 {
         i - 1.0
     } else {
         i
+    }
+}
+
+/// The smallest sample count `n` with `n as f64 >= t` (0 for negative `t`).
+#[inline]
+fn ceil_count(t: f64) -> u64 {
+    if t <= 0.0 {
+        return 0;
+    }
+    let f = floor_fast(t);
+    (if f < t { f + 1.0 } else { f }) as u64
+}
+
+/// `floor_fast(x)` as an index and as a float (x >= 0, as sample positions are): one
+/// conversion each way instead of two.
+#[inline]
+fn floor_parts(x: f64) -> (usize, f64) {
+    let i = x as i64;
+    let f = i as f64;
+    if f > x {
+        ((i - 1) as usize, f - 1.0)
+    } else {
+        (i as usize, f)
     }
 }
 

@@ -691,10 +691,8 @@ pub fn read_wav_blocks(
             .map_err(|e| format!("cannot read {name}: {e}"))?;
         let whole = n - n % frame.max(1) as usize;
         samples.clear();
-        samples.extend(
-            hart_modem::wav::samples_of(format, channels, 0, &buf[..whole])
-                .map_err(|e| format!("{name}: {e}"))?,
-        );
+        hart_modem::wav::extend_samples(format, channels, 0, &buf[..whole], &mut samples)
+            .map_err(|e| format!("{name}: {e}"))?;
         if !push(rate, &samples) || n < want {
             break;
         }
