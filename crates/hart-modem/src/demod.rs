@@ -105,6 +105,24 @@ pub type RxFrame<'a> = ReceivedFrame<&'a [u8]>;
 #[cfg(feature = "alloc")]
 pub type DecodedFrame = ReceivedFrame<alloc::vec::Vec<u8>>;
 
+#[cfg(feature = "alloc")]
+impl DecodedFrame {
+    /// The same frame with its bytes borrowed, as the demodulator reports it.
+    pub fn as_rx(&self) -> RxFrame<'_> {
+        ReceivedFrame {
+            t: self.t,
+            pdu: &self.pdu,
+            preambles: self.preambles,
+            checksum_ok: self.checksum_ok,
+            parity_errors: self.parity_errors,
+            framing_errors: self.framing_errors,
+            level_vpp: self.level_vpp,
+            rate_error: self.rate_error,
+            tone_error: self.tone_error,
+        }
+    }
+}
+
 impl RxFrame<'_> {
     /// The same frame with its bytes copied.
     #[cfg(feature = "alloc")]
@@ -156,6 +174,15 @@ const PIECE: usize = 512;
 const REBASE: u64 = 4096;
 /// The high-pass filter's sums are re-added from scratch every this many samples.
 const HP_READD: usize = 65536;
+/// Samples per epoch of the level and tone-dominance averages (see
+/// [`Demodulator::starting_at`]): 3276 updates at 48 kHz and 819 at 192 kHz, after
+/// which an average started from zero differs from one that has run for ever by less
+/// than 1e-20 of its value.
+const LEVEL_EPOCH: u64 = 16384;
+/// A demodulator started inside a recording ([`Demodulator::starting_at`]) starts at
+/// a multiple of this many samples, so that every periodic reset falls where it falls
+/// for a demodulator started at sample 0.
+pub const START_ALIGN: u64 = HP_READD as u64;
 /// Survivors: the last `STATE_BITS` bits.
 const STATE_BITS: u32 = 3;
 const STATES: usize = 1 << STATE_BITS;
@@ -404,16 +431,40 @@ pub struct Demodulator {
     /// samples before sample i (since the last rebase).
     sums: [Lanes; RING_LEN],
     /// The detector's clock: the sample count its events are at (between pieces, the
-    /// samples seen).
+    /// samples seen, counted from the start of the recording).
     n: u64,
     /// Sample count of the next carrier-detect update.
     next_block: u64,
     // Carrier detect.
+    /// Level of the stronger tone and tone dominance, smoothed over about a bit: each
+    /// an exponential average restarted from zero at the first update of every
+    /// [`LEVEL_EPOCH`] samples, one epoch after a younger twin started: the twin's
+    /// value then takes over. What the average forgets in an epoch is far below a
+    /// rounding error, so this is the plain average for every purpose, yet it depends
+    /// on the last two epochs of signal only: a demodulator started later in a
+    /// recording computes the same value (see [`Demodulator::starting_at`]).
     level: f64,
-    /// Level averaged over about eight bits: a jump above it is a new burst.
-    slow_level: f64,
     contrast: f64,
+    /// The younger twins of `level` and `contrast`.
+    young_level: f64,
+    young_contrast: f64,
+    /// The epoch (sample count / [`LEVEL_EPOCH`]) of the latest update.
+    level_epoch: u64,
+    /// Level averaged over about eight bits: a jump above it is a new burst (reset when
+    /// the carrier comes on, so what it holds while the carrier is off never counts).
+    slow_level: f64,
     carrier: bool,
+    /// The level was below both carrier thresholds at the latest update.
+    was_quiet: bool,
+    /// Sample count from which quiet points are recorded: the demodulator computes the
+    /// level a demodulator started at sample 0 computes for the update before (0 for
+    /// one that did).
+    quiet_from: u64,
+    /// The latest quiet point (see [`Demodulator::quiet_point`]): sample count and
+    /// frames reported before it.
+    quiet: Option<(u64, u64)>,
+    /// Frames reported so far.
+    frames_out: core::cell::Cell<u64>,
     // Clock recovery.
     /// Start of the next bit window not yet detected, in samples (fractional).
     next_bit: f64,
@@ -853,9 +904,16 @@ impl Demodulator {
             n: 0,
             next_block: u64::from(block),
             level: 0.0,
-            slow_level: 0.0,
             contrast: 0.0,
+            young_level: 0.0,
+            young_contrast: 0.0,
+            level_epoch: 0,
+            slow_level: 0.0,
             carrier: false,
+            was_quiet: false,
+            quiet_from: 0,
+            quiet: None,
+            frames_out: core::cell::Cell::new(0),
             next_bit: 0.0,
             period: spb,
             side: 0,
@@ -879,6 +937,77 @@ impl Demodulator {
             frame_xor: 0,
             deframer: Deframer::default(),
         }
+    }
+
+    /// A demodulator for the samples of a recording from sample `start` on (a
+    /// multiple of [`START_ALIGN`]; others are rounded down, and the first sample
+    /// pushed must be sample [`Self::samples`]), to decode a long recording in pieces
+    /// on several cores with the same result as one demodulator from the start.
+    /// `Demodulator::new(config)` is `starting_at(config, 0)`.
+    ///
+    /// Everything the demodulator computes depends on a bounded stretch of signal
+    /// before it, or is started afresh when the carrier comes on: the high-pass
+    /// filter's sums are re-added every 65536 samples, the running sums rebased and the
+    /// oscillators re-derived every 4096, the level and tone dominance averages
+    /// restarted every [`LEVEL_EPOCH`] (all at multiples of these sample counts); the
+    /// clock, the detector and the deframer start afresh with every burst. So from
+    /// sample [`Self::settled_from`] on this demodulator's level is the one a
+    /// demodulator started at sample 0 has, bit for bit, and after a *quiet point*
+    /// (see [`Self::quiet_point`]) everything it reports is what that one reports.
+    pub fn starting_at(config: DemodConfig, start: u64) -> Self {
+        let start = start - start % START_ALIGN;
+        let mut d = Demodulator::new(config);
+        if start == 0 {
+            return d;
+        }
+        let rate = d.config.sample_rate;
+        d.n = start;
+        d.hp.n = start as usize;
+        d.lo_m = lo_at(crate::MARK_HZ as u64, start, rate);
+        d.lo_s = lo_at(crate::SPACE_HZ as u64, start, rate);
+        let block = u64::from(d.block);
+        d.next_block = (start / block + 1) * block;
+        d.level_epoch = start / LEVEL_EPOCH;
+        d.quiet_from = Self::quiet_from(&config, start);
+        d
+    }
+
+    /// The sample count from which a demodulator [started](Self::starting_at) at
+    /// sample `start` computes the level of one started at sample 0, for the update at
+    /// that sample count and the one before, and so records the same quiet points:
+    /// the high-pass filter's output is exact after three re-adds of its cascade
+    /// (196608 samples), the running sums a ring's length later, the level two epochs
+    /// after that (229376 samples in all), plus one carrier-detect update.
+    pub fn quiet_from(config: &DemodConfig, start: u64) -> u64 {
+        let start = start - start % START_ALIGN;
+        if start == 0 {
+            return 0;
+        }
+        let fs = f64::from(config.sample_rate.clamp(8000, 192_000));
+        let block = ((fs / 9600.0) as u64).max(1);
+        start + 3 * HP_READD as u64 + 2 * LEVEL_EPOCH + block
+    }
+
+    /// Samples pushed so far, counted from the start of the recording (for a
+    /// demodulator [started](Self::starting_at) inside one, from there).
+    pub fn samples(&self) -> u64 {
+        self.n
+    }
+
+    /// Frames reported so far.
+    pub fn frames_reported(&self) -> u64 {
+        self.frames_out.get()
+    }
+
+    /// The latest quiet point: the sample count of a carrier-detect update at which
+    /// the level had been below both carrier thresholds for two updates in a row (from
+    /// [`Self::quiet_from`] on), and the number of frames reported before it. At a quiet point the carrier is off and nothing is being received, and
+    /// every part of the state that decides what is reported later (the filters and
+    /// sums, the level, the deframer's hunt) is what any other settled demodulator
+    /// fed the same recording has: two such demodulators report the same frames,
+    /// bit for bit, after a quiet point both have seen.
+    pub fn quiet_point(&self) -> Option<(u64, u64)> {
+        self.quiet
     }
 
     /// The settings.
@@ -939,33 +1068,24 @@ impl Demodulator {
     fn front_end(&mut self, piece: &[f32]) {
         const M: usize = RING_LEN - 1;
         let mut i = self.n as usize;
-        let mut acc = self.sums[i & M];
-        // Both oscillators, and their turn per sample, as lanes: the same arithmetic
-        // as C64::mul and C64::scale, tone by tone.
-        let (lm, ls) = (self.lo_m, self.lo_s);
-        let (mut lo_re, mut lo_im) = ([lm.re, ls.re], [lm.im, ls.im]);
-        let (rot_re, rot_im) = ([self.rot_m.re, self.rot_s.re], [self.rot_m.im, self.rot_s.im]);
+        let last = self.sums[i & M];
+        let (mut am, mut as_) = (last.lane(0), last.lane(1));
+        let (mut lm, mut ls) = (self.lo_m, self.lo_s);
+        let (rm, rs) = (self.rot_m, self.rot_s);
         let sums = &mut self.sums;
-        self.hp
-            .run_piece(piece, self.config.volts_per_unit, |v| {
-                for l in 0..2 {
-                    acc.re[l] += lo_re[l] * v;
-                    acc.im[l] += lo_im[l] * v;
-                }
-                i = i.wrapping_add(1);
-                sums[i & M] = acc;
-                let re = [
-                    lo_re[0] * rot_re[0] - lo_im[0] * rot_im[0],
-                    lo_re[1] * rot_re[1] - lo_im[1] * rot_im[1],
-                ];
-                lo_im = [
-                    lo_re[0] * rot_im[0] + lo_im[0] * rot_re[0],
-                    lo_re[1] * rot_im[1] + lo_im[1] * rot_re[1],
-                ];
-                lo_re = re;
-            });
-        self.lo_m = C64::new(lo_re[0], lo_im[0]);
-        self.lo_s = C64::new(lo_re[1], lo_im[1]);
+        self.hp.run_piece(piece, self.config.volts_per_unit, |v| {
+            am = am.add(lm.scale(v));
+            as_ = as_.add(ls.scale(v));
+            i = i.wrapping_add(1);
+            sums[i & M] = Lanes {
+                re: [am.re, as_.re],
+                im: [am.im, as_.im],
+            };
+            lm = lm.mul(rm);
+            ls = ls.mul(rs);
+        });
+        self.lo_m = lm;
+        self.lo_s = ls;
     }
 
     /// The carrier detect, clock recovery and detection events up to sample count
@@ -989,7 +1109,7 @@ impl Demodulator {
                 self.on_block(on_event);
             }
             if self.carrier {
-                while self.n as f64 >= self.next_bit + self.period + 1.0 {
+                while self.now() >= self.next_bit + self.period + 1.0 {
                     self.detect_bit(on_event);
                 }
             }
@@ -1056,12 +1176,20 @@ impl Demodulator {
         (d.lane(0), d.lane(1))
     }
 
+    /// The detector's clock as a float (a signed conversion: cheaper than an unsigned
+    /// one, and the same value below 2^53).
+    #[inline]
+    fn now(&self) -> f64 {
+        self.n as i64 as f64
+    }
+
     fn t_of(&self, samples: f64) -> f64 {
         (samples - self.hp_delay).max(0.0) / self.fs
     }
 
+    #[inline(never)]
     fn on_block(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
-        let now = self.n as f64;
+        let now = self.now();
         if now < self.spb + 2.0 {
             return;
         }
@@ -1075,9 +1203,27 @@ impl Demodulator {
         } else {
             0.0
         };
+        let epoch = self.n / LEVEL_EPOCH;
+        if epoch != self.level_epoch {
+            self.level_epoch = epoch;
+            self.level = self.young_level;
+            self.contrast = self.young_contrast;
+            self.young_level = 0.0;
+            self.young_contrast = 0.0;
+        }
         let alpha = f64::from(self.block) / self.spb;
         self.level += alpha * (vpp - self.level);
         self.contrast += alpha / 2.0 * (libm::fabs(v) - self.contrast);
+        self.young_level += alpha * (vpp - self.young_level);
+        self.young_contrast += alpha / 2.0 * (libm::fabs(v) - self.young_contrast);
+        let quiet =
+            self.level < self.config.carrier_off_vpp && self.level < self.config.carrier_on_vpp;
+        if quiet && self.was_quiet && self.n >= self.quiet_from && !self.carrier {
+            // Two updates in a row below both thresholds: the first switched the
+            // carrier off if it was on, so nothing is being received now.
+            self.quiet = Some((self.n, self.frames_out.get()));
+        }
+        self.was_quiet = quiet;
         if !self.carrier {
             if self.level >= self.config.carrier_on_vpp && self.contrast >= CONTRAST_ON {
                 self.carrier_on(now, on_event);
@@ -1195,6 +1341,7 @@ impl Demodulator {
         let mut forward = |ev: DeframerEvent<'_>, this: &FrameCtx<'_>| this.forward(ev, on_event);
         let ctx = FrameCtx {
             chars: &self.chars,
+            frames_out: &self.frames_out,
             char_n: self.char_n,
             rate_error: self.spb / self.period - 1.0,
             tone_error: self.eps,
@@ -1203,7 +1350,7 @@ impl Demodulator {
         self.carrier = false;
         on_event(DemodEvent::Carrier {
             on: false,
-            t: self.t_of(self.n as f64),
+            t: self.t_of(self.now()),
             level_vpp: self.level,
         });
     }
@@ -1237,6 +1384,7 @@ impl Demodulator {
             .scale(2.0 / len)
     }
 
+    #[inline(never)]
     fn detect_bit(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
         let a = self.next_bit;
         let b = a + self.period;
@@ -1288,7 +1436,7 @@ impl Demodulator {
             // noise falls with the windows' lengths (by 0.7 when both sides have two
             // bits; by 0.8 across a preamble's start bit, one bit against several).
             let g = self.grid_origin + (j as i64 - self.grid_j) as f64 * self.period;
-            let oldest = self.n as f64 - (RING - 2) as f64;
+            let oldest = self.now() - (RING - 2) as f64;
             let mut lp = 1;
             while lp < STEP_BITS
                 && j > lp
@@ -1301,7 +1449,7 @@ impl Demodulator {
             while lc < STEP_BITS
                 && j + lc < self.k
                 && self.bit_at(j + lc) == cur
-                && g + (lc + 1) as f64 * self.period <= self.n as f64
+                && g + (lc + 1) as f64 * self.period <= self.now()
             {
                 lc += 1;
             }
@@ -1309,7 +1457,7 @@ impl Demodulator {
                 || libm::fabs(bc.start - bp.start - self.period) > REMEASURE * self.period;
             if (moved || lp > 1 || lc > 1)
                 && g - lp as f64 * self.period > oldest
-                && g + lc as f64 * self.period <= self.n as f64
+                && g + lc as f64 * self.period <= self.now()
             {
                 let (lpf, lcf) = (lp as f64 * self.period, lc as f64 * self.period);
                 // Only the tone each side holds is needed.
@@ -1545,6 +1693,7 @@ impl Demodulator {
         self.char_n += 1;
         let ctx = FrameCtx {
             chars: &self.chars,
+            frames_out: &self.frames_out,
             char_n: self.char_n,
             rate_error: self.spb / self.period - 1.0,
             tone_error: self.eps,
@@ -1586,8 +1735,8 @@ fn ceil_count(t: f64) -> u64 {
     if t <= 0.0 {
         return 0;
     }
-    let f = floor_fast(t);
-    (if f < t { f + 1.0 } else { f }) as u64
+    let (i, f) = floor_parts(t);
+    (if f < t { i + 1 } else { i }) as u64
 }
 
 /// `floor_fast(x)` as an index and as a float (x >= 0, as sample positions are): one
@@ -1622,6 +1771,8 @@ fn lo_frac(f: u64, t: f64, fs: u32) -> C64 {
 /// What the deframer's events need to become frame events.
 struct FrameCtx<'c> {
     chars: &'c [CharRec; CHAR_RING],
+    /// Frames reported, counted.
+    frames_out: &'c core::cell::Cell<u64>,
     char_n: usize,
     rate_error: f64,
     tone_error: f64,
@@ -1662,6 +1813,7 @@ impl FrameCtx<'_> {
             }
             None => (0.0, 0, 0, 0.0),
         };
+        self.frames_out.set(self.frames_out.get() + 1);
         on_event(DemodEvent::Frame(RxFrame {
             t,
             pdu,

@@ -744,12 +744,14 @@ pub fn extend_samples(
             data.chunks_exact(2)
                 .map(|b| f32::from(i16::from_le_bytes([b[0], b[1]])) / 32768.0),
         ),
-        SampleFormat::I16 => out.extend(frames.map(|f| {
-            f32::from(i16::from_le_bytes([f[offset], f[offset + 1]])) / 32768.0
-        })),
-        SampleFormat::F32 => out.extend(frames.map(|f| {
-            f32::from_le_bytes([f[offset], f[offset + 1], f[offset + 2], f[offset + 3]])
-        })),
+        SampleFormat::I16 => out.extend(
+            frames.map(|f| f32::from(i16::from_le_bytes([f[offset], f[offset + 1]])) / 32768.0),
+        ),
+        SampleFormat::F32 => {
+            out.extend(frames.map(|f| {
+                f32::from_le_bytes([f[offset], f[offset + 1], f[offset + 2], f[offset + 3]])
+            }))
+        }
         _ => out.extend(frames.map(|f| decode(format, &f[offset..]))),
     }
     Ok(())
