@@ -203,7 +203,6 @@ struct C64 {
 }
 
 impl C64 {
-    const ZERO: C64 = C64 { re: 0.0, im: 0.0 };
     fn new(re: f64, im: f64) -> Self {
         C64 { re, im }
     }
@@ -240,9 +239,6 @@ impl C64 {
     }
     fn norm2(self) -> f64 {
         self.re * self.re + self.im * self.im
-    }
-    fn abs(self) -> f64 {
-        libm::sqrt(self.norm2())
     }
 }
 
@@ -373,27 +369,44 @@ impl LinearHighPass {
     }
 }
 
-/// A Viterbi survivor.
+/// The Viterbi survivors, one per state, field by field (the trellis step then runs
+/// as loops over the states that the compiler can pack).
 #[derive(Debug, Clone, Copy)]
-struct Survivor {
-    metric: f64,
+struct Survivors {
+    /// Path metric; minus infinity for a state no path reaches.
+    metric: [f64; STATES],
     /// Carrier phase estimate (complex, decision-directed along this path).
-    r: C64,
+    r_re: [f64; STATES],
+    r_im: [f64; STATES],
     /// Undoes the phase turn of this path's bits so far: each space turns the phase
     /// at the next bit start by -60° (2200 Hz over 1/1200 s is 1 5/6 cycles), each
     /// mark by 0°, plus the measured extra turn per bit when the tones and the bit
     /// rate are off by different amounts.
-    rot: C64,
+    rot_re: [f64; STATES],
+    rot_im: [f64; STATES],
     /// Bits of this path, newest in bit 0.
-    hist: u64,
+    hist: [u64; STATES],
 }
 
-const DEAD: Survivor = Survivor {
-    metric: f64::NEG_INFINITY,
-    r: C64::ZERO,
-    rot: C64 { re: 1.0, im: 0.0 },
-    hist: 0,
-};
+impl Survivors {
+    /// No path at all.
+    const DEAD: Survivors = Survivors {
+        metric: [f64::NEG_INFINITY; STATES],
+        r_re: [0.0; STATES],
+        r_im: [0.0; STATES],
+        rot_re: [1.0; STATES],
+        rot_im: [0.0; STATES],
+        hist: [0; STATES],
+    };
+
+    /// One path, in state `i`: metric 0, no phase estimate, all ones so far.
+    fn start(i: usize) -> Self {
+        let mut s = Survivors::DEAD;
+        s.metric[i] = 0.0;
+        s.hist[i] = u64::MAX;
+        s
+    }
+}
 
 /// One detected bit window and its correlations (referred to its start).
 #[derive(Debug, Clone, Copy, Default)]
@@ -490,7 +503,7 @@ pub struct Demodulator {
     pairs: u32,
 
     // Detection.
-    surv: [Survivor; STATES],
+    surv: Survivors,
     /// Index of the best survivor (the first with the highest metric).
     best_idx: usize,
     /// Bits detected since the carrier came on.
@@ -926,7 +939,7 @@ impl Demodulator {
             locked: 0,
             eps: 0.0,
             pairs: 0,
-            surv: [DEAD; STATES],
+            surv: Survivors::DEAD,
             best_idx: 0,
             k: 0,
             bits: [BitRec::default(); BIT_RING],
@@ -1187,7 +1200,6 @@ impl Demodulator {
         (samples - self.hp_delay).max(0.0) / self.fs
     }
 
-    #[inline(never)]
     fn on_block(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
         let now = self.now();
         if now < self.spb + 2.0 {
@@ -1317,14 +1329,8 @@ impl Demodulator {
         // carrier detect needs about two bits to rise, and the first preamble
         // character must not be lost.
         self.next_bit = (now - 4.0 * self.spb).max(0.0);
-        self.surv = [DEAD; STATES];
+        self.surv = Survivors::start(STATES - 1);
         self.best_idx = STATES - 1;
-        self.surv[STATES - 1] = Survivor {
-            metric: 0.0,
-            r: C64::ZERO,
-            rot: C64::new(1.0, 0.0),
-            hist: u64::MAX,
-        };
         self.k = 0;
         self.pos = 0;
         self.char_start = None;
@@ -1384,7 +1390,6 @@ impl Demodulator {
             .scale(2.0 / len)
     }
 
-    #[inline(never)]
     fn detect_bit(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
         let a = self.next_bit;
         let b = a + self.period;
@@ -1527,69 +1532,92 @@ impl Demodulator {
         ];
         // Per predecessor (each feeds two branches): the path's rotation brought up to
         // this bit's start (the previous bit's tone ran across the spacing), its
-        // forgotten reference λR and the λ|R| its metric gives back.
-        let mut pre = [(C64::ZERO, C64::ZERO, 0.0); STATES];
-        for (p, s) in pre.iter_mut().zip(&self.surv) {
-            if s.metric != f64::NEG_INFINITY {
-                *p = (
-                    s.rot.mul(step[(s.hist & 1) as usize]),
-                    s.r.scale(lambda),
-                    lambda * s.r.abs(),
-                );
+        // forgotten reference λR and the λ|R| its metric gives back. A state no path
+        // reaches has metric minus infinity, and so have its branches.
+        let sv = &self.surv;
+        let mut p_re = [0.0; STATES];
+        let mut p_im = [0.0; STATES];
+        let mut lr_re = [0.0; STATES];
+        let mut lr_im = [0.0; STATES];
+        let mut lr_abs = [0.0; STATES];
+        for p in 0..STATES {
+            let st = step[(sv.hist[p] & 1) as usize];
+            p_re[p] = sv.rot_re[p] * st.re - sv.rot_im[p] * st.im;
+            p_im[p] = sv.rot_re[p] * st.im + sv.rot_im[p] * st.re;
+            lr_re[p] = sv.r_re[p] * lambda;
+            lr_im[p] = sv.r_im[p] * lambda;
+            lr_abs[p] = lambda * libm::sqrt(sv.r_re[p] * sv.r_re[p] + sv.r_im[p] * sv.r_im[p]);
+        }
+        // Every branch: from predecessor p with bit b (0: space, 1: mark), the
+        // correlation turned by the path's rotation, added to its reference.
+        let mut rr_re = [[0.0; STATES]; 2];
+        let mut rr_im = [[0.0; STATES]; 2];
+        let mut m = [[0.0; STATES]; 2];
+        for (b, y0) in [ys, ym].into_iter().enumerate() {
+            for p in 0..STATES {
+                let re = lr_re[p] + (y0.re * p_re[p] - y0.im * p_im[p]);
+                let im = lr_im[p] + (y0.re * p_im[p] + y0.im * p_re[p]);
+                rr_re[b][p] = re;
+                rr_im[b][p] = im;
+                m[b][p] = sv.metric[p] + libm::sqrt(re * re + im * im) - lr_abs[p];
             }
         }
-        let mut next = [DEAD; STATES];
-        for (ns, slot) in next.iter_mut().enumerate() {
-            let bit = ns & 1 == 1;
-            let y0 = if bit { ym } else { ys };
-            for old in [0usize, 1] {
-                let ps = (ns >> 1) | (old << (STATE_BITS - 1));
-                let s = &self.surv[ps];
-                if s.metric == f64::NEG_INFINITY {
-                    continue;
-                }
-                let (rot, lr, lr_abs) = pre[ps];
-                let y = y0.mul(rot);
-                let rr = lr.add(y);
-                let m = s.metric + rr.abs() - lr_abs;
-                if m > slot.metric {
-                    *slot = Survivor {
-                        metric: m,
-                        r: rr,
-                        rot,
-                        hist: s.hist << 1 | u64::from(bit),
-                    };
-                }
-            }
+        // State ns is reached from ns >> 1 (oldest bit 0) and ns >> 1 | 4 (oldest bit
+        // 1) with bit ns & 1; the first wins ties, and a state neither reaches stays
+        // dead.
+        let mut next = Survivors::DEAD;
+        for ns in 0..STATES {
+            let b = ns & 1;
+            let p0 = ns >> 1;
+            let p1 = p0 | (1 << (STATE_BITS - 1));
+            let take0 = m[b][p0] > f64::NEG_INFINITY;
+            let to_beat = if take0 { m[b][p0] } else { f64::NEG_INFINITY };
+            let p = if m[b][p1] > to_beat {
+                p1
+            } else if take0 {
+                p0
+            } else {
+                continue;
+            };
+            next.metric[ns] = m[b][p];
+            next.r_re[ns] = rr_re[b][p];
+            next.r_im[ns] = rr_im[b][p];
+            next.rot_re[ns] = p_re[p];
+            next.rot_im[ns] = p_im[p];
+            next.hist[ns] = sv.hist[p] << 1 | b as u64;
         }
         // Keep the rotations on the unit circle and the metrics small.
         if self.k % 64 == 0 {
-            for s in next.iter_mut() {
-                let a = s.rot.abs();
+            for ns in 0..STATES {
+                let (re, im) = (next.rot_re[ns], next.rot_im[ns]);
+                let a = libm::sqrt(re * re + im * im);
                 if a > 0.0 {
-                    s.rot = s.rot.scale(1.0 / a);
+                    let k = 1.0 / a;
+                    next.rot_re[ns] = re * k;
+                    next.rot_im[ns] = im * k;
                 }
             }
         }
         let best = next
+            .metric
             .iter()
-            .map(|s| s.metric)
+            .copied()
             .fold(f64::NEG_INFINITY, f64::max);
-        self.best_idx = next.iter().position(|s| s.metric == best).unwrap_or(0);
-        for s in next.iter_mut() {
-            s.metric -= best;
+        self.best_idx = next.metric.iter().position(|&m| m == best).unwrap_or(0);
+        for m in next.metric.iter_mut() {
+            *m -= best;
         }
         self.surv = next;
     }
 
-    fn best(&self) -> &Survivor {
-        &self.surv[self.best_idx]
+    fn best_hist(&self) -> u64 {
+        self.surv.hist[self.best_idx]
     }
 
     /// Bit `idx` (counted since the carrier came on) on the best path.
     fn bit_at(&self, idx: usize) -> bool {
         let age = self.k - 1 - idx;
-        age >= 64 || self.best().hist >> age & 1 == 1
+        age >= 64 || self.best_hist() >> age & 1 == 1
     }
 
     /// True when the best path holds a 0xFF character (0 then ten 1s) from bit `p`.
