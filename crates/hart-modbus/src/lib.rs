@@ -16,13 +16,14 @@
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use hart_poller::{DeviceRefusal, Engine, WriteError, WriteFailure, WriteOp};
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
+pub mod connections;
 pub mod load;
 pub mod map;
 
@@ -37,8 +38,8 @@ pub struct Config {
     pub float_order: FloatOrder,
     /// Refuse writes ("illegal function").
     pub read_only: bool,
-    /// Most TCP connections at once; more are closed at once.
-    pub max_connections: usize,
+    /// The TCP server's connection limits and priority hosts.
+    pub limits: connections::Limits,
     /// Modbus TCP clients that may write (loopback only by default); others' writes
     /// are answered "illegal function". The RTU slave's master writes unless
     /// `read_only`: whoever is wired to its port.
@@ -53,7 +54,7 @@ impl Default for Config {
             map: RegisterMap::default(),
             float_order: FloatOrder::default(),
             read_only: false,
-            max_connections: 64,
+            limits: connections::Limits::default(),
             write_from: hart_access::NetList::loopback(),
             audit: hart_access::Audit::default(),
         }
@@ -79,7 +80,7 @@ pub struct Gateway {
     config: Config,
     /// Counters.
     pub stats: Stats,
-    connections: AtomicUsize,
+    pool: connections::Pool,
 }
 
 /// The transport a request came by: TCP answers every unit id, RTU only its own.
@@ -121,8 +122,13 @@ impl Gateway {
             engine,
             config,
             stats: Stats::default(),
-            connections: AtomicUsize::new(0),
+            pool: connections::Pool::default(),
         })
+    }
+
+    /// Modbus TCP connections open now.
+    pub fn open_connections(&self) -> usize {
+        self.pool.len()
     }
 
     /// The settings.
@@ -474,13 +480,32 @@ impl tokio_modbus::server::Service for Service {
     }
 }
 
-/// A TCP stream counted against [`Config::max_connections`] until dropped, whose
-/// request frames pass the [`FrameGuard`] before tokio-modbus decodes them.
+/// A TCP stream in the connection pool until dropped ([`connections`]): its request
+/// frames pass the [`FrameGuard`] before tokio-modbus decodes them, it is closed when
+/// a request does not come or come whole in time, and when the pool evicts it.
 struct Counted {
     stream: tokio::net::TcpStream,
     gateway: Arc<Gateway>,
     guard: FrameGuard,
     peer: SocketAddr,
+    /// Its id in the pool.
+    id: u64,
+    opened: Instant,
+    /// Woken when the pool closes it.
+    close: Pin<Box<tokio::sync::futures::OwnedNotified>>,
+    /// The deadline of the request under way (or of the first one).
+    timer: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl Counted {
+    /// Closes the connection: an error for tokio-modbus, which then drops it.
+    fn closed(&self, why: &str) -> std::task::Poll<std::io::Result<()>> {
+        tracing::warn!("modbus: closed the connection from {}: {why}", self.peer);
+        std::task::Poll::Ready(Err(std::io::Error::new(
+            std::io::ErrorKind::TimedOut,
+            why.to_string(),
+        )))
+    }
 }
 
 /// Follows the Modbus TCP frames (MBAP header, then `length - 1` PDU bytes) a client
@@ -493,9 +518,16 @@ struct Counted {
 #[derive(Debug, Default)]
 struct FrameGuard {
     frame: Vec<u8>,
+    /// Requests seen whole.
+    whole: u64,
 }
 
 impl FrameGuard {
+    /// Whether part of a request has come and the rest not yet.
+    fn partial(&self) -> bool {
+        !self.frame.is_empty()
+    }
+
     /// Takes the bytes just received; an error names the first frame refused.
     fn feed(&mut self, bytes: &[u8]) -> Result<(), &'static str> {
         for &b in bytes {
@@ -510,6 +542,7 @@ impl FrameGuard {
             if self.frame.len() == 6 + len {
                 check_request_pdu(&self.frame[7..])?;
                 self.frame.clear();
+                self.whole += 1;
             }
         }
         Ok(())
@@ -548,7 +581,7 @@ fn check_request_pdu(pdu: &[u8]) -> Result<(), &'static str> {
 
 impl Drop for Counted {
     fn drop(&mut self) {
-        self.gateway.connections.fetch_sub(1, Ordering::AcqRel);
+        self.gateway.pool.remove(self.id);
     }
 }
 
@@ -558,17 +591,64 @@ impl tokio::io::AsyncRead for Counted {
         cx: &mut std::task::Context<'_>,
         buf: &mut tokio::io::ReadBuf<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
-        let before = buf.filled().len();
-        std::task::ready!(Pin::new(&mut self.stream).poll_read(cx, buf))?;
+        use connections::Phase;
+        use std::task::Poll;
         let this = &mut *self;
-        if let Err(why) = this.guard.feed(&buf.filled()[before..]) {
-            tracing::warn!("modbus: closed the connection from {}: {why}", this.peer);
-            return std::task::Poll::Ready(Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                why,
-            )));
+        if this.close.as_mut().poll(cx).is_ready() {
+            let why = this
+                .gateway
+                .pool
+                .state(this.id)
+                .and_then(|s| s.1)
+                .unwrap_or("closed by the pool");
+            return this.closed(why);
         }
-        std::task::Poll::Ready(Ok(()))
+        let limits = &this.gateway.config.limits;
+        let phase = this
+            .gateway
+            .pool
+            .state(this.id)
+            .map_or(Phase::Idle, |s| s.0);
+        if let Some(due) = connections::deadline(phase, this.opened, limits) {
+            let due = tokio::time::Instant::from_std(due);
+            if this.timer.deadline() != due {
+                this.timer.as_mut().reset(due);
+            }
+            if this.timer.as_mut().poll(cx).is_ready() {
+                let why = match phase {
+                    Phase::Fresh => format!(
+                        "no complete request within {} s of connecting",
+                        limits.first_request.as_secs_f64()
+                    ),
+                    _ => format!(
+                        "a request begun was not whole within {} s",
+                        limits.request.as_secs_f64()
+                    ),
+                };
+                return this.closed(&why);
+            }
+        }
+        let before = buf.filled().len();
+        std::task::ready!(Pin::new(&mut this.stream).poll_read(cx, buf))?;
+        let whole = this.guard.whole;
+        if let Err(why) = this.guard.feed(&buf.filled()[before..]) {
+            return this.closed(why);
+        }
+        let now = Instant::now();
+        let next = if this.guard.partial() {
+            match phase {
+                Phase::Receiving(since) if this.guard.whole == whole => Phase::Receiving(since),
+                _ => Phase::Receiving(now),
+            }
+        } else if this.guard.whole > whole {
+            Phase::Answering
+        } else {
+            phase
+        };
+        if next != phase {
+            this.gateway.pool.set_phase(this.id, next, now);
+        }
+        Poll::Ready(Ok(()))
     }
 }
 
@@ -578,7 +658,14 @@ impl tokio::io::AsyncWrite for Counted {
         cx: &mut std::task::Context<'_>,
         buf: &[u8],
     ) -> std::task::Poll<std::io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write(cx, buf)
+        let r = std::task::ready!(Pin::new(&mut self.stream).poll_write(cx, buf));
+        // An answer went out: between requests again (unless the next has begun).
+        if !self.guard.partial() {
+            self.gateway
+                .pool
+                .set_phase(self.id, connections::Phase::Idle, Instant::now());
+        }
+        std::task::Poll::Ready(r)
     }
     fn poll_flush(
         mut self: Pin<&mut Self>,
@@ -608,21 +695,27 @@ pub async fn bind_tcp(
         let on_connected = |stream: tokio::net::TcpStream, peer: SocketAddr| {
             let gateway = gateway.clone();
             async move {
-                let n = gateway.connections.fetch_add(1, Ordering::AcqRel);
+                let now = Instant::now();
+                let (id, close) = match gateway.pool.admit(peer, &gateway.config.limits, now) {
+                    Ok(admitted) => admitted,
+                    Err(why) => {
+                        gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
+                        tracing::warn!("modbus: connection from {peer} refused: {why}");
+                        return Ok(None);
+                    }
+                };
                 let counted = Counted {
                     stream,
                     gateway: gateway.clone(),
                     guard: FrameGuard::default(),
                     peer,
+                    id,
+                    opened: now,
+                    close: Box::pin(close.notified_owned()),
+                    timer: Box::pin(tokio::time::sleep_until(tokio::time::Instant::from_std(
+                        now + gateway.config.limits.first_request,
+                    ))),
                 };
-                if n >= gateway.config.max_connections {
-                    gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        "modbus: connection from {peer} refused: {} connections open (the limit)",
-                        gateway.config.max_connections
-                    );
-                    return Ok(None);
-                }
                 let _ = counted.stream.set_nodelay(true);
                 let service = Service {
                     gateway,
