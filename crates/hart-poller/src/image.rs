@@ -498,7 +498,7 @@ mod tests {
     fn malfunction_and_no_reply() {
         let mut d = image();
         let now = Instant::now();
-        assert_eq!(d.quality(now), Quality::NoReply);
+        assert_eq!(d.quality(now), Quality::WaitingForData, "not asked yet");
         let data = [0x41, 0x40, 0, 0, 12, 0x42, 0x48, 0, 0];
         d.apply_reply(3, 0, fds::DEVICE_MALFUNCTION, &data, now, SystemTime::now());
         assert_eq!(d.quality(now), Quality::DeviceMalfunction);

@@ -37,13 +37,19 @@ pub use task::{
 };
 pub use write::{Applied, DeviceRefusal, Origin, WriteFailure, WriteOp};
 
-/// A device found on a loop, for routing requests to it.
+/// A device found on a loop, for routing requests to it. The engine's list of them
+/// is a registry: an entry keeps its place (its index for commands 84 and 102) for the
+/// life of the engine. A device that stops answering stays, marked absent; when it
+/// answers again it is present at the same place; a new device takes a new place.
 #[derive(Debug, Clone)]
 pub struct SubDevice {
     /// Channel (loop index).
     pub channel: u8,
     /// What the scan found.
     pub info: DeviceInfo,
+    /// Answering: found by the last scan of its address (or since). An absent device
+    /// keeps its place and its identity, but no polling address routes to it.
+    pub present: bool,
 }
 
 /// What the engine's tasks and handles share.
@@ -301,17 +307,21 @@ impl Engine {
     }
 }
 
-/// Adds a sub-device to the routing list, or updates the one with the same unique ID.
+/// Adds a sub-device to the registry, or updates the one with the same unique ID
+/// (present again, at its place). A different device now answering at a polling
+/// address takes a new place; the one seen there before stays, absent, without that
+/// polling address.
 pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
     let mut subs = subs.lock().await;
-    // A different device now answering at a polling address replaces the one seen
-    // there before.
     if let Some(p) = sub.info.polling_address {
-        subs.retain(|s| {
-            s.channel != sub.channel
-                || s.info.polling_address != Some(p)
-                || s.info.unique_id() == sub.info.unique_id()
-        });
+        for s in subs.iter_mut().filter(|s| {
+            s.channel == sub.channel
+                && s.info.polling_address == Some(p)
+                && s.info.unique_id() != sub.info.unique_id()
+        }) {
+            s.present = false;
+            s.info.polling_address = None;
+        }
     }
     match subs
         .iter_mut()
@@ -327,5 +337,18 @@ pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
             s.info.io_channel = s.info.io_channel.or(old.info.io_channel);
         }
         None => subs.push(sub),
+    }
+}
+
+/// Marks the devices of `channel` at polling address `poll` absent (they stopped
+/// answering): they keep their places.
+pub(crate) async fn forget(subs: &Mutex<Vec<SubDevice>>, channel: u8, poll: u8) {
+    for s in subs
+        .lock()
+        .await
+        .iter_mut()
+        .filter(|s| s.channel == channel && s.info.polling_address == Some(poll))
+    {
+        s.present = false;
     }
 }

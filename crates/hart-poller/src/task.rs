@@ -33,8 +33,8 @@ pub const RESCAN_IDLE: Duration = Duration::from_secs(2);
 /// milliseconds) does not queue behind a scan step.
 pub const SCAN_GRACE: Duration = Duration::from_millis(150);
 
-/// Rescan visits without a reply after which a known sub-device is dropped from the
-/// routing list (its image stays, "no reply").
+/// Rescan visits without a reply after which a known sub-device is marked absent in
+/// the registry (it keeps its place; its image stays, "no reply").
 pub const MISSES_TO_FORGET: u8 = 2;
 
 /// Client requests carried in a row while a poll is overdue before one poll goes.
@@ -354,12 +354,7 @@ impl LoopTask {
                     *m
                 });
                 if misses >= MISSES_TO_FORGET {
-                    let channel = self.channel;
-                    self.shared
-                        .subs
-                        .lock()
-                        .await
-                        .retain(|s| s.channel != channel || s.info.polling_address != Some(poll));
+                    crate::forget(&self.shared.subs, self.channel, poll).await;
                 }
             }
         }
@@ -469,6 +464,7 @@ impl LoopTask {
             SubDevice {
                 channel: self.channel,
                 info: info.clone(),
+                present: true,
             },
         )
         .await;
