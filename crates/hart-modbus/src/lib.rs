@@ -752,9 +752,18 @@ pub struct RtuPort {
 /// RTU frames cannot pass the [`FrameGuard`] the TCP server has: a frame it would panic
 /// on ends that serving, and this starts the next.)
 pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
+    // The engine's reconnect policy, from RTU_REOPEN: a port that keeps failing is
+    // tried less and less often (up to 30 s), one that served a while starts over.
+    let mut backoff =
+        hart_host::reconnect::Backoff::new(RTU_REOPEN, std::time::Duration::from_secs(30));
     loop {
+        let started = Instant::now();
         let task = tokio::spawn(serve_rtu(gateway.clone(), port.clone()));
-        match task.await {
+        let outcome = task.await;
+        if started.elapsed() > std::time::Duration::from_secs(60) {
+            backoff.reset();
+        }
+        match outcome {
             Ok(Ok(())) => tracing::warn!("modbus-rtu: {} closed", port.path),
             Ok(Err(e)) => tracing::error!("modbus-rtu: {e}"),
             Err(e) if e.is_panic() => {
@@ -765,11 +774,18 @@ pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
             }
             Err(_) => return,
         }
-        tokio::time::sleep(RTU_REOPEN).await;
+        let wait = backoff.failed(Instant::now());
+        tracing::info!(
+            "modbus-rtu: opening {} again in {} s",
+            port.path,
+            wait.as_secs()
+        );
+        tokio::time::sleep(wait).await;
     }
 }
 
-/// Wait before the RTU port is opened again.
+/// First wait before the RTU port is opened again (then doubling up to 30 s while it
+/// keeps failing).
 pub const RTU_REOPEN: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Opens `port` and serves Modbus RTU on it until the port fails.

@@ -30,7 +30,7 @@ pub mod write;
 
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
-pub use line::{Faults, Line, MemoryLoop};
+pub use line::{Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
@@ -60,9 +60,21 @@ pub(crate) struct Shared {
     pub(crate) subs: Arc<Mutex<Vec<SubDevice>>>,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
     ready: watch::Sender<Vec<bool>>,
+    /// Why each loop's port is down, when it is.
+    failures: std::sync::Mutex<Vec<Option<String>>>,
 }
 
 impl Shared {
+    /// Loop `channel`'s port is down (`Some` with why) or up.
+    pub(crate) fn set_failure(&self, channel: u8, failure: Option<String>) {
+        let mut f = self.failures.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(slot) = f.get_mut(usize::from(channel)) {
+            if *slot != failure {
+                *slot = failure;
+            }
+        }
+    }
+
     /// Loop `channel` has identified its listed devices and scanned once.
     pub(crate) fn loop_ready(&self, channel: u8) {
         self.ready.send_modify(|r| {
@@ -182,6 +194,7 @@ impl Engine {
             subs: Arc::new(Mutex::new(vec![])),
             bursts: broadcast::channel(64).0,
             ready: ready_tx,
+            failures: std::sync::Mutex::new(vec![None; loops.len()]),
         });
         let mut requests = vec![];
         let mut writes = vec![];
@@ -229,6 +242,18 @@ impl Engine {
     /// The name of loop `channel`.
     pub fn loop_name(&self, channel: usize) -> Option<&str> {
         self.shared.loop_names.get(channel).map(String::as_str)
+    }
+
+    /// Why loop `channel`'s port is down (it is being opened again), or `None` while
+    /// it works.
+    pub fn loop_failure(&self, channel: usize) -> Option<String> {
+        self.shared
+            .failures
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(channel)
+            .cloned()
+            .flatten()
     }
 
     /// The engine's settings.

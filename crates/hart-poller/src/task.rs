@@ -153,6 +153,7 @@ impl LoopTask {
             if !self.line.is_memory() || turns % 64 == 0 {
                 tokio::task::yield_now().await;
             }
+            self.shared.set_failure(self.channel, self.line.failure());
             if let Ok(r) = self.writes.try_recv() {
                 self.carry(r).await;
                 continue;

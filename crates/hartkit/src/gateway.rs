@@ -563,11 +563,8 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                         hart_host::target::AnyTransport::Sim(Box::new(sim)),
                     ))
                 }
-                Source::Target(t) => Line::client(hart_host::Client::new(
-                    hart_host::target::open_async(&t)
-                        .await
-                        .map_err(|e| (e, 2))?,
-                )),
+                // Opened again whenever it fails.
+                Source::Target(t) => Line::open(&t).await.map_err(|e| (e, 5))?,
             };
             specs.push(LoopSpec { settings, line });
         }
@@ -717,6 +714,24 @@ async fn console_view(engine: Engine, json: bool) {
         let now = std::time::Instant::now();
         let mut out = std::io::stdout();
         let image = engine.image().snapshot();
+        // A loop whose port is down says so first.
+        for channel in 0..engine.loop_count() {
+            if let Some(why) = engine.loop_failure(channel) {
+                let name = engine.loop_name(channel).unwrap_or("?");
+                let _ = if json {
+                    writeln!(
+                        out,
+                        "{}",
+                        serde_json::json!({"loop": name, "port_failed": why})
+                    )
+                } else {
+                    writeln!(
+                        out,
+                        "loop {name}: the port is down ({why}); opening it again"
+                    )
+                };
+            }
+        }
         if !json {
             let _ = writeln!(
                 out,
