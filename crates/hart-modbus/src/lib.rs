@@ -144,6 +144,28 @@ impl Gateway {
         request: Request<'static>,
         peer: Peer,
     ) -> Result<Option<Response>, ExceptionCode> {
+        if unit == 0 && peer.link() == Link::Rtu {
+            // An RTU broadcast is never answered: carry its writes out in the
+            // background, so the next frame on the line is read at once rather than
+            // after every device's write.
+            let order = self.config.float_order;
+            let values = match request {
+                Request::WriteSingleRegister(register, word) => {
+                    self.config.map.decode_write(register, &[word], order)
+                }
+                Request::WriteMultipleRegisters(start, words) => {
+                    self.config.map.decode_write(start, &words, order)
+                }
+                _ => return Ok(None),
+            };
+            if let Ok(values) = values {
+                let gw = self.clone();
+                tokio::spawn(async move {
+                    let _ = gw.write_all(None, true, values, &peer).await;
+                });
+            }
+            return Ok(None);
+        }
         let r = self.answer(unit, request, &peer).await;
         match &r {
             Ok(Some(_)) => self.stats.answered.fetch_add(1, Ordering::Relaxed),
@@ -183,19 +205,7 @@ impl Gateway {
                 .unwrap_or(Err(ExceptionCode::GatewayPathUnavailable))
         };
         if broadcast {
-            // RTU broadcast: writes are carried out, nothing is ever answered.
-            let values = match request {
-                Request::WriteSingleRegister(register, word) => {
-                    self.config.map.decode_write(register, &[word], order)
-                }
-                Request::WriteMultipleRegisters(start, words) => {
-                    self.config.map.decode_write(start, &words, order)
-                }
-                _ => return Ok(None),
-            };
-            if let Ok(values) = values {
-                let _ = self.write_all(None, true, values, peer).await;
-            }
+            // Carried out by `call`, in the background; never answered.
             return Ok(None);
         }
         let response = match request {

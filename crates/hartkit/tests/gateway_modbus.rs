@@ -264,6 +264,11 @@ fn pymodbus_rtu_master_on_a_serial_line() {
     assert_eq!(r["quality"], 0, "{r}");
     assert_eq!(r["unknown_unit"], "silent", "{r}");
     assert_eq!(r["damping"], serde_json::json!({"1": 3.0, "2": 3.0}), "{r}");
+    // Broadcast writes do not hold up the next frame (they took 2 s before).
+    assert!(
+        r["after_broadcast_s"].as_f64().is_some_and(|t| t < 1.0),
+        "{r}"
+    );
 }
 
 #[test]
