@@ -636,6 +636,7 @@ impl LoopTask {
             }
         });
         if status & fds::MORE_STATUS_AVAILABLE != 0 {
+            self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 48, &[], POLL_RETRIES).await {
                 self.shared.image.update(position, |d| {
                     d.apply_reply(48, rc, status, &data, Instant::now(), SystemTime::now())
@@ -643,12 +644,14 @@ impl LoopTask {
             }
         }
         if reread {
+            self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 15, &[], POLL_RETRIES).await {
                 self.shared.image.update(position, |d| {
                     d.apply_reply(15, rc, status, &data, Instant::now(), SystemTime::now());
                 });
             }
             if tags {
+                self.carry_writes().await;
                 let mut fresh = info.clone();
                 self.read_tags(&mut fresh).await;
                 self.shared.image.update(position, |d| {
@@ -669,6 +672,16 @@ impl LoopTask {
         }
         self.polled.insert(position, st);
         self.schedule.polled(position, self.now(), true);
+    }
+
+    /// Carries the writes waiting now, between the transactions of a step that takes
+    /// several (a poll that also reads status and configuration takes up to five, 3 s
+    /// on a loop with a burst device): a write waits at most for one transaction, never
+    /// for a whole step, so it is not given up as "busy" after MAX_QUEUE_WAIT.
+    async fn carry_writes(&mut self) {
+        while let Ok(r) = self.writes.try_recv() {
+            self.carry(r).await;
+        }
     }
 
     /// Burst frames heard: to the subscribers (HART-IP), and into the image.
