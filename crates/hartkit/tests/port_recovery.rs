@@ -22,30 +22,6 @@ impl Drop for Killed {
     }
 }
 
-/// socat joining two pseudo-terminals linked at `a` and `b`; `None` without socat.
-fn socat(a: &Path, b: &Path) -> Option<Killed> {
-    if Command::new("socat").arg("-V").output().is_err() {
-        assert!(
-            std::env::var("HARTKIT_REQUIRE_INTEROP").as_deref() != Ok("1"),
-            "socat is not installed although HARTKIT_REQUIRE_INTEROP=1"
-        );
-        return None;
-    }
-    let child = Command::new("socat")
-        .arg(format!("pty,raw,echo=0,link={}", a.display()))
-        .arg(format!("pty,raw,echo=0,link={}", b.display()))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let end = Instant::now() + Duration::from_secs(10);
-    while !(a.exists() && b.exists()) {
-        assert!(Instant::now() < end, "socat made no pseudo-terminals");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Some(Killed(child))
-}
-
 fn device(b: &Path) -> Killed {
     Killed(
         Command::new(env!("CARGO_BIN_EXE_hartkit"))
@@ -77,7 +53,9 @@ fn a_pulled_port_comes_back_by_itself() {
     let dir: PathBuf = std::env::temp_dir().join(format!("hartkit-port-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (a, b) = (dir.join("a"), dir.join("b"));
-    let Some(pair) = socat(&a, &b) else { return };
+    let Some(pair) = hart_testkit::pty_pair_at(&a, &b) else {
+        return;
+    };
     let dev = device(&b);
     let mut gw = Command::new(env!("CARGO_BIN_EXE_hartkit"))
         .args(["serve", "--port"])
@@ -117,7 +95,9 @@ fn a_pulled_port_comes_back_by_itself() {
         "the view shows the loop's port down"
     );
     // Plugged back in at the same place.
-    let Some(_pair) = socat(&a, &b) else { return };
+    let Some(_pair) = hart_testkit::pty_pair_at(&a, &b) else {
+        return;
+    };
     let _dev = device(&b);
     assert!(
         wait_for(&lines, Duration::from_secs(60), good),
