@@ -9,9 +9,10 @@
 //!   from one address (priority addresses are exempt);
 //! * a new connection must complete a request within [`Limits::first_request`], and a
 //!   request whose bytes have started must be whole within [`Limits::request`];
-//! * a full pool evicts its oldest idle connection (one that has no request under way,
-//!   never from a priority address; those that never completed a request first) to
-//!   admit a new one; with none to evict, the new one is refused.
+//! * a full pool evicts a connection to admit a new one: first one that never
+//!   completed a request, then one stuck in a request, then the oldest idle one; never
+//!   a priority address's, never one being answered; with none to evict, the new one
+//!   is refused.
 //!
 //! Every refusal, eviction and time-out is logged with the peer and the reason.
 
@@ -80,6 +81,43 @@ struct Entry {
 pub(crate) struct Pool {
     entries: Mutex<HashMap<u64, Entry>>,
     next: std::sync::atomic::AtomicU64,
+    /// Keeps a flood from flooding the log too.
+    pub(crate) log: LogLimit,
+}
+
+/// Lines about connections logged per second at most; the rest are counted and the
+/// count logged when the next second begins, so a flood of connections cannot fill
+/// the disk with log lines.
+pub const LOG_LINES_PER_SECOND: u32 = 20;
+
+/// A per-second budget of log lines.
+#[derive(Default)]
+pub(crate) struct LogLimit(Mutex<(Option<Instant>, u32, u64)>);
+
+impl LogLimit {
+    /// Whether a line may be logged now; when a second with lines left out ends, says
+    /// how many first.
+    pub(crate) fn allow(&self) -> bool {
+        let now = Instant::now();
+        let mut g = lock(&self.0);
+        let (start, _, left_out) = &mut *g;
+        if start.is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1)) {
+            if *left_out > 0 {
+                tracing::warn!(
+                    "modbus: {left_out} more connection refusals, closings and time-outs in the last second(s), not logged one by one"
+                );
+            }
+            *g = (Some(now), 0, 0);
+        }
+        let (_, lines, left_out) = &mut *g;
+        if *lines < LOG_LINES_PER_SECOND {
+            *lines += 1;
+            true
+        } else {
+            *left_out += 1;
+            false
+        }
+    }
 }
 
 /// Why a connection was not admitted.
@@ -128,33 +166,46 @@ impl Pool {
         }
         let open = entries.values().filter(|e| e.closing.is_none()).count();
         if open >= limits.max_connections {
-            // The oldest connection not in use, never a priority one; one that has
-            // never completed a request goes before one that has (a client that does
-            // work is worth more than a socket that only takes room: a flood of new
-            // connections must not push out a SCADA between two of its polls).
+            // Never a priority connection, nor one whose request is being answered.
+            // First one that has never completed a request, then one stuck in a
+            // request (a Modbus request is a few hundred bytes: on a network it comes
+            // whole in milliseconds), then the oldest idle one: a client that does
+            // work is worth more than a socket that only takes room, so a flood of
+            // new or half-sent connections does not push out a SCADA between two of
+            // its polls.
+            let rank = |p: Phase| match p {
+                Phase::Fresh => Some(0),
+                Phase::Receiving(_) => Some(1),
+                Phase::Idle => Some(2),
+                Phase::Answering => None,
+            };
             let victim = entries
                 .iter()
-                .filter(|(_, e)| {
-                    !e.priority
-                        && e.closing.is_none()
-                        && matches!(e.phase, Phase::Fresh | Phase::Idle)
+                .filter(|(_, e)| !e.priority && e.closing.is_none())
+                .filter_map(|(id, e)| {
+                    let since = match e.phase {
+                        Phase::Receiving(t) => t,
+                        _ => e.last_used,
+                    };
+                    rank(e.phase).map(|r| ((r, since), *id))
                 })
-                .min_by_key(|(_, e)| (e.phase == Phase::Idle, e.last_used))
-                .map(|(id, _)| *id);
+                .min()
+                .map(|(_, id)| id);
             let Some(id) = victim else {
                 return Err(Refused::Full(open));
             };
             if let Some(e) = entries.get_mut(&id) {
-                e.closing =
-                    Some("closed to admit a new connection: the oldest idle one of a full pool");
+                e.closing = Some("closed to admit a new connection: the pool was full");
                 e.close.notify_one();
-                tracing::warn!(
-                    "modbus: closing the connection from {} (idle {:.0} s, open {:.0} s) to admit {peer}: {} connections open (the limit)",
-                    e.peer,
-                    now.saturating_duration_since(e.last_used).as_secs_f64(),
-                    now.saturating_duration_since(e.opened).as_secs_f64(),
-                    limits.max_connections
-                );
+                if self.log.allow() {
+                    tracing::warn!(
+                        "modbus: closing the connection from {} (idle {:.0} s, open {:.0} s) to admit {peer}: {} connections open (the limit)",
+                        e.peer,
+                        now.saturating_duration_since(e.last_used).as_secs_f64(),
+                        now.saturating_duration_since(e.opened).as_secs_f64(),
+                        limits.max_connections
+                    );
+                }
             }
         }
         let id = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -243,14 +294,14 @@ mod tests {
         let (a, a_close) = pool.admit(addr("10.0.0.2:1000"), &limits, at(1)).unwrap();
         let (b, _) = pool.admit(addr("10.0.0.3:1000"), &limits, at(2)).unwrap();
         pool.set_phase(scada, Phase::Idle, at(3));
-        pool.set_phase(b, Phase::Receiving(at(4)), at(4));
+        pool.set_phase(b, Phase::Answering, at(4));
         // Full: a (never used) goes before the SCADA's (idle, and older), which is a
         // priority connection anyway.
         let (c, _) = pool.admit(addr("10.0.0.4:1000"), &limits, at(5)).unwrap();
         assert!(pool.state(a).unwrap().1.is_some(), "a is being closed");
         drop(a_close);
         pool.remove(a);
-        // Full again, and nothing idle but the SCADA's: refused.
+        // Full again, and nothing to close but the SCADA's: refused.
         pool.set_phase(c, Phase::Answering, at(6));
         assert!(matches!(
             pool.admit(addr("10.0.0.5:1000"), &limits, at(7)),
@@ -278,6 +329,27 @@ mod tests {
         let (scan, _) = pool.admit(addr("10.0.0.9:1000"), &limits, at(2)).unwrap();
         pool.admit(addr("10.0.0.9:1001"), &limits, at(3)).unwrap();
         assert!(pool.state(scan).unwrap().1.is_some(), "the unused one goes");
+        assert!(pool.state(scada).unwrap().1.is_none(), "the SCADA's stays");
+    }
+
+    #[test]
+    fn a_connection_stuck_in_a_request_goes_before_an_idle_one() {
+        let limits = Limits {
+            max_connections: 2,
+            ..Limits::default()
+        };
+        let pool = Pool::default();
+        let t0 = Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        let (scada, _) = pool.admit(addr("10.0.0.1:1000"), &limits, at(0)).unwrap();
+        pool.set_phase(scada, Phase::Idle, at(1));
+        let (half, _) = pool.admit(addr("10.0.0.9:1000"), &limits, at(2)).unwrap();
+        pool.set_phase(half, Phase::Receiving(at(2)), at(2));
+        pool.admit(addr("10.0.0.9:1001"), &limits, at(3)).unwrap();
+        assert!(
+            pool.state(half).unwrap().1.is_some(),
+            "the half-sent one goes"
+        );
         assert!(pool.state(scada).unwrap().1.is_none(), "the SCADA's stays");
     }
 

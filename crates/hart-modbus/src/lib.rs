@@ -510,7 +510,9 @@ struct Counted {
 impl Counted {
     /// Closes the connection: an error for tokio-modbus, which then drops it.
     fn closed(&self, why: &str) -> std::task::Poll<std::io::Result<()>> {
-        tracing::warn!("modbus: closed the connection from {}: {why}", self.peer);
+        if self.gateway.pool.log.allow() {
+            tracing::warn!("modbus: closed the connection from {}: {why}", self.peer);
+        }
         std::task::Poll::Ready(Err(std::io::Error::new(
             std::io::ErrorKind::TimedOut,
             why.to_string(),
@@ -710,7 +712,9 @@ pub async fn bind_tcp(
                     Ok(admitted) => admitted,
                     Err(why) => {
                         gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
-                        tracing::warn!("modbus: connection from {peer} refused: {why}");
+                        if gateway.pool.log.allow() {
+                            tracing::warn!("modbus: connection from {peer} refused: {why}");
+                        }
                         return Ok(None);
                     }
                 };
