@@ -105,6 +105,24 @@ pub type RxFrame<'a> = ReceivedFrame<&'a [u8]>;
 #[cfg(feature = "alloc")]
 pub type DecodedFrame = ReceivedFrame<alloc::vec::Vec<u8>>;
 
+#[cfg(feature = "alloc")]
+impl DecodedFrame {
+    /// The same frame with its bytes borrowed, as the demodulator reports it.
+    pub fn as_rx(&self) -> RxFrame<'_> {
+        ReceivedFrame {
+            t: self.t,
+            pdu: &self.pdu,
+            preambles: self.preambles,
+            checksum_ok: self.checksum_ok,
+            parity_errors: self.parity_errors,
+            framing_errors: self.framing_errors,
+            level_vpp: self.level_vpp,
+            rate_error: self.rate_error,
+            tone_error: self.tone_error,
+        }
+    }
+}
+
 impl RxFrame<'_> {
     /// The same frame with its bytes copied.
     #[cfg(feature = "alloc")]
@@ -141,8 +159,30 @@ pub enum DemodEvent<'a> {
     Frame(RxFrame<'a>),
 }
 
-/// Length of the sample ring (prefix sums), a power of two covering 6 bits at 192 kHz.
+/// Samples of history the detector may read back in the running sums (6 bits at
+/// 192 kHz).
 const RING: usize = 1024;
+/// Length of the rings of running sums: the history plus the samples the front end runs
+/// ahead of the detector (at most [`PIECE`]), a power of two.
+const RING_LEN: usize = 2 * RING;
+/// The front end (high-pass, mixers, running sums) runs over pieces of at most this many
+/// samples, aligned on multiples of it, before the carrier detect, the clock recovery and
+/// the detector catch up with the events in the piece: tight loops instead of a check of
+/// every stage at every sample. Divides [`REBASE`].
+const PIECE: usize = 512;
+/// The running sums are rebased and the oscillators re-derived every this many samples.
+const REBASE: u64 = 4096;
+/// The high-pass filter's sums are re-added from scratch every this many samples.
+const HP_READD: usize = 65536;
+/// Samples per epoch of the level and tone-dominance averages (see
+/// [`Demodulator::starting_at`]): 3276 updates at 48 kHz and 819 at 192 kHz, after
+/// which an average started from zero differs from one that has run for ever by less
+/// than 1e-20 of its value.
+const LEVEL_EPOCH: u64 = 16384;
+/// A demodulator started inside a recording ([`Demodulator::starting_at`]) starts at
+/// a multiple of this many samples, so that every periodic reset falls where it falls
+/// for a demodulator started at sample 0.
+pub const START_ALIGN: u64 = HP_READD as u64;
 /// Survivors: the last `STATE_BITS` bits.
 const STATE_BITS: u32 = 3;
 const STATES: usize = 1 << STATE_BITS;
@@ -163,7 +203,6 @@ struct C64 {
 }
 
 impl C64 {
-    const ZERO: C64 = C64 { re: 0.0, im: 0.0 };
     fn new(re: f64, im: f64) -> Self {
         C64 { re, im }
     }
@@ -201,8 +240,29 @@ impl C64 {
     fn norm2(self) -> f64 {
         self.re * self.re + self.im * self.im
     }
-    fn abs(self) -> f64 {
-        libm::sqrt(self.norm2())
+}
+
+/// The running sums of both tones at one sample, lane 0 mark, lane 1 space: the
+/// front end updates both with the same packed operations.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Lanes {
+    re: [f64; 2],
+    im: [f64; 2],
+}
+
+impl Lanes {
+    const ZERO: Lanes = Lanes {
+        re: [0.0; 2],
+        im: [0.0; 2],
+    };
+    fn lane(self, l: usize) -> C64 {
+        C64::new(self.re[l], self.im[l])
+    }
+    fn sub(self, o: Lanes) -> Lanes {
+        Lanes {
+            re: [self.re[0] - o.re[0], self.re[1] - o.re[1]],
+            im: [self.im[0] - o.im[0], self.im[1] - o.im[1]],
+        }
     }
 }
 
@@ -219,12 +279,16 @@ struct LinearHighPass {
     /// Delay of the cascade, samples.
     delay: usize,
     sums: [f64; 3],
-    /// Inputs of each stage (stage 0 holds raw samples, used for the delayed path too).
-    hist: [[f64; HP_RING]; 3],
+    /// Inputs of each stage: the last [`HP_HIST`] before the piece being filtered, then
+    /// the piece (stage 0 holds raw samples, used for the delayed path too).
+    hist: [[f64; HP_HIST + PIECE]; 3],
+    /// Samples filtered.
     n: usize,
 }
 
-const HP_RING: usize = 1024;
+/// Inputs each stage of the high-pass keeps from before the piece: at least the
+/// longest average (161 samples at 192 kHz) and the delay (239 samples).
+const HP_HIST: usize = 256;
 
 impl LinearHighPass {
     fn new(fs: f64) -> Self {
@@ -237,61 +301,112 @@ impl LinearHighPass {
             [m, m + 1, m]
         };
         let delay = (len[0] + len[1] + len[2] - 3) / 2;
+        debug_assert!(delay <= HP_HIST && len.iter().all(|&l| l <= HP_HIST));
         LinearHighPass {
             len,
             inv_len: len.map(|l| 1.0 / l as f64),
             delay,
             sums: [0.0; 3],
-            hist: [[0.0; HP_RING]; 3],
+            hist: [[0.0; HP_HIST + PIECE]; 3],
             n: 0,
         }
     }
 
-    #[inline]
-    fn run(&mut self, x: f64) -> f64 {
-        let i = self.n & (HP_RING - 1);
-        let mut v = x;
-        for st in 0..3 {
-            let old = self.hist[st][(self.n.wrapping_sub(self.len[st])) & (HP_RING - 1)];
-            self.hist[st][i] = v;
-            self.sums[st] += v - old;
-            v = self.sums[st] * self.inv_len[st];
+    /// Filters a piece of at most [`PIECE`] samples (that does not cross a multiple of
+    /// [`HP_READD`]), scaled by `vpu`, and hands each output to `sink` in order.
+    #[inline(always)]
+    fn run_piece(&mut self, piece: &[f32], vpu: f64, mut sink: impl FnMut(f64)) {
+        const H: usize = HP_HIST;
+        let p = piece.len();
+        let [l0, l1, l2] = self.len;
+        let [i0, i1, i2] = self.inv_len;
+        let d = self.delay;
+        assert!(p <= PIECE && l0 <= H && l1 <= H && l2 <= H && d <= H);
+        let (b0, b1, b2, bd) = (H - l0, H - l1, H - l2, H - d);
+        let [mut s0, mut s1, mut s2] = self.sums;
+        let [h0, h1, h2] = &mut self.hist;
+        for (o, &x) in h0[H..H + p].iter_mut().zip(piece) {
+            let x = f64::from(x) * vpu;
+            // Untrusted input: NaN and infinities become silence.
+            *o = if x.is_finite() { x } else { 0.0 };
         }
-        let delayed = self.hist[0][(self.n.wrapping_sub(self.delay)) & (HP_RING - 1)];
-        self.n = self.n.wrapping_add(1);
-        if self.n % 65536 == 0 {
-            // Re-add the windows from scratch so rounding cannot accumulate.
+        let h0 = &h0[..];
+        // Stages 1 and 2 read their inputs `len` samples back while writing the newest:
+        // cells let both views of the one buffer go through the loop together.
+        let h1 = core::cell::Cell::from_mut(&mut h1[..]).as_slice_of_cells();
+        let h2 = core::cell::Cell::from_mut(&mut h2[..]).as_slice_of_cells();
+        let stage0 = h0[H..H + p].iter().zip(&h0[b0..b0 + p]);
+        let stage1 = h1[H..H + p].iter().zip(&h1[b1..b1 + p]);
+        let stage2 = h2[H..H + p].iter().zip(&h2[b2..b2 + p]);
+        let delayed = &h0[bd..bd + p];
+        for ((((&x, &old0), (in1, old1)), (in2, old2)), &d) in
+            stage0.zip(stage1).zip(stage2).zip(delayed)
+        {
+            s0 += x - old0;
+            let v0 = s0 * i0;
+            in1.set(v0);
+            s1 += v0 - old1.get();
+            let v1 = s1 * i1;
+            in2.set(v1);
+            s2 += v1 - old2.get();
+            let v2 = s2 * i2;
+            sink(d - v2);
+        }
+        self.sums = [s0, s1, s2];
+        self.n = self.n.wrapping_add(p);
+        if self.n % HP_READD == 0 {
+            // Re-add the windows from scratch so rounding cannot accumulate (newest
+            // first).
             for st in 0..3 {
-                self.sums[st] = (1..=self.len[st])
-                    .map(|k| self.hist[st][(self.n.wrapping_sub(k)) & (HP_RING - 1)])
-                    .sum();
+                let end = H + p;
+                self.sums[st] = self.hist[st][end - self.len[st]..end].iter().rev().sum();
             }
         }
-        delayed - v
+        // Keep the newest inputs for the next piece.
+        for h in self.hist.iter_mut() {
+            h.copy_within(p..p + H, 0);
+        }
     }
 }
 
-/// A Viterbi survivor.
+/// The Viterbi survivors, one per state, field by field (the trellis step then runs
+/// as loops over the states that the compiler can pack).
 #[derive(Debug, Clone, Copy)]
-struct Survivor {
-    metric: f64,
+struct Survivors {
+    /// Path metric; minus infinity for a state no path reaches.
+    metric: [f64; STATES],
     /// Carrier phase estimate (complex, decision-directed along this path).
-    r: C64,
+    r_re: [f64; STATES],
+    r_im: [f64; STATES],
     /// Undoes the phase turn of this path's bits so far: each space turns the phase
     /// at the next bit start by -60° (2200 Hz over 1/1200 s is 1 5/6 cycles), each
     /// mark by 0°, plus the measured extra turn per bit when the tones and the bit
     /// rate are off by different amounts.
-    rot: C64,
+    rot_re: [f64; STATES],
+    rot_im: [f64; STATES],
     /// Bits of this path, newest in bit 0.
-    hist: u64,
+    hist: [u64; STATES],
 }
 
-const DEAD: Survivor = Survivor {
-    metric: f64::NEG_INFINITY,
-    r: C64::ZERO,
-    rot: C64 { re: 1.0, im: 0.0 },
-    hist: 0,
-};
+impl Survivors {
+    /// No path at all.
+    const DEAD: Survivors = Survivors {
+        metric: [f64::NEG_INFINITY; STATES],
+        r_re: [0.0; STATES],
+        r_im: [0.0; STATES],
+        rot_re: [1.0; STATES],
+        rot_im: [0.0; STATES],
+        hist: [0; STATES],
+    };
+
+    /// One path, in state `i`: metric 0, no phase estimate, all ones so far.
+    fn start(i: usize) -> Self {
+        let mut s = Survivors::DEAD;
+        s.metric[i] = 0.0;
+        s.hist[i] = u64::MAX;
+        s
+    }
+}
 
 /// One detected bit window and its correlations (referred to its start).
 #[derive(Debug, Clone, Copy, Default)]
@@ -325,19 +440,44 @@ pub struct Demodulator {
     lo_s: C64,
     rot_m: C64,
     rot_s: C64,
-    /// Running sums of x·LO for each tone; `pm[i & (RING-1)]` is the sum over samples
-    /// before sample i.
-    pm: [C64; RING],
-    ps: [C64; RING],
-    /// Samples seen.
+    /// Running sums of x·LO for both tones; `sums[i & (RING_LEN-1)]` is the sum over
+    /// samples before sample i (since the last rebase).
+    sums: [Lanes; RING_LEN],
+    /// The detector's clock: the sample count its events are at (between pieces, the
+    /// samples seen, counted from the start of the recording).
     n: u64,
-    block_left: u32,
+    /// Sample count of the next carrier-detect update.
+    next_block: u64,
     // Carrier detect.
+    /// Level of the stronger tone and tone dominance, smoothed over about a bit: each
+    /// an exponential average restarted from zero at the first update of every
+    /// [`LEVEL_EPOCH`] samples, one epoch after a younger twin started: the twin's
+    /// value then takes over. What the average forgets in an epoch is far below a
+    /// rounding error, so this is the plain average for every purpose, yet it depends
+    /// on the last two epochs of signal only: a demodulator started later in a
+    /// recording computes the same value (see [`Demodulator::starting_at`]).
     level: f64,
-    /// Level averaged over about eight bits: a jump above it is a new burst.
-    slow_level: f64,
     contrast: f64,
+    /// The younger twins of `level` and `contrast`.
+    young_level: f64,
+    young_contrast: f64,
+    /// The epoch (sample count / [`LEVEL_EPOCH`]) of the latest update.
+    level_epoch: u64,
+    /// Level averaged over about eight bits: a jump above it is a new burst (reset when
+    /// the carrier comes on, so what it holds while the carrier is off never counts).
+    slow_level: f64,
     carrier: bool,
+    /// The level was below both carrier thresholds at the latest update.
+    was_quiet: bool,
+    /// Sample count from which quiet points are recorded: the demodulator computes the
+    /// level a demodulator started at sample 0 computes for the update before (0 for
+    /// one that did).
+    quiet_from: u64,
+    /// The latest quiet point (see [`Demodulator::quiet_point`]): sample count and
+    /// frames reported before it.
+    quiet: Option<(u64, u64)>,
+    /// Frames reported so far.
+    frames_out: core::cell::Cell<u64>,
     // Clock recovery.
     /// Start of the next bit window not yet detected, in samples (fractional).
     next_bit: f64,
@@ -363,7 +503,7 @@ pub struct Demodulator {
     pairs: u32,
 
     // Detection.
-    surv: [Survivor; STATES],
+    surv: Survivors,
     /// Index of the best survivor (the first with the highest metric).
     best_idx: usize,
     /// Bits detected since the carrier came on.
@@ -773,14 +913,20 @@ impl Demodulator {
             lo_s: C64::new(1.0, 0.0),
             rot_m: C64::expj(-crate::MARK_HZ / fs),
             rot_s: C64::expj(-crate::SPACE_HZ / fs),
-            pm: [C64::ZERO; RING],
-            ps: [C64::ZERO; RING],
+            sums: [Lanes::ZERO; RING_LEN],
             n: 0,
-            block_left: block,
+            next_block: u64::from(block),
             level: 0.0,
-            slow_level: 0.0,
             contrast: 0.0,
+            young_level: 0.0,
+            young_contrast: 0.0,
+            level_epoch: 0,
+            slow_level: 0.0,
             carrier: false,
+            was_quiet: false,
+            quiet_from: 0,
+            quiet: None,
+            frames_out: core::cell::Cell::new(0),
             next_bit: 0.0,
             period: spb,
             side: 0,
@@ -793,7 +939,7 @@ impl Demodulator {
             locked: 0,
             eps: 0.0,
             pairs: 0,
-            surv: [DEAD; STATES],
+            surv: Survivors::DEAD,
             best_idx: 0,
             k: 0,
             bits: [BitRec::default(); BIT_RING],
@@ -804,6 +950,77 @@ impl Demodulator {
             frame_xor: 0,
             deframer: Deframer::default(),
         }
+    }
+
+    /// A demodulator for the samples of a recording from sample `start` on (a
+    /// multiple of [`START_ALIGN`]; others are rounded down, and the first sample
+    /// pushed must be sample [`Self::samples`]), to decode a long recording in pieces
+    /// on several cores with the same result as one demodulator from the start.
+    /// `Demodulator::new(config)` is `starting_at(config, 0)`.
+    ///
+    /// Everything the demodulator computes depends on a bounded stretch of signal
+    /// before it, or is started afresh when the carrier comes on: the high-pass
+    /// filter's sums are re-added every 65536 samples, the running sums rebased and the
+    /// oscillators re-derived every 4096, the level and tone dominance averages
+    /// restarted every [`LEVEL_EPOCH`] (all at multiples of these sample counts); the
+    /// clock, the detector and the deframer start afresh with every burst. So from
+    /// sample [`Self::settled_from`] on this demodulator's level is the one a
+    /// demodulator started at sample 0 has, bit for bit, and after a *quiet point*
+    /// (see [`Self::quiet_point`]) everything it reports is what that one reports.
+    pub fn starting_at(config: DemodConfig, start: u64) -> Self {
+        let start = start - start % START_ALIGN;
+        let mut d = Demodulator::new(config);
+        if start == 0 {
+            return d;
+        }
+        let rate = d.config.sample_rate;
+        d.n = start;
+        d.hp.n = start as usize;
+        d.lo_m = lo_at(crate::MARK_HZ as u64, start, rate);
+        d.lo_s = lo_at(crate::SPACE_HZ as u64, start, rate);
+        let block = u64::from(d.block);
+        d.next_block = (start / block + 1) * block;
+        d.level_epoch = start / LEVEL_EPOCH;
+        d.quiet_from = Self::quiet_from(&config, start);
+        d
+    }
+
+    /// The sample count from which a demodulator [started](Self::starting_at) at
+    /// sample `start` computes the level of one started at sample 0, for the update at
+    /// that sample count and the one before, and so records the same quiet points:
+    /// the high-pass filter's output is exact after three re-adds of its cascade
+    /// (196608 samples), the running sums a ring's length later, the level two epochs
+    /// after that (229376 samples in all), plus one carrier-detect update.
+    pub fn quiet_from(config: &DemodConfig, start: u64) -> u64 {
+        let start = start - start % START_ALIGN;
+        if start == 0 {
+            return 0;
+        }
+        let fs = f64::from(config.sample_rate.clamp(8000, 192_000));
+        let block = ((fs / 9600.0) as u64).max(1);
+        start + 3 * HP_READD as u64 + 2 * LEVEL_EPOCH + block
+    }
+
+    /// Samples pushed so far, counted from the start of the recording (for a
+    /// demodulator [started](Self::starting_at) inside one, from there).
+    pub fn samples(&self) -> u64 {
+        self.n
+    }
+
+    /// Frames reported so far.
+    pub fn frames_reported(&self) -> u64 {
+        self.frames_out.get()
+    }
+
+    /// The latest quiet point: the sample count of a carrier-detect update at which
+    /// the level had been below both carrier thresholds for two updates in a row (from
+    /// [`Self::quiet_from`] on), and the number of frames reported before it. At a quiet point the carrier is off and nothing is being received, and
+    /// every part of the state that decides what is reported later (the filters and
+    /// sums, the level, the deframer's hunt) is what any other settled demodulator
+    /// fed the same recording has: two such demodulators report the same frames,
+    /// bit for bit, after a quiet point both have seen.
+    pub fn quiet_point(&self) -> Option<(u64, u64)> {
+        self.quiet
     }
 
     /// The settings.
@@ -834,34 +1051,79 @@ impl Demodulator {
 
     /// Feeds samples; events are reported as they are found.
     pub fn push(&mut self, samples: &[f32], mut on_event: impl FnMut(DemodEvent<'_>)) {
-        let vpu = self.config.volts_per_unit;
-        for &x in samples {
-            let x = f64::from(x) * vpu;
-            // Untrusted input: NaN and infinities become silence.
-            let x = if x.is_finite() { x } else { 0.0 };
-            let y = self.hp.run(x);
-            let i = (self.n as usize) & (RING - 1);
-            let j = (self.n as usize + 1) & (RING - 1);
-            self.pm[j] = self.pm[i].add(self.lo_m.scale(y));
-            self.ps[j] = self.ps[i].add(self.lo_s.scale(y));
-            self.n += 1;
-            self.lo_m = self.lo_m.mul(self.rot_m);
-            self.lo_s = self.lo_s.mul(self.rot_s);
-            if self.n % 4096 == 0 {
+        let mut rest = samples;
+        while !rest.is_empty() {
+            // A piece up to the next multiple of PIECE: the front end over all of it,
+            // then the events in it, each at its own sample count as if the samples had
+            // come one by one.
+            let room = PIECE - (self.n % PIECE as u64) as usize;
+            let (piece, tail) = rest.split_at(room.min(rest.len()));
+            rest = tail;
+            self.front_end(piece);
+            let end = self.n + piece.len() as u64;
+            if end % REBASE == 0 {
+                self.run_events(end - 1, &mut on_event);
+                self.n = end;
                 // Re-derive the oscillators from the sample count so rounding cannot
-                // accumulate.
-                self.lo_m = lo_at(crate::MARK_HZ as u64, self.n, self.config.sample_rate);
-                self.lo_s = lo_at(crate::SPACE_HZ as u64, self.n, self.config.sample_rate);
+                // accumulate, and keep the running sums small.
+                self.lo_m = lo_at(crate::MARK_HZ as u64, end, self.config.sample_rate);
+                self.lo_s = lo_at(crate::SPACE_HZ as u64, end, self.config.sample_rate);
                 self.rebase();
             }
-            self.block_left -= 1;
-            if self.block_left == 0 {
-                self.block_left = self.block;
-                self.on_block(&mut on_event);
+            self.run_events(end, &mut on_event);
+            self.n = end;
+        }
+    }
+
+    /// The front end over a piece (within one multiple of [`PIECE`]) starting at sample
+    /// `self.n`: high-pass, mixers, running sums. Writes the sums up to sample
+    /// `self.n + piece.len()`; `self.n` is left for the detector's clock.
+    fn front_end(&mut self, piece: &[f32]) {
+        const M: usize = RING_LEN - 1;
+        let mut i = self.n as usize;
+        let last = self.sums[i & M];
+        let (mut am, mut as_) = (last.lane(0), last.lane(1));
+        let (mut lm, mut ls) = (self.lo_m, self.lo_s);
+        let (rm, rs) = (self.rot_m, self.rot_s);
+        let sums = &mut self.sums;
+        self.hp.run_piece(piece, self.config.volts_per_unit, |v| {
+            am = am.add(lm.scale(v));
+            as_ = as_.add(ls.scale(v));
+            i = i.wrapping_add(1);
+            sums[i & M] = Lanes {
+                re: [am.re, as_.re],
+                im: [am.im, as_.im],
+            };
+            lm = lm.mul(rm);
+            ls = ls.mul(rs);
+        });
+        self.lo_m = lm;
+        self.lo_s = ls;
+    }
+
+    /// The carrier detect, clock recovery and detection events up to sample count
+    /// `upto`, in order, each with the detector's clock at its sample count: the
+    /// carrier-detect update every `block` samples, then the bits that are due.
+    fn run_events(&mut self, upto: u64, on_event: &mut impl FnMut(DemodEvent<'_>)) {
+        loop {
+            let bit_due = if self.carrier {
+                // The first sample count n with n >= next_bit + period + 1.
+                ceil_count(self.next_bit + self.period + 1.0)
+            } else {
+                u64::MAX
+            };
+            let at = self.next_block.min(bit_due).max(self.n);
+            if at > upto {
+                return;
+            }
+            self.n = at;
+            if at == self.next_block {
+                self.next_block += u64::from(self.block);
+                self.on_block(on_event);
             }
             if self.carrier {
-                while self.n as f64 >= self.next_bit + self.period + 1.0 {
-                    self.detect_bit(&mut on_event);
+                while self.now() >= self.next_bit + self.period + 1.0 {
+                    self.detect_bit(on_event);
                 }
             }
         }
@@ -876,35 +1138,62 @@ impl Demodulator {
 
     /// Keeps the running sums small: subtract the newest value from the whole ring
     /// (differences are unchanged).
+    /// Only the last [`RING`] sums are ever read again.
     fn rebase(&mut self) {
-        let i = (self.n as usize) & (RING - 1);
-        let (bm, bs) = (self.pm[i], self.ps[i]);
-        for v in self.pm.iter_mut() {
-            *v = v.sub(bm);
-        }
-        for v in self.ps.iter_mut() {
-            *v = v.sub(bs);
+        const M: usize = RING_LEN - 1;
+        let n = self.n as usize;
+        let base = self.sums[n & M];
+        for k in 0..RING {
+            let i = n.wrapping_sub(k) & M;
+            self.sums[i] = self.sums[i].sub(base);
         }
     }
 
     /// Running sum at a fractional sample position (linear between samples). The
     /// position must lie within the ring.
-    fn prefix(ring: &[C64; RING], t: f64) -> C64 {
-        let i = floor_fast(t);
-        let f = t - i;
-        let i = i as usize;
-        let a = ring[i & (RING - 1)];
-        let b = ring[(i + 1) & (RING - 1)];
+    #[inline]
+    fn prefix(&self, t: f64) -> Lanes {
+        let (i, fl) = floor_parts(t);
+        let f = t - fl;
+        let a = self.sums[i & (RING_LEN - 1)];
+        if f == 0.0 {
+            // What the line below gives for f = 0 (the sums are finite and never -0).
+            return a;
+        }
+        let b = self.sums[(i + 1) & (RING_LEN - 1)];
+        let mut out = a;
+        for l in 0..2 {
+            out.re[l] = a.re[l] + (b.re[l] - a.re[l]) * f;
+            out.im[l] = a.im[l] + (b.im[l] - a.im[l]) * f;
+        }
+        out
+    }
+
+    /// [`Self::prefix`] for one tone (lane 0 mark, 1 space).
+    #[inline]
+    fn prefix_lane(&self, t: f64, l: usize) -> C64 {
+        let (i, fl) = floor_parts(t);
+        let f = t - fl;
+        let a = self.sums[i & (RING_LEN - 1)].lane(l);
+        if f == 0.0 {
+            return a;
+        }
+        let b = self.sums[(i + 1) & (RING_LEN - 1)].lane(l);
         a.add(b.sub(a).scale(f))
     }
 
     /// Correlations with both tones over [a, b) (samples), global oscillator phase.
     #[inline]
     fn corr(&self, a: f64, b: f64) -> (C64, C64) {
-        (
-            Self::prefix(&self.pm, b).sub(Self::prefix(&self.pm, a)),
-            Self::prefix(&self.ps, b).sub(Self::prefix(&self.ps, a)),
-        )
+        let d = self.prefix(b).sub(self.prefix(a));
+        (d.lane(0), d.lane(1))
+    }
+
+    /// The detector's clock as a float (a signed conversion: cheaper than an unsigned
+    /// one, and the same value below 2^53).
+    #[inline]
+    fn now(&self) -> f64 {
+        self.n as i64 as f64
     }
 
     fn t_of(&self, samples: f64) -> f64 {
@@ -912,7 +1201,7 @@ impl Demodulator {
     }
 
     fn on_block(&mut self, on_event: &mut impl FnMut(DemodEvent<'_>)) {
-        let now = self.n as f64;
+        let now = self.now();
         if now < self.spb + 2.0 {
             return;
         }
@@ -926,9 +1215,27 @@ impl Demodulator {
         } else {
             0.0
         };
+        let epoch = self.n / LEVEL_EPOCH;
+        if epoch != self.level_epoch {
+            self.level_epoch = epoch;
+            self.level = self.young_level;
+            self.contrast = self.young_contrast;
+            self.young_level = 0.0;
+            self.young_contrast = 0.0;
+        }
         let alpha = f64::from(self.block) / self.spb;
         self.level += alpha * (vpp - self.level);
         self.contrast += alpha / 2.0 * (libm::fabs(v) - self.contrast);
+        self.young_level += alpha * (vpp - self.young_level);
+        self.young_contrast += alpha / 2.0 * (libm::fabs(v) - self.young_contrast);
+        let quiet =
+            self.level < self.config.carrier_off_vpp && self.level < self.config.carrier_on_vpp;
+        if quiet && self.was_quiet && self.n >= self.quiet_from && !self.carrier {
+            // Two updates in a row below both thresholds: the first switched the
+            // carrier off if it was on, so nothing is being received now.
+            self.quiet = Some((self.n, self.frames_out.get()));
+        }
+        self.was_quiet = quiet;
         if !self.carrier {
             if self.level >= self.config.carrier_on_vpp && self.contrast >= CONTRAST_ON {
                 self.carrier_on(now, on_event);
@@ -1022,14 +1329,8 @@ impl Demodulator {
         // carrier detect needs about two bits to rise, and the first preamble
         // character must not be lost.
         self.next_bit = (now - 4.0 * self.spb).max(0.0);
-        self.surv = [DEAD; STATES];
+        self.surv = Survivors::start(STATES - 1);
         self.best_idx = STATES - 1;
-        self.surv[STATES - 1] = Survivor {
-            metric: 0.0,
-            r: C64::ZERO,
-            rot: C64::new(1.0, 0.0),
-            hist: u64::MAX,
-        };
         self.k = 0;
         self.pos = 0;
         self.char_start = None;
@@ -1046,6 +1347,7 @@ impl Demodulator {
         let mut forward = |ev: DeframerEvent<'_>, this: &FrameCtx<'_>| this.forward(ev, on_event);
         let ctx = FrameCtx {
             chars: &self.chars,
+            frames_out: &self.frames_out,
             char_n: self.char_n,
             rate_error: self.spb / self.period - 1.0,
             tone_error: self.eps,
@@ -1054,7 +1356,7 @@ impl Demodulator {
         self.carrier = false;
         on_event(DemodEvent::Carrier {
             on: false,
-            t: self.t_of(self.n as f64),
+            t: self.t_of(self.now()),
             level_vpp: self.level,
         });
     }
@@ -1077,13 +1379,13 @@ impl Demodulator {
     /// [`Self::bit_corr`] for one tone (mark when `mark`).
     #[inline]
     fn tone_corr(&self, a: f64, len: f64, mark: bool) -> C64 {
-        let (ring, f) = if mark {
-            (&self.pm, crate::MARK_HZ as u64)
+        let (l, f) = if mark {
+            (0, crate::MARK_HZ as u64)
         } else {
-            (&self.ps, crate::SPACE_HZ as u64)
+            (1, crate::SPACE_HZ as u64)
         };
-        Self::prefix(ring, a + len)
-            .sub(Self::prefix(ring, a))
+        self.prefix_lane(a + len, l)
+            .sub(self.prefix_lane(a, l))
             .mul(lo_frac(f, a, self.config.sample_rate))
             .scale(2.0 / len)
     }
@@ -1139,7 +1441,7 @@ impl Demodulator {
             // noise falls with the windows' lengths (by 0.7 when both sides have two
             // bits; by 0.8 across a preamble's start bit, one bit against several).
             let g = self.grid_origin + (j as i64 - self.grid_j) as f64 * self.period;
-            let oldest = self.n as f64 - (RING - 2) as f64;
+            let oldest = self.now() - (RING - 2) as f64;
             let mut lp = 1;
             while lp < STEP_BITS
                 && j > lp
@@ -1152,7 +1454,7 @@ impl Demodulator {
             while lc < STEP_BITS
                 && j + lc < self.k
                 && self.bit_at(j + lc) == cur
-                && g + (lc + 1) as f64 * self.period <= self.n as f64
+                && g + (lc + 1) as f64 * self.period <= self.now()
             {
                 lc += 1;
             }
@@ -1160,7 +1462,7 @@ impl Demodulator {
                 || libm::fabs(bc.start - bp.start - self.period) > REMEASURE * self.period;
             if (moved || lp > 1 || lc > 1)
                 && g - lp as f64 * self.period > oldest
-                && g + lc as f64 * self.period <= self.n as f64
+                && g + lc as f64 * self.period <= self.now()
             {
                 let (lpf, lcf) = (lp as f64 * self.period, lc as f64 * self.period);
                 // Only the tone each side holds is needed.
@@ -1230,69 +1532,92 @@ impl Demodulator {
         ];
         // Per predecessor (each feeds two branches): the path's rotation brought up to
         // this bit's start (the previous bit's tone ran across the spacing), its
-        // forgotten reference λR and the λ|R| its metric gives back.
-        let mut pre = [(C64::ZERO, C64::ZERO, 0.0); STATES];
-        for (p, s) in pre.iter_mut().zip(&self.surv) {
-            if s.metric != f64::NEG_INFINITY {
-                *p = (
-                    s.rot.mul(step[(s.hist & 1) as usize]),
-                    s.r.scale(lambda),
-                    lambda * s.r.abs(),
-                );
+        // forgotten reference λR and the λ|R| its metric gives back. A state no path
+        // reaches has metric minus infinity, and so have its branches.
+        let sv = &self.surv;
+        let mut p_re = [0.0; STATES];
+        let mut p_im = [0.0; STATES];
+        let mut lr_re = [0.0; STATES];
+        let mut lr_im = [0.0; STATES];
+        let mut lr_abs = [0.0; STATES];
+        for p in 0..STATES {
+            let st = step[(sv.hist[p] & 1) as usize];
+            p_re[p] = sv.rot_re[p] * st.re - sv.rot_im[p] * st.im;
+            p_im[p] = sv.rot_re[p] * st.im + sv.rot_im[p] * st.re;
+            lr_re[p] = sv.r_re[p] * lambda;
+            lr_im[p] = sv.r_im[p] * lambda;
+            lr_abs[p] = lambda * libm::sqrt(sv.r_re[p] * sv.r_re[p] + sv.r_im[p] * sv.r_im[p]);
+        }
+        // Every branch: from predecessor p with bit b (0: space, 1: mark), the
+        // correlation turned by the path's rotation, added to its reference.
+        let mut rr_re = [[0.0; STATES]; 2];
+        let mut rr_im = [[0.0; STATES]; 2];
+        let mut m = [[0.0; STATES]; 2];
+        for (b, y0) in [ys, ym].into_iter().enumerate() {
+            for p in 0..STATES {
+                let re = lr_re[p] + (y0.re * p_re[p] - y0.im * p_im[p]);
+                let im = lr_im[p] + (y0.re * p_im[p] + y0.im * p_re[p]);
+                rr_re[b][p] = re;
+                rr_im[b][p] = im;
+                m[b][p] = sv.metric[p] + libm::sqrt(re * re + im * im) - lr_abs[p];
             }
         }
-        let mut next = [DEAD; STATES];
-        for (ns, slot) in next.iter_mut().enumerate() {
-            let bit = ns & 1 == 1;
-            let y0 = if bit { ym } else { ys };
-            for old in [0usize, 1] {
-                let ps = (ns >> 1) | (old << (STATE_BITS - 1));
-                let s = &self.surv[ps];
-                if s.metric == f64::NEG_INFINITY {
-                    continue;
-                }
-                let (rot, lr, lr_abs) = pre[ps];
-                let y = y0.mul(rot);
-                let rr = lr.add(y);
-                let m = s.metric + rr.abs() - lr_abs;
-                if m > slot.metric {
-                    *slot = Survivor {
-                        metric: m,
-                        r: rr,
-                        rot,
-                        hist: s.hist << 1 | u64::from(bit),
-                    };
-                }
-            }
+        // State ns is reached from ns >> 1 (oldest bit 0) and ns >> 1 | 4 (oldest bit
+        // 1) with bit ns & 1; the first wins ties, and a state neither reaches stays
+        // dead.
+        let mut next = Survivors::DEAD;
+        for ns in 0..STATES {
+            let b = ns & 1;
+            let p0 = ns >> 1;
+            let p1 = p0 | (1 << (STATE_BITS - 1));
+            let take0 = m[b][p0] > f64::NEG_INFINITY;
+            let to_beat = if take0 { m[b][p0] } else { f64::NEG_INFINITY };
+            let p = if m[b][p1] > to_beat {
+                p1
+            } else if take0 {
+                p0
+            } else {
+                continue;
+            };
+            next.metric[ns] = m[b][p];
+            next.r_re[ns] = rr_re[b][p];
+            next.r_im[ns] = rr_im[b][p];
+            next.rot_re[ns] = p_re[p];
+            next.rot_im[ns] = p_im[p];
+            next.hist[ns] = sv.hist[p] << 1 | b as u64;
         }
         // Keep the rotations on the unit circle and the metrics small.
         if self.k % 64 == 0 {
-            for s in next.iter_mut() {
-                let a = s.rot.abs();
+            for ns in 0..STATES {
+                let (re, im) = (next.rot_re[ns], next.rot_im[ns]);
+                let a = libm::sqrt(re * re + im * im);
                 if a > 0.0 {
-                    s.rot = s.rot.scale(1.0 / a);
+                    let k = 1.0 / a;
+                    next.rot_re[ns] = re * k;
+                    next.rot_im[ns] = im * k;
                 }
             }
         }
         let best = next
+            .metric
             .iter()
-            .map(|s| s.metric)
+            .copied()
             .fold(f64::NEG_INFINITY, f64::max);
-        self.best_idx = next.iter().position(|s| s.metric == best).unwrap_or(0);
-        for s in next.iter_mut() {
-            s.metric -= best;
+        self.best_idx = next.metric.iter().position(|&m| m == best).unwrap_or(0);
+        for m in next.metric.iter_mut() {
+            *m -= best;
         }
         self.surv = next;
     }
 
-    fn best(&self) -> &Survivor {
-        &self.surv[self.best_idx]
+    fn best_hist(&self) -> u64 {
+        self.surv.hist[self.best_idx]
     }
 
     /// Bit `idx` (counted since the carrier came on) on the best path.
     fn bit_at(&self, idx: usize) -> bool {
         let age = self.k - 1 - idx;
-        age >= 64 || self.best().hist >> age & 1 == 1
+        age >= 64 || self.best_hist() >> age & 1 == 1
     }
 
     /// True when the best path holds a 0xFF character (0 then ten 1s) from bit `p`.
@@ -1396,6 +1721,7 @@ impl Demodulator {
         self.char_n += 1;
         let ctx = FrameCtx {
             chars: &self.chars,
+            frames_out: &self.frames_out,
             char_n: self.char_n,
             rate_error: self.spb / self.period - 1.0,
             tone_error: self.eps,
@@ -1431,6 +1757,29 @@ fn floor_fast(x: f64) -> f64 {
     }
 }
 
+/// The smallest sample count `n` with `n as f64 >= t` (0 for negative `t`).
+#[inline]
+fn ceil_count(t: f64) -> u64 {
+    if t <= 0.0 {
+        return 0;
+    }
+    let (i, f) = floor_parts(t);
+    (if f < t { i + 1 } else { i }) as u64
+}
+
+/// `floor_fast(x)` as an index and as a float (x >= 0, as sample positions are): one
+/// conversion each way instead of two.
+#[inline]
+fn floor_parts(x: f64) -> (usize, f64) {
+    let i = x as i64;
+    let f = i as f64;
+    if f > x {
+        ((i - 1) as usize, f - 1.0)
+    } else {
+        (i as usize, f)
+    }
+}
+
 /// Nearest integer, halves rounded up (the callers do not care which way).
 #[inline]
 fn round_fast(x: f64) -> f64 {
@@ -1450,6 +1799,8 @@ fn lo_frac(f: u64, t: f64, fs: u32) -> C64 {
 /// What the deframer's events need to become frame events.
 struct FrameCtx<'c> {
     chars: &'c [CharRec; CHAR_RING],
+    /// Frames reported, counted.
+    frames_out: &'c core::cell::Cell<u64>,
     char_n: usize,
     rate_error: f64,
     tone_error: f64,
@@ -1490,6 +1841,7 @@ impl FrameCtx<'_> {
             }
             None => (0.0, 0, 0, 0.0),
         };
+        self.frames_out.set(self.frames_out.get() + 1);
         on_event(DemodEvent::Frame(RxFrame {
             t,
             pdu,

@@ -721,6 +721,42 @@ pub fn samples_of(
     })
 }
 
+/// [`samples_of`] appended to `out`: the same samples, with one loop per format instead
+/// of a dispatch per sample (several times faster for long files read in blocks).
+pub fn extend_samples(
+    format: SampleFormat,
+    channels: u16,
+    channel: u16,
+    data: &[u8],
+    out: &mut alloc::vec::Vec<f32>,
+) -> Result<(), WavError> {
+    if channel >= channels {
+        return Err(WavError::NoSuchChannel { channel, channels });
+    }
+    let width = format.bytes();
+    let frame = (usize::from(channels) * width).max(1);
+    let offset = usize::from(channel) * width;
+    let frames = data.chunks_exact(frame);
+    out.reserve(frames.len());
+    // Each arm is `decode` for one format.
+    match format {
+        SampleFormat::I16 if frame == 2 => out.extend(
+            data.chunks_exact(2)
+                .map(|b| f32::from(i16::from_le_bytes([b[0], b[1]])) / 32768.0),
+        ),
+        SampleFormat::I16 => out.extend(
+            frames.map(|f| f32::from(i16::from_le_bytes([f[offset], f[offset + 1]])) / 32768.0),
+        ),
+        SampleFormat::F32 => {
+            out.extend(frames.map(|f| {
+                f32::from_le_bytes([f[offset], f[offset + 1], f[offset + 2], f[offset + 3]])
+            }))
+        }
+        _ => out.extend(frames.map(|f| decode(format, &f[offset..]))),
+    }
+    Ok(())
+}
+
 /// Iterator over one channel of a [`Wav`], from [`Wav::samples`] or [`samples_of`].
 #[derive(Debug, Clone)]
 pub struct Samples<'a> {

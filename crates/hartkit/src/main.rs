@@ -355,6 +355,13 @@ enum ModemCmd {
         /// Write 32-bit float samples instead of 16-bit PCM.
         #[arg(long)]
         float: bool,
+        /// Add white noise over the whole recording, silence included: signal-to-noise
+        /// ratio in dB against a sine of --amplitude-mvpp (as `modem channel --snr-db`).
+        #[arg(long, allow_negative_numbers = true, value_name = "DB")]
+        snr_db: Option<f64>,
+        /// Seed of the noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
         /// Read frames from FILE, one hex frame per line.
         #[arg(long = "in", value_name = "FILE")]
         input: Option<std::path::PathBuf>,
@@ -394,6 +401,14 @@ enum ModemCmd {
         /// error.
         #[arg(long)]
         live: bool,
+        /// Decode a long file on N cores (default: all of them); the output is the same
+        /// as on one. Standard input, the live view and files under a minute or so
+        /// decode on one.
+        #[arg(long, value_name = "N")]
+        jobs: Option<usize>,
+        /// Samples per piece decoded on its own with --jobs (tests).
+        #[arg(long, hide = true)]
+        chunk_samples: Option<u64>,
     },
     /// Measure the demodulator: frame error rate against Eb/N0 and impairments, speed;
     /// writes the report.
@@ -1189,6 +1204,8 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             gap_ms,
             volts_per_fs,
             float,
+            snr_db,
+            seed,
             input,
             frames,
         } => {
@@ -1203,6 +1220,8 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
                     gap_ms: *gap_ms,
                     volts_per_fs: *volts_per_fs,
                     float: *float,
+                    snr_db: *snr_db,
+                    seed: *seed,
                 },
             )
         }
@@ -1241,6 +1260,8 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             sound_card,
             list_sound_cards,
             live,
+            jobs,
+            chunk_samples,
         } => {
             if *list_sound_cards {
                 return Ok(hartkit::sound::list()?.join("\n"));
@@ -1278,14 +1299,18 @@ fn modem(cmd: &ModemCmd) -> Result<String, String> {
             } else {
                 Box::new(std::io::stdout().lock())
             };
-            let n = modem::rx(
-                &input,
-                *volts_per_fs,
-                *json,
-                &mut out,
-                capture.as_mut(),
-                *live,
-            )?;
+            if *jobs == Some(0) {
+                return Err("--jobs: give 1 or more".into());
+            }
+            let options = modem::RxOptions {
+                volts_per_fs: *volts_per_fs,
+                json: *json,
+                live: *live,
+                jobs: jobs
+                    .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+                chunk_samples: *chunk_samples,
+            };
+            let n = modem::rx(&input, &options, &mut out, capture.as_mut())?;
             if !*json {
                 eprintln!("{n} frame(s)");
             }

@@ -3,7 +3,7 @@
 
 use std::io::{Read, Write};
 
-use hart_modem::demod::{DemodConfig, DemodEvent, Demodulator, RxFrame};
+use hart_modem::demod::{DecodedFrame, DemodConfig, DemodEvent, Demodulator, RxFrame, START_ALIGN};
 use hart_modem::modulator::{Modulator, ModulatorConfig};
 use hart_modem::wav::{self, Wav, WriteFormat};
 use hart_proto::frame::Frame;
@@ -31,6 +31,11 @@ pub struct TxOptions {
     pub volts_per_fs: f64,
     /// Write 32-bit float samples instead of 16-bit PCM.
     pub float: bool,
+    /// White noise over the whole recording (silence included), this many dB below a
+    /// sine of the signal's level (`None`: none), as `modem channel --snr-db`.
+    pub snr_db: Option<f64>,
+    /// Seed of the noise.
+    pub seed: u64,
 }
 
 /// Checks a sample rate against [`RATES`].
@@ -111,6 +116,16 @@ pub fn tx(frames: &[Vec<u8>], o: &TxOptions) -> Result<String, String> {
         m.frame(o.preambles, f, &mut push);
     }
     m.silence(gap, &mut push);
+    if let Some(snr) = o.snr_db {
+        if !snr.is_finite() {
+            return Err(format!("--snr-db {snr}: give a number of dB"));
+        }
+        let sigma =
+            hart_modem::channel::StreamChannel::sigma_for_snr(o.amplitude_mvpp / 1000.0, snr)
+                / o.volts_per_fs;
+        let mut rng = hart_modem::channel::Rng::new(o.seed);
+        hart_modem::channel::add_white_noise(&mut samples, sigma, &mut rng);
+    }
     let peak = samples.iter().fold(0f32, |a, s| a.max(s.abs()));
     if peak > 1.0 && !o.float {
         return Err(format!(
@@ -318,19 +333,55 @@ pub fn frame_text(f: &RxFrame<'_>) -> String {
     out
 }
 
+/// Settings of `hartkit modem rx`.
+#[derive(Debug, Clone)]
+pub struct RxOptions {
+    /// Volts represented by a full-scale sample.
+    pub volts_per_fs: f64,
+    /// One JSON object per line and frame instead of the listing.
+    pub json: bool,
+    /// The live status line on standard error (decodes on one core).
+    pub live: bool,
+    /// Cores a long file is decoded on; the output is the same whatever the number.
+    pub jobs: usize,
+    /// Samples per piece of a file decoded on its own (`None`: the file split evenly
+    /// between the jobs, pieces of 2^21 to 2^25 samples); for tests.
+    pub chunk_samples: Option<u64>,
+}
+
+impl RxOptions {
+    /// Defaults: 1 V full scale, the listing, one core.
+    pub fn new() -> Self {
+        RxOptions {
+            volts_per_fs: 1.0,
+            json: false,
+            live: false,
+            jobs: 1,
+            chunk_samples: None,
+        }
+    }
+}
+
+impl Default for RxOptions {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// `hartkit modem rx`: decodes every frame and prints each as soon as it is found
 /// (one JSON object per line with `json`). Returns the number of frames.
 ///
 /// With `live`, a status line on standard error shows the carrier, the level and the
-/// frames as they come.
+/// frames as they come. A long file (WAV, or raw samples in a file) is decoded on
+/// `jobs` cores, in pieces (see [`decode_file`]), with the same output.
 pub fn rx(
     input: &RxInput,
-    volts_per_fs: f64,
-    as_json: bool,
+    o: &RxOptions,
     out: &mut dyn std::io::Write,
     mut capture: Option<&mut crate::host::Capture>,
-    live: bool,
 ) -> Result<usize, String> {
+    let (volts_per_fs, as_json, live) = (o.volts_per_fs, o.json, o.live);
+    let jobs = if live { 1 } else { o.jobs.max(1) };
     let view = std::cell::RefCell::new(live.then(LiveView::new));
     let mut count = 0usize;
     let error: std::cell::RefCell<Option<std::io::Error>> = std::cell::RefCell::new(None);
@@ -384,18 +435,29 @@ pub fn rx(
     };
     match input {
         RxInput::Wav(path) => {
-            let mut d = None;
-            let mut seen = 0u64;
-            read_wav_blocks(path, |rate, samples| {
-                let d = d.get_or_insert_with(|| Demodulator::new(config(rate, volts_per_fs)));
-                d.push(samples, &mut emit);
-                seen += samples.len() as u64;
-                tick(d, seen);
-                error.borrow().is_none()
-            })?;
-            if let Some(mut d) = d {
-                d.finish(&mut emit);
-            }
+            let file = SampleFile::wav(path)?;
+            decode_file(
+                &file,
+                config(file.rate, volts_per_fs),
+                jobs,
+                o.chunk_samples,
+                &mut emit,
+                &tick,
+                &|| error.borrow().is_some(),
+            )?;
+        }
+        RxInput::RawS16le { path, rate } if jobs > 1 && path.as_os_str() != "-" => {
+            check_rate(*rate)?;
+            let file = SampleFile::raw_s16le(path, *rate)?;
+            decode_file(
+                &file,
+                config(*rate, volts_per_fs),
+                jobs,
+                o.chunk_samples,
+                &mut emit,
+                &tick,
+                &|| error.borrow().is_some(),
+            )?;
         }
         RxInput::RawS16le { path, rate } => {
             check_rate(*rate)?;
@@ -633,74 +695,315 @@ pub fn channel(o: &ChannelOptions) -> Result<String, String> {
 /// file's length.
 pub const WAV_BLOCK: usize = 1 << 20;
 
-/// Reads the first channel of the WAV file at `path` in blocks of [`WAV_BLOCK`] and
-/// hands each block's samples to `push` with the sample rate, until the data ends or
-/// `push` returns `false`. Notes on standard error: more than one channel, a file cut
-/// short (what is there is decoded).
-pub fn read_wav_blocks(
-    path: &std::path::Path,
-    mut push: impl FnMut(u32, &[f32]) -> bool,
-) -> Result<(), String> {
-    use std::io::{Seek, SeekFrom};
-    let name = path.display();
-    let mut file = std::fs::File::open(path).map_err(|e| format!("cannot read {name}: {e}"))?;
-    let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
-    // The header: parse a prefix, larger until the data chunk begins in it.
-    let mut prefix = Vec::new();
-    let header = loop {
-        let want = (prefix.len() * 2).max(65_536);
-        let mut more = vec![0u8; want - prefix.len()];
-        let n = read_full(&mut file, &mut more).map_err(|e| format!("cannot read {name}: {e}"))?;
-        prefix.extend_from_slice(&more[..n]);
-        let eof = n < more.len();
-        match Wav::parse(&prefix) {
-            Ok(w) => {
-                let offset = w.data().as_ptr() as usize - prefix.as_ptr() as usize;
-                break (
-                    w.format(),
-                    w.channels(),
-                    w.sample_rate(),
-                    offset as u64,
-                    w.declared_data_len(),
-                );
+/// The samples of a file: where they are and how they are stored.
+#[derive(Debug, Clone)]
+pub struct SampleFile {
+    path: std::path::PathBuf,
+    format: wav::SampleFormat,
+    channels: u16,
+    /// Sample rate, Hz.
+    pub rate: u32,
+    /// Where the samples begin, bytes.
+    offset: u64,
+    /// Sample frames (one sample per channel) in the file.
+    pub frames: u64,
+}
+
+impl SampleFile {
+    /// A WAV file: its header, parsed from a prefix read larger until the data chunk
+    /// begins in it. Notes on standard error: more than one channel (the first is
+    /// decoded), a file cut short (what is there is decoded).
+    pub fn wav(path: &std::path::Path) -> Result<Self, String> {
+        let name = path.display();
+        let mut file = std::fs::File::open(path).map_err(|e| format!("cannot read {name}: {e}"))?;
+        let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+        let mut prefix = Vec::new();
+        let header = loop {
+            let want = (prefix.len() * 2).max(65_536);
+            let mut more = vec![0u8; want - prefix.len()];
+            let n =
+                read_full(&mut file, &mut more).map_err(|e| format!("cannot read {name}: {e}"))?;
+            prefix.extend_from_slice(&more[..n]);
+            let eof = n < more.len();
+            match Wav::parse(&prefix) {
+                Ok(w) => {
+                    let offset = w.data().as_ptr() as usize - prefix.as_ptr() as usize;
+                    break (
+                        w.format(),
+                        w.channels(),
+                        w.sample_rate(),
+                        offset as u64,
+                        w.declared_data_len(),
+                    );
+                }
+                Err(_) if !eof && prefix.len() < (16 << 20) => continue,
+                Err(e) => return Err(format!("{name}: {e}")),
             }
-            Err(_) if !eof && prefix.len() < (16 << 20) => continue,
-            Err(e) => return Err(format!("{name}: {e}")),
+        };
+        let (format, channels, rate, offset, declared) = header;
+        check_rate(rate)?;
+        if channels != 1 {
+            tracing::warn!("{name} has {channels} channels; decoding the first");
+        }
+        let available = len.saturating_sub(offset);
+        let data_len = declared.map_or(available, |d| d.min(available));
+        if declared.is_some_and(|d| d > available) {
+            tracing::warn!("{name} is cut short (the header promises more samples than the file holds); decoding what is there");
+        }
+        let frame = (u64::from(channels) * format.bytes() as u64).max(1);
+        Ok(SampleFile {
+            path: path.to_path_buf(),
+            format,
+            channels,
+            rate,
+            offset,
+            frames: data_len / frame,
+        })
+    }
+
+    /// A file of raw signed 16-bit little-endian mono samples at `rate`.
+    pub fn raw_s16le(path: &std::path::Path, rate: u32) -> Result<Self, String> {
+        let len = std::fs::metadata(path)
+            .map_err(|e| format!("cannot open {}: {e}", path.display()))?
+            .len();
+        Ok(SampleFile {
+            path: path.to_path_buf(),
+            format: wav::SampleFormat::I16,
+            channels: 1,
+            rate,
+            offset: 0,
+            frames: len / 2,
+        })
+    }
+
+    /// Bytes of one sample frame.
+    fn frame_bytes(&self) -> u64 {
+        (u64::from(self.channels) * self.format.bytes() as u64).max(1)
+    }
+
+    /// Reads the first channel's samples `from..to` in blocks of [`WAV_BLOCK`] bytes
+    /// and hands each block to `push`, until `to`, the end of the file, or `push`
+    /// returns `false`.
+    pub fn read(
+        &self,
+        from: u64,
+        to: u64,
+        mut push: impl FnMut(&[f32]) -> bool,
+    ) -> Result<(), String> {
+        use std::io::{Seek, SeekFrom};
+        let to = to.min(self.frames);
+        if from >= to {
+            return Ok(());
+        }
+        let name = self.path.display();
+        let frame = self.frame_bytes();
+        let mut file =
+            std::fs::File::open(&self.path).map_err(|e| format!("cannot read {name}: {e}"))?;
+        file.seek(SeekFrom::Start(self.offset + from * frame))
+            .map_err(|e| format!("cannot read {name}: {e}"))?;
+        let block = (WAV_BLOCK as u64 / frame).max(1) * frame;
+        let mut buf = vec![0u8; block.min((to - from) * frame) as usize];
+        let mut samples = Vec::with_capacity(buf.len());
+        let mut left = (to - from) * frame;
+        while left > 0 {
+            let want = left.min(block) as usize;
+            let n = read_full(&mut file, &mut buf[..want])
+                .map_err(|e| format!("cannot read {name}: {e}"))?;
+            let whole = n - n % frame as usize;
+            samples.clear();
+            wav::extend_samples(self.format, self.channels, 0, &buf[..whole], &mut samples)
+                .map_err(|e| format!("{name}: {e}"))?;
+            if !push(&samples) || n < want {
+                break;
+            }
+            left -= n as u64;
+        }
+        Ok(())
+    }
+}
+
+/// Pieces decoded on their own are at least this many samples (43 s at 48 kHz) unless
+/// asked otherwise: each one's demodulator first settles on some 6-8 s before it.
+const MIN_CHUNK: u64 = 1 << 21;
+/// ... and at most this many (11.7 minutes at 48 kHz): the frames of pieces decoded
+/// ahead of the output wait in memory.
+const MAX_CHUNK: u64 = 1 << 25;
+/// Samples before a piece's start in which its demodulator looks for a quiet point,
+/// beyond those it needs to settle.
+const QUIET_SEARCH: u64 = 65_536;
+
+/// Decodes a file of samples, on `jobs` threads when it is long enough, and hands the
+/// frames to `emit` in order; `tick` after each block when on one thread; `stop` says
+/// when to give up (output closed).
+///
+/// On several threads the file is cut into pieces, each decoded by a demodulator
+/// started some 300 000 samples before the piece
+/// ([`Demodulator::starting_at`]) so it has settled by then. Its part of the output
+/// begins at the last quiet point (the carrier detect quiet for two updates in a row,
+/// nothing being received) at or before the piece's start, and ends at the last one at
+/// or before the next piece's start: after a quiet point every settled demodulator
+/// reports what one demodulator from the start of the file reports, frame by frame
+/// and bit by bit, so the pieces' outputs joined are that output. Each frame is thus
+/// reported by the piece its start falls in, with the pieces' boundaries moved back to
+/// the last quiet point. Where there is none in the stretch before a boundary (a
+/// carrier that never stops), the piece before runs on to the next boundary instead.
+pub fn decode_file(
+    file: &SampleFile,
+    cfg: DemodConfig,
+    jobs: usize,
+    chunk_samples: Option<u64>,
+    emit: &mut dyn FnMut(DemodEvent<'_>),
+    tick: &dyn Fn(&Demodulator, u64),
+    stop: &dyn Fn() -> bool,
+) -> Result<(), String> {
+    let n = file.frames;
+    let chunk = chunk_samples
+        .unwrap_or_else(|| n.div_ceil(jobs.max(1) as u64).clamp(MIN_CHUNK, MAX_CHUNK))
+        .max(1);
+    if jobs <= 1 || n <= chunk {
+        let mut d = Demodulator::new(cfg);
+        let mut seen = 0u64;
+        file.read(0, n, |samples| {
+            d.push(samples, &mut *emit);
+            seen += samples.len() as u64;
+            tick(&d, seen);
+            !stop()
+        })?;
+        d.finish(&mut *emit);
+        return Ok(());
+    }
+    let pieces = n.div_ceil(chunk) as usize;
+    let bounds: Vec<u64> = (0..=pieces as u64).map(|k| (k * chunk).min(n)).collect();
+    // Where each piece's demodulator starts: settled, with room to find a quiet
+    // point, before the piece.
+    let settle = Demodulator::quiet_from(&cfg, START_ALIGN) - START_ALIGN;
+    let starts: Vec<u64> = bounds
+        .iter()
+        .map(|&b| {
+            let s = b.saturating_sub(settle + QUIET_SEARCH);
+            s - s % START_ALIGN
+        })
+        .collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let abort = std::sync::atomic::AtomicBool::new(false);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.min(pieces) {
+            let tx = tx.clone();
+            let (next, abort, bounds, starts) = (&next, &abort, &bounds, &starts);
+            scope.spawn(move || loop {
+                let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if k >= pieces || abort.load(std::sync::atomic::Ordering::Relaxed) {
+                    break;
+                }
+                let r = decode_piece(file, cfg, bounds, starts, k, abort);
+                if tx.send((k, r)).is_err() {
+                    break;
+                }
+            });
+        }
+        drop(tx);
+        // Out in order, each piece as soon as it and those before it are done.
+        let mut done: Vec<Option<Result<Option<Vec<DecodedFrame>>, String>>> =
+            (0..pieces).map(|_| None).collect();
+        let mut out = 0;
+        let mut result = Ok(());
+        for (k, r) in rx {
+            done[k] = Some(r);
+            while out < pieces {
+                let Some(r) = done[out].take() else { break };
+                out += 1;
+                match r {
+                    Ok(frames) => {
+                        for f in frames.iter().flatten() {
+                            emit(DemodEvent::Frame(f.as_rx()));
+                        }
+                    }
+                    Err(e) => {
+                        result = Err(e);
+                        out = pieces;
+                    }
+                }
+                if result.is_err() || stop() {
+                    abort.store(true, std::sync::atomic::Ordering::Relaxed);
+                    out = pieces;
+                }
+            }
+        }
+        result
+    })
+}
+
+/// Piece `k` of [`decode_file`]: its frames, or `None` when there is no quiet point
+/// before its start (the piece before covers it).
+fn decode_piece(
+    file: &SampleFile,
+    cfg: DemodConfig,
+    bounds: &[u64],
+    starts: &[u64],
+    k: usize,
+    abort: &std::sync::atomic::AtomicBool,
+) -> Result<Option<Vec<DecodedFrame>>, String> {
+    let go = || !abort.load(std::sync::atomic::Ordering::Relaxed);
+    let start = if k == 0 { 0 } else { starts[k] };
+    let mut d = Demodulator::starting_at(cfg, start);
+    let mut frames: Vec<DecodedFrame> = Vec::new();
+    let feed = |d: &mut Demodulator, frames: &mut Vec<DecodedFrame>, from, to| {
+        file.read(from, to, |samples| {
+            d.push(samples, |ev| {
+                if let DemodEvent::Frame(f) = ev {
+                    frames.push(f.to_decoded());
+                }
+            });
+            go()
+        })
+    };
+    let first = if k == 0 {
+        0
+    } else {
+        feed(&mut d, &mut frames, start, bounds[k])?;
+        match d.quiet_point() {
+            Some((q, before)) => {
+                tracing::debug!("piece {k} starts at the quiet point at sample {q}");
+                before as usize
+            }
+            None => {
+                tracing::debug!(
+                    "piece {k}: no quiet point before sample {}; the piece before covers it",
+                    bounds[k]
+                );
+                return Ok(None);
+            }
         }
     };
-    let (format, channels, rate, offset, declared) = header;
-    check_rate(rate)?;
-    if channels != 1 {
-        tracing::warn!("{name} has {channels} channels; decoding the first");
-    }
-    let available = len.saturating_sub(offset);
-    let data_len = declared.map_or(available, |d| d.min(available));
-    if declared.is_some_and(|d| d > available) {
-        tracing::warn!("{name} is cut short (the header promises more samples than the file holds); decoding what is there");
-    }
-    let frame = u64::from(channels) * format.bytes() as u64;
-    file.seek(SeekFrom::Start(offset))
-        .map_err(|e| format!("cannot read {name}: {e}"))?;
-    let block = (WAV_BLOCK as u64 / frame.max(1)).max(1) * frame.max(1);
-    let mut buf = vec![0u8; block as usize];
-    let mut samples = Vec::with_capacity(block as usize);
-    let mut left = data_len - data_len % frame.max(1);
-    while left > 0 {
-        let want = left.min(block) as usize;
-        let n = read_full(&mut file, &mut buf[..want])
-            .map_err(|e| format!("cannot read {name}: {e}"))?;
-        let whole = n - n % frame.max(1) as usize;
-        samples.clear();
-        samples.extend(
-            hart_modem::wav::samples_of(format, channels, 0, &buf[..whole])
-                .map_err(|e| format!("{name}: {e}"))?,
-        );
-        if !push(rate, &samples) || n < want {
-            break;
+    let last = bounds.len() - 1;
+    let mut j = k + 1;
+    let end = loop {
+        feed(&mut d, &mut frames, bounds[j - 1], bounds[j])?;
+        if j == last {
+            d.finish(|ev| {
+                if let DemodEvent::Frame(f) = ev {
+                    frames.push(f.to_decoded());
+                }
+            });
+            break frames.len();
         }
-        left -= n as u64;
-    }
-    Ok(())
+        // The boundary holds when the piece after finds the same quiet point: the
+        // latest before it, if that piece's demodulator has settled by then.
+        if let Some((q, before)) = d.quiet_point() {
+            if q >= Demodulator::quiet_from(&cfg, starts[j]) {
+                break before as usize;
+            }
+        }
+        j += 1;
+    };
+    frames.truncate(end);
+    frames.drain(..first.min(end));
+    tracing::debug!(
+        "piece {k}: {} frame(s), up to piece {j}'s boundary",
+        frames.len()
+    );
+    Ok(Some(frames))
 }
 
 /// Reads until `buf` is full or the input ends; the bytes read.

@@ -517,3 +517,121 @@ fn the_live_view_and_the_sound_card_option() {
         );
     }
 }
+
+/// `modem rx --jobs N` decodes a long file in pieces on N threads with the output of one
+/// thread, byte for byte: JSON lines and the listing, on a clean recording, one at
+/// 14 dB and one so noisy (-3 dB) that the carrier detect goes on in the noise, frames
+/// are damaged and some pieces find no quiet point before their start (the piece before
+/// then runs on). Small pieces (the hidden `--chunk-samples`) put frames across piece
+/// boundaries, and the 22 s recording has frames across the 1 MiB blocks `rx` reads
+/// (16-bit; the noisiest is in 32-bit float); the pieces' demodulators read their own
+/// blocks, starting elsewhere.
+#[test]
+fn jobs_give_the_output_of_one_thread() {
+    // 60 frames of 31 bytes, 40 ms apart: 22 s at 48 kHz, 2.1 MB of samples.
+    let mut frames = String::new();
+    for i in 0..60u8 {
+        let mut f = vec![
+            0x86, 0x26, 0xF1, 0x01, 0x00, 0x02, 0x03, 0x1A, 0x00, 0x08, i,
+        ];
+        f.extend((0..23u8).map(|k| k.wrapping_mul(29) ^ i));
+        f.push(f.iter().fold(0, |a, b| a ^ b));
+        frames.push_str(&f.iter().map(|b| format!("{b:02X}")).collect::<String>());
+        frames.push('\n');
+    }
+    let list = tmp("jobs-frames.txt");
+    std::fs::write(&list, &frames).unwrap();
+    let block_s = (1u64 << 19) as f64 / 48_000.0; // 1 MiB of 16-bit samples
+    for (name, noise) in [("clean", None), ("14db", Some("14")), ("-3db", Some("-3"))] {
+        let wav = tmp(&format!("jobs-{name}.wav"));
+        let mut args = vec![
+            "modem",
+            "tx",
+            "--gap-ms",
+            "40",
+            "--in",
+            list.to_str().unwrap(),
+            "--out",
+            wav.to_str().unwrap(),
+        ];
+        if let Some(db) = noise {
+            args.extend(["--snr-db", db, "--seed", "3"]);
+        }
+        if noise == Some("-3") {
+            // The noise peaks above full scale: float samples.
+            args.push("--float");
+        }
+        let (ok, _, err) = hartkit(&args);
+        assert!(ok, "{err}");
+        let path = wav.to_str().unwrap();
+        let (ok, one_json, err) = hartkit(&["modem", "rx", "--json", "--jobs", "1", path]);
+        assert!(ok, "{err}");
+        let (ok, one_text, _) = hartkit(&["modem", "rx", "--jobs", "1", path]);
+        assert!(ok);
+        let lines = json_lines(&one_json);
+        if noise != Some("-3") {
+            assert_eq!(lines.len(), 60, "{name}");
+            assert!(lines.iter().all(|f| f["checksum_ok"] == true), "{name}");
+        } else {
+            assert!(lines.len() > 20, "{name}: {}", lines.len());
+        }
+        // Frames across the read blocks' boundaries (a frame is 0.3 s long).
+        let starts: Vec<f64> = lines.iter().map(|f| f["t"].as_f64().unwrap()).collect();
+        if noise != Some("-3") {
+            for b in [block_s, 2.0 * block_s] {
+                assert!(
+                    starts.iter().any(|&t| t < b && b < t + 0.28),
+                    "{name}: no frame across {b} s"
+                );
+            }
+        }
+        for (jobs, chunk) in [("2", "100000"), ("3", "333333"), ("2", "524288")] {
+            let (ok, json, err) = hartkit(&[
+                "--log-level",
+                "debug",
+                "modem",
+                "rx",
+                "--json",
+                "--jobs",
+                jobs,
+                "--chunk-samples",
+                chunk,
+                path,
+            ]);
+            assert!(ok, "{err}");
+            assert!(json == one_json, "{name}, {jobs} jobs, pieces of {chunk}");
+            // The pieces did the work: each after the first started at a quiet point.
+            if noise != Some("-3") {
+                assert!(
+                    err.contains("piece 2 starts at the quiet point"),
+                    "{name}: {err}"
+                );
+            }
+            let (ok, text, _) = hartkit(&[
+                "modem",
+                "rx",
+                "--jobs",
+                jobs,
+                "--chunk-samples",
+                chunk,
+                path,
+            ]);
+            assert!(ok);
+            assert!(text == one_text, "{name}, {jobs} jobs, pieces of {chunk}");
+        }
+        // Frames across the pieces' boundaries.
+        let chunk_s = 100_000.0 / 48_000.0;
+        if noise != Some("-3") {
+            assert!(
+                (1..9).any(|k| starts
+                    .iter()
+                    .any(|&t| t < k as f64 * chunk_s && k as f64 * chunk_s < t + 0.28)),
+                "{name}: no frame across a piece boundary"
+            );
+        }
+        let _ = std::fs::remove_file(&wav);
+    }
+    let (ok, _, err) = hartkit(&["modem", "rx", "--jobs", "0", "x.wav"]);
+    assert!(!ok && err.contains("--jobs"), "{err}");
+    let _ = std::fs::remove_file(list);
+}
