@@ -24,7 +24,11 @@ fn gateway() -> SocketAddr {
             let gw = hart_modbus::Gateway::new(
                 engine,
                 hart_modbus::Config {
-                    max_connections: 100_000,
+                    limits: hart_modbus::connections::Limits {
+                        max_connections: 100_000,
+                        max_per_address: 100_000,
+                        ..Default::default()
+                    },
                     ..Default::default()
                 },
             );

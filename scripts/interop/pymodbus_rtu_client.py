@@ -40,6 +40,10 @@ def main():
         out["unknown_unit"] = "silent"
     c.write_registers(4, c.convert_to_registers(a.damping, data_type=F32), device_id=0,
                       no_response_expected=True)
+    # The next request is answered at once: the broadcast's writes go on meanwhile.
+    t = time.time()
+    q = c.read_input_registers(13, count=1, device_id=1)
+    out["after_broadcast_s"] = None if q.isError() else time.time() - t
     back = {}
     deadline = time.time() + 20
     while time.time() < deadline:

@@ -19,6 +19,16 @@ impl NetList {
         ])
     }
 
+    /// No network: nobody is on it.
+    pub fn empty() -> Self {
+        NetList(vec![])
+    }
+
+    /// Whether it lists no network.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
     /// Reads networks, each `ADDR/PREFIX` or a single address.
     pub fn parse<S: AsRef<str>>(items: &[S]) -> Result<Self, String> {
         let mut nets = vec![];

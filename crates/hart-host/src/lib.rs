@@ -11,6 +11,7 @@ pub mod client;
 pub mod error;
 pub mod hartip;
 pub mod load;
+pub mod reconnect;
 pub mod replay;
 pub mod target;
 pub mod transport;

@@ -154,10 +154,10 @@ struct Local {
     burst_map: [u16; BURST_MESSAGES],
     /// The I/O system's burst messages (commands 103, 105, 107, 108, 109).
     bursts: [GatewayBurst; BURST_MESSAGES],
-    /// The sub-device list as the last command 48 reported it; a different list sets
-    /// "sub-device list changed" (standardized status 2, bit 0) until command 48 reads
-    /// it.
-    reported: Vec<UniqueId>,
+    /// The sub-device registry (unique IDs and presence) as the last command 48
+    /// reported it; a different one (a device found, gone or back) sets "sub-device
+    /// list changed" (standardized status 2, bit 0) until command 48 reads it.
+    reported: Vec<(UniqueId, bool)>,
 }
 
 /// The I/O system state.
@@ -266,7 +266,7 @@ impl IoSystem {
                 }
             }
             Address::Long(a) => match subs.iter().find(|s| s.info.unique_id() == a.id) {
-                Some(s) => on_loop(s.channel, true),
+                Some(s) => on_loop(s.channel, s.present),
                 // A device connected since the last scan may answer on the one loop.
                 None if single => on_loop(0, false),
                 None => Route::Nowhere,
@@ -274,7 +274,7 @@ impl IoSystem {
             Address::Short(a) if a.polling_address == 0 => {
                 let device_at_0 = subs
                     .iter()
-                    .any(|s| s.channel == 0 && s.info.polling_address == Some(0));
+                    .any(|s| s.present && s.channel == 0 && s.info.polling_address == Some(0));
                 if self.transparent && single && device_at_0 {
                     on_loop(0, true)
                 } else {
@@ -282,7 +282,8 @@ impl IoSystem {
                 }
             }
             Address::Short(a) => {
-                let known = |s: &&SubDevice| s.info.polling_address == Some(a.polling_address);
+                let known =
+                    |s: &&SubDevice| s.present && s.info.polling_address == Some(a.polling_address);
                 if single {
                     return on_loop(0, subs.iter().any(|s| known(&s)));
                 }
@@ -310,7 +311,7 @@ impl IoSystem {
                 let subs = self.subs.lock().await;
                 let mut found = subs
                     .iter()
-                    .filter(|s| s.info.polling_address == Some(a.polling_address));
+                    .filter(|s| s.present && s.info.polling_address == Some(a.polling_address));
                 match (found.next(), found.next()) {
                     (Some(s), None) => Some(s.info.unique_id().expanded_device_type),
                     _ => None,
@@ -346,13 +347,13 @@ impl IoSystem {
         })
     }
 
-    /// Unique IDs of the sub-devices now.
-    async fn sub_ids(&self) -> Vec<UniqueId> {
+    /// The sub-device registry now: each place's unique ID and whether it answers.
+    async fn sub_ids(&self) -> Vec<(UniqueId, bool)> {
         self.subs
             .lock()
             .await
             .iter()
-            .map(|s| s.info.unique_id())
+            .map(|s| (s.info.unique_id(), s.present))
             .collect()
     }
 
@@ -556,7 +557,9 @@ impl IoSystem {
         }
     }
 
-    /// Command 74: read I/O system capabilities.
+    /// Command 74: read I/O system capabilities. The devices detected are the
+    /// registry's places (absent devices keep theirs) and the I/O system itself, so a
+    /// host that reads 84 for indexes 1..N reaches every place.
     async fn capabilities(&self) -> (u8, Vec<u8>) {
         let n = self.subs.lock().await.len() as u16 + 1;
         (
@@ -890,7 +893,8 @@ impl IoSystem {
         let known = {
             let subs = self.subs.lock().await;
             subs.iter().any(|s| {
-                s.channel == channel
+                s.present
+                    && s.channel == channel
                     && match f.address {
                         Address::Long(a) => s.info.unique_id() == a.id,
                         Address::Short(a) => s.info.polling_address == Some(a.polling_address),

@@ -308,3 +308,110 @@ fn io_system_publishes_a_mapped_sub_device() {
         server.stop();
     });
 }
+
+/// Sub-device indexes hold: a device that stops answering keeps its index (command 84
+/// still names it), one that comes back is at the same index, and a new device takes
+/// a new index; command 48 reports each change of the list once.
+#[test]
+fn sub_device_indexes_are_stable() {
+    run(async {
+        use hart_poller::{Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop};
+        let devices = hart_host::transport::Plant::from_profiles(&[
+            "pressure".into(),
+            "temperature".into(),
+            "valve".into(),
+        ])
+        .unwrap()
+        .devices()
+        .unwrap();
+        let m = MemoryLoop::new(devices);
+        let faults = m.faults();
+        // Polling, with a rescan step every 5 ms: a device is found gone (two rescan
+        // visits without a reply) within a fraction of a second.
+        let mut config = EngineConfig {
+            poll: true,
+            ..EngineConfig::default()
+        };
+        config.defaults.rescan = Duration::from_millis(5);
+        config.defaults.period = Duration::from_millis(50);
+        let (engine, tasks) = Engine::start(
+            config,
+            vec![LoopSpec {
+                settings: LoopSettings {
+                    scan_to: 4,
+                    ..Default::default()
+                },
+                line: Line::Memory(m),
+            }],
+        );
+        let server = hart_ip_server::start_with_engine(
+            Config {
+                bind: "127.0.0.1:0".parse().unwrap(),
+                ..Config::default()
+            },
+            engine,
+            tasks,
+        )
+        .await
+        .unwrap();
+        server.ready().await;
+        let s = HartIpSession::connect(&server.udp_addr.unwrap().to_string(), false, 60_000)
+            .await
+            .unwrap();
+        let gw = Address::long(gateway());
+        scanned(&s, 3).await;
+        // Index -> device ID (bytes 7-9 of command 84's reply).
+        let index = |i: u8| {
+            let s = &s;
+            async move {
+                let (rc, _, d) = ask(s, gw, 84, &[0, i]).await;
+                (rc == 0).then(|| d[7..10].to_vec())
+            }
+        };
+        let before = [index(1).await, index(2).await, index(3).await];
+        assert!(before.iter().all(Option::is_some), "{before:?}");
+        let _ = ask(&s, gw, 48, &[]).await; // the list as it is now
+                                            // The temperature transmitter (polling address 2) goes away.
+        faults.set_connected(2, false);
+        let mut changed = false;
+        for _ in 0..400 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            let (_, _, d) = ask(&s, gw, 48, &[]).await;
+            if d[11] & 1 != 0 {
+                changed = true;
+                break;
+            }
+        }
+        assert!(changed, "command 48 reports the device gone");
+        assert_eq!(
+            [index(1).await, index(2).await, index(3).await],
+            before,
+            "indexes hold while it is away"
+        );
+        assert_eq!(
+            ask(&s, gw, 74, &[]).await.2[3..5],
+            [0, 4],
+            "places, with the I/O system"
+        );
+        // Back: at its own index again.
+        faults.set_connected(2, true);
+        let mut back = false;
+        for _ in 0..400 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            let (_, _, d) = ask(&s, gw, 48, &[]).await;
+            if d[11] & 1 != 0 {
+                back = true;
+                break;
+            }
+        }
+        assert!(back, "command 48 reports it back");
+        assert_eq!([index(1).await, index(2).await, index(3).await], before);
+        assert_eq!(
+            index(4).await,
+            None,
+            "no new place for a device that came back"
+        );
+        s.close().await;
+        server.stop();
+    });
+}

@@ -16,13 +16,14 @@
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
 use hart_poller::{DeviceRefusal, Engine, WriteError, WriteFailure, WriteOp};
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
+pub mod connections;
 pub mod load;
 pub mod map;
 
@@ -37,8 +38,8 @@ pub struct Config {
     pub float_order: FloatOrder,
     /// Refuse writes ("illegal function").
     pub read_only: bool,
-    /// Most TCP connections at once; more are closed at once.
-    pub max_connections: usize,
+    /// The TCP server's connection limits and priority hosts.
+    pub limits: connections::Limits,
     /// Modbus TCP clients that may write (loopback only by default); others' writes
     /// are answered "illegal function". The RTU slave's master writes unless
     /// `read_only`: whoever is wired to its port.
@@ -53,7 +54,7 @@ impl Default for Config {
             map: RegisterMap::default(),
             float_order: FloatOrder::default(),
             read_only: false,
-            max_connections: 64,
+            limits: connections::Limits::default(),
             write_from: hart_access::NetList::loopback(),
             audit: hart_access::Audit::default(),
         }
@@ -79,7 +80,7 @@ pub struct Gateway {
     config: Config,
     /// Counters.
     pub stats: Stats,
-    connections: AtomicUsize,
+    pool: connections::Pool,
 }
 
 /// The transport a request came by: TCP answers every unit id, RTU only its own.
@@ -121,8 +122,13 @@ impl Gateway {
             engine,
             config,
             stats: Stats::default(),
-            connections: AtomicUsize::new(0),
+            pool: connections::Pool::default(),
         })
+    }
+
+    /// Modbus TCP connections open now.
+    pub fn open_connections(&self) -> usize {
+        self.pool.len()
     }
 
     /// The settings.
@@ -138,6 +144,28 @@ impl Gateway {
         request: Request<'static>,
         peer: Peer,
     ) -> Result<Option<Response>, ExceptionCode> {
+        if unit == 0 && peer.link() == Link::Rtu {
+            // An RTU broadcast is never answered: carry its writes out in the
+            // background, so the next frame on the line is read at once rather than
+            // after every device's write.
+            let order = self.config.float_order;
+            let values = match request {
+                Request::WriteSingleRegister(register, word) => {
+                    self.config.map.decode_write(register, &[word], order)
+                }
+                Request::WriteMultipleRegisters(start, words) => {
+                    self.config.map.decode_write(start, &words, order)
+                }
+                _ => return Ok(None),
+            };
+            if let Ok(values) = values {
+                let gw = self.clone();
+                tokio::spawn(async move {
+                    let _ = gw.write_all(None, true, values, &peer).await;
+                });
+            }
+            return Ok(None);
+        }
         let r = self.answer(unit, request, &peer).await;
         match &r {
             Ok(Some(_)) => self.stats.answered.fetch_add(1, Ordering::Relaxed),
@@ -177,19 +205,7 @@ impl Gateway {
                 .unwrap_or(Err(ExceptionCode::GatewayPathUnavailable))
         };
         if broadcast {
-            // RTU broadcast: writes are carried out, nothing is ever answered.
-            let values = match request {
-                Request::WriteSingleRegister(register, word) => {
-                    self.config.map.decode_write(register, &[word], order)
-                }
-                Request::WriteMultipleRegisters(start, words) => {
-                    self.config.map.decode_write(start, &words, order)
-                }
-                _ => return Ok(None),
-            };
-            if let Ok(values) = values {
-                let _ = self.write_all(None, true, values, peer).await;
-            }
+            // Carried out by `call`, in the background; never answered.
             return Ok(None);
         }
         let response = match request {
@@ -474,13 +490,34 @@ impl tokio_modbus::server::Service for Service {
     }
 }
 
-/// A TCP stream counted against [`Config::max_connections`] until dropped, whose
-/// request frames pass the [`FrameGuard`] before tokio-modbus decodes them.
+/// A TCP stream in the connection pool until dropped ([`connections`]): its request
+/// frames pass the [`FrameGuard`] before tokio-modbus decodes them, it is closed when
+/// a request does not come or come whole in time, and when the pool evicts it.
 struct Counted {
     stream: tokio::net::TcpStream,
     gateway: Arc<Gateway>,
     guard: FrameGuard,
     peer: SocketAddr,
+    /// Its id in the pool.
+    id: u64,
+    opened: Instant,
+    /// Woken when the pool closes it.
+    close: Pin<Box<tokio::sync::futures::OwnedNotified>>,
+    /// The deadline of the request under way (or of the first one).
+    timer: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl Counted {
+    /// Closes the connection: an error for tokio-modbus, which then drops it.
+    fn closed(&self, why: &str) -> std::task::Poll<std::io::Result<()>> {
+        if self.gateway.pool.log.allow() {
+            tracing::warn!("modbus: closed the connection from {}: {why}", self.peer);
+        }
+        std::task::Poll::Ready(Err(std::io::Error::new(
+            std::io::ErrorKind::TimedOut,
+            why.to_string(),
+        )))
+    }
 }
 
 /// Follows the Modbus TCP frames (MBAP header, then `length - 1` PDU bytes) a client
@@ -493,9 +530,16 @@ struct Counted {
 #[derive(Debug, Default)]
 struct FrameGuard {
     frame: Vec<u8>,
+    /// Requests seen whole.
+    whole: u64,
 }
 
 impl FrameGuard {
+    /// Whether part of a request has come and the rest not yet.
+    fn partial(&self) -> bool {
+        !self.frame.is_empty()
+    }
+
     /// Takes the bytes just received; an error names the first frame refused.
     fn feed(&mut self, bytes: &[u8]) -> Result<(), &'static str> {
         for &b in bytes {
@@ -510,6 +554,7 @@ impl FrameGuard {
             if self.frame.len() == 6 + len {
                 check_request_pdu(&self.frame[7..])?;
                 self.frame.clear();
+                self.whole += 1;
             }
         }
         Ok(())
@@ -548,7 +593,7 @@ fn check_request_pdu(pdu: &[u8]) -> Result<(), &'static str> {
 
 impl Drop for Counted {
     fn drop(&mut self) {
-        self.gateway.connections.fetch_sub(1, Ordering::AcqRel);
+        self.gateway.pool.remove(self.id);
     }
 }
 
@@ -558,17 +603,64 @@ impl tokio::io::AsyncRead for Counted {
         cx: &mut std::task::Context<'_>,
         buf: &mut tokio::io::ReadBuf<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
-        let before = buf.filled().len();
-        std::task::ready!(Pin::new(&mut self.stream).poll_read(cx, buf))?;
+        use connections::Phase;
+        use std::task::Poll;
         let this = &mut *self;
-        if let Err(why) = this.guard.feed(&buf.filled()[before..]) {
-            tracing::warn!("modbus: closed the connection from {}: {why}", this.peer);
-            return std::task::Poll::Ready(Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                why,
-            )));
+        if this.close.as_mut().poll(cx).is_ready() {
+            let why = this
+                .gateway
+                .pool
+                .state(this.id)
+                .and_then(|s| s.1)
+                .unwrap_or("closed by the pool");
+            return this.closed(why);
         }
-        std::task::Poll::Ready(Ok(()))
+        let limits = &this.gateway.config.limits;
+        let phase = this
+            .gateway
+            .pool
+            .state(this.id)
+            .map_or(Phase::Idle, |s| s.0);
+        if let Some(due) = connections::deadline(phase, this.opened, limits) {
+            let due = tokio::time::Instant::from_std(due);
+            if this.timer.deadline() != due {
+                this.timer.as_mut().reset(due);
+            }
+            if this.timer.as_mut().poll(cx).is_ready() {
+                let why = match phase {
+                    Phase::Fresh => format!(
+                        "no complete request within {} s of connecting",
+                        limits.first_request.as_secs_f64()
+                    ),
+                    _ => format!(
+                        "a request begun was not whole within {} s",
+                        limits.request.as_secs_f64()
+                    ),
+                };
+                return this.closed(&why);
+            }
+        }
+        let before = buf.filled().len();
+        std::task::ready!(Pin::new(&mut this.stream).poll_read(cx, buf))?;
+        let whole = this.guard.whole;
+        if let Err(why) = this.guard.feed(&buf.filled()[before..]) {
+            return this.closed(why);
+        }
+        let now = Instant::now();
+        let next = if this.guard.partial() {
+            match phase {
+                Phase::Receiving(since) if this.guard.whole == whole => Phase::Receiving(since),
+                _ => Phase::Receiving(now),
+            }
+        } else if this.guard.whole > whole {
+            Phase::Answering
+        } else {
+            phase
+        };
+        if next != phase {
+            this.gateway.pool.set_phase(this.id, next, now);
+        }
+        Poll::Ready(Ok(()))
     }
 }
 
@@ -578,7 +670,14 @@ impl tokio::io::AsyncWrite for Counted {
         cx: &mut std::task::Context<'_>,
         buf: &[u8],
     ) -> std::task::Poll<std::io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write(cx, buf)
+        let r = std::task::ready!(Pin::new(&mut self.stream).poll_write(cx, buf));
+        // An answer went out: between requests again (unless the next has begun).
+        if !self.guard.partial() {
+            self.gateway
+                .pool
+                .set_phase(self.id, connections::Phase::Idle, Instant::now());
+        }
+        std::task::Poll::Ready(r)
     }
     fn poll_flush(
         mut self: Pin<&mut Self>,
@@ -608,21 +707,29 @@ pub async fn bind_tcp(
         let on_connected = |stream: tokio::net::TcpStream, peer: SocketAddr| {
             let gateway = gateway.clone();
             async move {
-                let n = gateway.connections.fetch_add(1, Ordering::AcqRel);
+                let now = Instant::now();
+                let (id, close) = match gateway.pool.admit(peer, &gateway.config.limits, now) {
+                    Ok(admitted) => admitted,
+                    Err(why) => {
+                        gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
+                        if gateway.pool.log.allow() {
+                            tracing::warn!("modbus: connection from {peer} refused: {why}");
+                        }
+                        return Ok(None);
+                    }
+                };
                 let counted = Counted {
                     stream,
                     gateway: gateway.clone(),
                     guard: FrameGuard::default(),
                     peer,
+                    id,
+                    opened: now,
+                    close: Box::pin(close.notified_owned()),
+                    timer: Box::pin(tokio::time::sleep_until(tokio::time::Instant::from_std(
+                        now + gateway.config.limits.first_request,
+                    ))),
                 };
-                if n >= gateway.config.max_connections {
-                    gateway.stats.refused.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        "modbus: connection from {peer} refused: {} connections open (the limit)",
-                        gateway.config.max_connections
-                    );
-                    return Ok(None);
-                }
                 let _ = counted.stream.set_nodelay(true);
                 let service = Service {
                     gateway,
@@ -659,9 +766,18 @@ pub struct RtuPort {
 /// RTU frames cannot pass the [`FrameGuard`] the TCP server has: a frame it would panic
 /// on ends that serving, and this starts the next.)
 pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
+    // The engine's reconnect policy, from RTU_REOPEN: a port that keeps failing is
+    // tried less and less often (up to 30 s), one that served a while starts over.
+    let mut backoff =
+        hart_host::reconnect::Backoff::new(RTU_REOPEN, std::time::Duration::from_secs(30));
     loop {
+        let started = Instant::now();
         let task = tokio::spawn(serve_rtu(gateway.clone(), port.clone()));
-        match task.await {
+        let outcome = task.await;
+        if started.elapsed() > std::time::Duration::from_secs(60) {
+            backoff.reset();
+        }
+        match outcome {
             Ok(Ok(())) => tracing::warn!("modbus-rtu: {} closed", port.path),
             Ok(Err(e)) => tracing::error!("modbus-rtu: {e}"),
             Err(e) if e.is_panic() => {
@@ -672,11 +788,18 @@ pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
             }
             Err(_) => return,
         }
-        tokio::time::sleep(RTU_REOPEN).await;
+        let wait = backoff.failed(Instant::now());
+        tracing::info!(
+            "modbus-rtu: opening {} again in {} s",
+            port.path,
+            wait.as_secs()
+        );
+        tokio::time::sleep(wait).await;
     }
 }
 
-/// Wait before the RTU port is opened again.
+/// First wait before the RTU port is opened again (then doubling up to 30 s while it
+/// keeps failing).
 pub const RTU_REOPEN: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Opens `port` and serves Modbus RTU on it until the port fails.

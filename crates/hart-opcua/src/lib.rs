@@ -233,6 +233,7 @@ fn status(q: Quality, present: bool, pending: bool) -> StatusCode {
         Quality::Stale => StatusCode::UncertainLastUsableValue,
         Quality::NoReply => StatusCode::BadNoCommunication,
         Quality::DeviceMalfunction => StatusCode::BadDeviceFailure,
+        Quality::WaitingForData => StatusCode::BadWaitingForInitialData,
     }
 }
 

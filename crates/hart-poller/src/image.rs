@@ -21,18 +21,21 @@ pub enum Quality {
     /// The values are older than the device's stale limit: the loop has not polled it
     /// in time (busy with other requests, or a slow loop for its poll period).
     Stale,
-    /// The device did not answer its last poll (or has not been found yet).
+    /// The device did not answer its last poll.
     NoReply,
     /// The device answers but sets "device malfunction" in its status.
     DeviceMalfunction,
     /// The device's configuration changed since the engine last read it (range, units,
     /// tag): the values are current, the engine is reading the new configuration.
     ConfigurationChanged,
+    /// The engine has not asked the device yet (the gateway just started, or the
+    /// device was just found): no value, and no failure either.
+    WaitingForData,
 }
 
 impl Quality {
     /// The number front ends publish (Modbus register 13): 0 good, 1 stale, 2 no
-    /// reply, 3 device malfunction, 4 configuration changed.
+    /// reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data.
     pub fn code(self) -> u16 {
         match self {
             Quality::Good => 0,
@@ -40,6 +43,7 @@ impl Quality {
             Quality::NoReply => 2,
             Quality::DeviceMalfunction => 3,
             Quality::ConfigurationChanged => 4,
+            Quality::WaitingForData => 5,
         }
     }
 
@@ -51,6 +55,7 @@ impl Quality {
             Quality::NoReply => "no reply",
             Quality::DeviceMalfunction => "device malfunction",
             Quality::ConfigurationChanged => "configuration changed",
+            Quality::WaitingForData => "waiting for first data",
         }
     }
 
@@ -191,7 +196,8 @@ impl DeviceImage {
     /// The quality at `now`.
     pub fn quality(&self, now: Instant) -> Quality {
         match self.last_poll {
-            LastPoll::Pending | LastPoll::NoReply => Quality::NoReply,
+            LastPoll::Pending => Quality::WaitingForData,
+            LastPoll::NoReply => Quality::NoReply,
             LastPoll::Answered => {
                 if self
                     .last_good
@@ -492,7 +498,7 @@ mod tests {
     fn malfunction_and_no_reply() {
         let mut d = image();
         let now = Instant::now();
-        assert_eq!(d.quality(now), Quality::NoReply);
+        assert_eq!(d.quality(now), Quality::WaitingForData, "not asked yet");
         let data = [0x41, 0x40, 0, 0, 12, 0x42, 0x48, 0, 0];
         d.apply_reply(3, 0, fds::DEVICE_MALFUNCTION, &data, now, SystemTime::now());
         assert_eq!(d.quality(now), Quality::DeviceMalfunction);

@@ -30,20 +30,26 @@ pub mod write;
 
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
-pub use line::{Faults, Line, MemoryLoop};
+pub use line::{Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
 };
 pub use write::{Applied, DeviceRefusal, Origin, WriteFailure, WriteOp};
 
-/// A device found on a loop, for routing requests to it.
+/// A device found on a loop, for routing requests to it. The engine's list of them
+/// is a registry: an entry keeps its place (its index for commands 84 and 102) for the
+/// life of the engine. A device that stops answering stays, marked absent; when it
+/// answers again it is present at the same place; a new device takes a new place.
 #[derive(Debug, Clone)]
 pub struct SubDevice {
     /// Channel (loop index).
     pub channel: u8,
     /// What the scan found.
     pub info: DeviceInfo,
+    /// Answering: found by the last scan of its address (or since). An absent device
+    /// keeps its place and its identity, but no polling address routes to it.
+    pub present: bool,
 }
 
 /// What the engine's tasks and handles share.
@@ -54,9 +60,21 @@ pub(crate) struct Shared {
     pub(crate) subs: Arc<Mutex<Vec<SubDevice>>>,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
     ready: watch::Sender<Vec<bool>>,
+    /// Why each loop's port is down, when it is.
+    failures: std::sync::Mutex<Vec<Option<String>>>,
 }
 
 impl Shared {
+    /// Loop `channel`'s port is down (`Some` with why) or up.
+    pub(crate) fn set_failure(&self, channel: u8, failure: Option<String>) {
+        let mut f = self.failures.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(slot) = f.get_mut(usize::from(channel)) {
+            if *slot != failure {
+                *slot = failure;
+            }
+        }
+    }
+
     /// Loop `channel` has identified its listed devices and scanned once.
     pub(crate) fn loop_ready(&self, channel: u8) {
         self.ready.send_modify(|r| {
@@ -176,6 +194,7 @@ impl Engine {
             subs: Arc::new(Mutex::new(vec![])),
             bursts: broadcast::channel(64).0,
             ready: ready_tx,
+            failures: std::sync::Mutex::new(vec![None; loops.len()]),
         });
         let mut requests = vec![];
         let mut writes = vec![];
@@ -223,6 +242,18 @@ impl Engine {
     /// The name of loop `channel`.
     pub fn loop_name(&self, channel: usize) -> Option<&str> {
         self.shared.loop_names.get(channel).map(String::as_str)
+    }
+
+    /// Why loop `channel`'s port is down (it is being opened again), or `None` while
+    /// it works.
+    pub fn loop_failure(&self, channel: usize) -> Option<String> {
+        self.shared
+            .failures
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(channel)
+            .cloned()
+            .flatten()
     }
 
     /// The engine's settings.
@@ -301,17 +332,21 @@ impl Engine {
     }
 }
 
-/// Adds a sub-device to the routing list, or updates the one with the same unique ID.
+/// Adds a sub-device to the registry, or updates the one with the same unique ID
+/// (present again, at its place). A different device now answering at a polling
+/// address takes a new place; the one seen there before stays, absent, without that
+/// polling address.
 pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
     let mut subs = subs.lock().await;
-    // A different device now answering at a polling address replaces the one seen
-    // there before.
     if let Some(p) = sub.info.polling_address {
-        subs.retain(|s| {
-            s.channel != sub.channel
-                || s.info.polling_address != Some(p)
-                || s.info.unique_id() == sub.info.unique_id()
-        });
+        for s in subs.iter_mut().filter(|s| {
+            s.channel == sub.channel
+                && s.info.polling_address == Some(p)
+                && s.info.unique_id() != sub.info.unique_id()
+        }) {
+            s.present = false;
+            s.info.polling_address = None;
+        }
     }
     match subs
         .iter_mut()
@@ -327,5 +362,18 @@ pub(crate) async fn remember(subs: &Mutex<Vec<SubDevice>>, sub: SubDevice) {
             s.info.io_channel = s.info.io_channel.or(old.info.io_channel);
         }
         None => subs.push(sub),
+    }
+}
+
+/// Marks the devices of `channel` at polling address `poll` absent (they stopped
+/// answering): they keep their places.
+pub(crate) async fn forget(subs: &Mutex<Vec<SubDevice>>, channel: u8, poll: u8) {
+    for s in subs
+        .lock()
+        .await
+        .iter_mut()
+        .filter(|s| s.channel == channel && s.info.polling_address == Some(poll))
+    {
+        s.present = false;
     }
 }

@@ -12,8 +12,77 @@ use hart_proto::frame::{Address, Frame, FrameSpec, FrameType};
 pub enum Line {
     /// A line reached through a master client.
     Client(Box<Client<AnyTransport>>),
+    /// A port opened from its target (`/dev/ttyUSB0`, `rs485:...`, `udp://...`),
+    /// opened again after it fails ([`Reopening`]).
+    Port(Box<Reopening>),
     /// Field devices answered at once, in memory, without line timing (benchmarks).
     Memory(MemoryLoop),
+}
+
+/// A port the engine opens again when it fails: an I/O error (an unplugged USB modem,
+/// a HART-IP server gone) is logged, every request answered "no reply" meanwhile, and
+/// the port opened again after 1 s, 2 s, 4 s ... up to 30 s
+/// ([`hart_host::reconnect::Backoff`]) until it works.
+pub struct Reopening {
+    target: String,
+    client: Option<Client<AnyTransport>>,
+    backoff: hart_host::reconnect::Backoff,
+    /// Why the port is down, and since when.
+    failure: Option<(Instant, String)>,
+}
+
+impl Reopening {
+    /// The client, opening the port again when its wait is over; `None` while it is
+    /// down.
+    async fn client(&mut self) -> Option<&mut Client<AnyTransport>> {
+        if self.client.is_none() {
+            let now = Instant::now();
+            if !self.backoff.ready(now) {
+                return None;
+            }
+            match hart_host::target::open_async(&self.target).await {
+                Ok(t) => {
+                    let down = self
+                        .failure
+                        .take()
+                        .map_or(0.0, |(since, _)| since.elapsed().as_secs_f64());
+                    tracing::info!(
+                        "{}: the port is back after {down:.0} s ({} attempts)",
+                        self.target,
+                        self.backoff.failures()
+                    );
+                    self.backoff.reset();
+                    self.client = Some(Client::new(t));
+                }
+                Err(e) => {
+                    let wait = self.backoff.failed(now);
+                    tracing::warn!(
+                        "{}: still failed: {e}; trying again in {} s",
+                        self.target,
+                        wait.as_secs()
+                    );
+                    if let Some(f) = self.failure.as_mut() {
+                        f.1 = e;
+                    }
+                    return None;
+                }
+            }
+        }
+        self.client.as_mut()
+    }
+
+    /// The port failed with `e`: closed, to be opened again.
+    fn failed(&mut self, e: &std::io::Error) {
+        self.client = None;
+        let wait = self.backoff.failed(Instant::now());
+        tracing::error!(
+            "{}: the port failed: {e}; every device on it is \"no reply\" until it is back; \
+             opening it again in {} s",
+            self.target,
+            wait.as_secs()
+        );
+        self.failure.get_or_insert((Instant::now(), e.to_string()));
+    }
 }
 
 /// Devices answered in memory; burst messages are published when due.
@@ -74,6 +143,26 @@ impl Line {
         Line::Client(Box::new(client))
     }
 
+    /// A line on the port `target` names, opened now (a port that cannot be opened at
+    /// the start is an error) and opened again whenever it fails later.
+    pub async fn open(target: &str) -> Result<Self, String> {
+        let t = hart_host::target::open_async(target).await?;
+        Ok(Line::Port(Box::new(Reopening {
+            target: target.to_string(),
+            client: Some(Client::new(t)),
+            backoff: hart_host::reconnect::Backoff::ports(),
+            failure: None,
+        })))
+    }
+
+    /// Why the line's port is down now, when it is.
+    pub fn failure(&self) -> Option<String> {
+        match self {
+            Line::Port(p) => p.failure.as_ref().map(|(_, e)| e.clone()),
+            _ => None,
+        }
+    }
+
     /// Sends `pdu` with `retries` after no reply; the reply's PDU, or `None`.
     pub async fn transact(&mut self, pdu: &[u8], retries: u8) -> Option<Vec<u8>> {
         match self {
@@ -83,6 +172,21 @@ impl Line {
                     ..RetryPolicy::default()
                 });
                 c.forward(pdu).await.ok()
+            }
+            Line::Port(p) => {
+                let c = p.client().await?;
+                c.set_policy(RetryPolicy {
+                    retries,
+                    ..RetryPolicy::default()
+                });
+                match c.forward(pdu).await {
+                    Ok(r) => Some(r),
+                    Err(hart_host::HostError::Io(e)) => {
+                        p.failed(&e);
+                        None
+                    }
+                    Err(_) => None,
+                }
             }
             Line::Memory(m) => {
                 let t = m.now();
@@ -98,8 +202,20 @@ impl Line {
 
     /// Nothing else to do: listen to the line for a moment (burst frames).
     pub async fn idle(&mut self) {
-        if let Line::Client(c) = self {
-            let _ = c.listen(20_000).await;
+        match self {
+            Line::Client(c) => {
+                let _ = c.listen(20_000).await;
+            }
+            Line::Port(p) => match p.client().await {
+                Some(c) => {
+                    if let Err(hart_host::HostError::Io(e)) = c.listen(20_000).await {
+                        p.failed(&e);
+                    }
+                }
+                // Down: wait a little instead of turning fast.
+                None => tokio::time::sleep(Duration::from_millis(50)).await,
+            },
+            Line::Memory(_) => {}
         }
     }
 
@@ -107,6 +223,7 @@ impl Line {
     pub fn take_bursts(&mut self) -> Vec<Vec<u8>> {
         match self {
             Line::Client(c) => c.take_bursts(),
+            Line::Port(p) => p.client.as_mut().map_or(vec![], |c| c.take_bursts()),
             Line::Memory(m) => {
                 use hart_link::slave::Handler;
                 let t = m.now();
@@ -147,6 +264,13 @@ impl Line {
                 c.set_policy(RetryPolicy::default());
                 c.sub_devices(io, skip).await
             }
+            Line::Port(p) => match p.client().await {
+                Some(c) => {
+                    c.set_policy(RetryPolicy::default());
+                    c.sub_devices(io, skip).await
+                }
+                None => vec![],
+            },
             Line::Memory(_) => vec![],
         }
     }

@@ -33,8 +33,8 @@ pub const RESCAN_IDLE: Duration = Duration::from_secs(2);
 /// milliseconds) does not queue behind a scan step.
 pub const SCAN_GRACE: Duration = Duration::from_millis(150);
 
-/// Rescan visits without a reply after which a known sub-device is dropped from the
-/// routing list (its image stays, "no reply").
+/// Rescan visits without a reply after which a known sub-device is marked absent in
+/// the registry (it keeps its place; its image stays, "no reply").
 pub const MISSES_TO_FORGET: u8 = 2;
 
 /// Client requests carried in a row while a poll is overdue before one poll goes.
@@ -153,6 +153,7 @@ impl LoopTask {
             if !self.line.is_memory() || turns % 64 == 0 {
                 tokio::task::yield_now().await;
             }
+            self.shared.set_failure(self.channel, self.line.failure());
             if let Ok(r) = self.writes.try_recv() {
                 self.carry(r).await;
                 continue;
@@ -354,12 +355,7 @@ impl LoopTask {
                     *m
                 });
                 if misses >= MISSES_TO_FORGET {
-                    let channel = self.channel;
-                    self.shared
-                        .subs
-                        .lock()
-                        .await
-                        .retain(|s| s.channel != channel || s.info.polling_address != Some(poll));
+                    crate::forget(&self.shared.subs, self.channel, poll).await;
                 }
             }
         }
@@ -469,6 +465,7 @@ impl LoopTask {
             SubDevice {
                 channel: self.channel,
                 info: info.clone(),
+                present: true,
             },
         )
         .await;
@@ -639,6 +636,7 @@ impl LoopTask {
             }
         });
         if status & fds::MORE_STATUS_AVAILABLE != 0 {
+            self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 48, &[], POLL_RETRIES).await {
                 self.shared.image.update(position, |d| {
                     d.apply_reply(48, rc, status, &data, Instant::now(), SystemTime::now())
@@ -646,12 +644,14 @@ impl LoopTask {
             }
         }
         if reread {
+            self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 15, &[], POLL_RETRIES).await {
                 self.shared.image.update(position, |d| {
                     d.apply_reply(15, rc, status, &data, Instant::now(), SystemTime::now());
                 });
             }
             if tags {
+                self.carry_writes().await;
                 let mut fresh = info.clone();
                 self.read_tags(&mut fresh).await;
                 self.shared.image.update(position, |d| {
@@ -672,6 +672,16 @@ impl LoopTask {
         }
         self.polled.insert(position, st);
         self.schedule.polled(position, self.now(), true);
+    }
+
+    /// Carries the writes waiting now, between the transactions of a step that takes
+    /// several (a poll that also reads status and configuration takes up to five, 3 s
+    /// on a loop with a burst device): a write waits at most for one transaction, never
+    /// for a whole step, so it is not given up as "busy" after MAX_QUEUE_WAIT.
+    async fn carry_writes(&mut self) {
+        while let Ok(r) = self.writes.try_recv() {
+            self.carry(r).await;
+        }
     }
 
     /// Burst frames heard: to the subscribers (HART-IP), and into the image.

@@ -288,3 +288,51 @@ fn burst_messages_update_the_image() {
         assert_eq!(engine.image().with(1, |d| d.polls).unwrap(), 1);
     });
 }
+
+/// Before the engine has asked a device, its quality says so ("waiting for first
+/// data", code 5) instead of "no reply": a SCADA restarting with the gateway raises no
+/// alarm for devices nobody has asked yet. Once polled it is good; once silent, no reply.
+#[test]
+fn a_device_not_asked_yet_is_waiting_for_data() {
+    local(async {
+        let settings = LoopSettings {
+            device: vec![DeviceSettings {
+                poll: 1,
+                name: Some("PT-101".into()),
+                period: None,
+                read: None,
+            }],
+            ..Default::default()
+        };
+        let m = MemoryLoop::new(Plant::demo().devices().unwrap());
+        let faults = m.faults();
+        let (engine, _) = Engine::start(
+            config(50, ReadCommand::Dynamic),
+            vec![LoopSpec {
+                settings,
+                line: Line::Memory(m),
+            }],
+        );
+        let q = engine
+            .image()
+            .with(0, |d| d.quality(Instant::now()))
+            .unwrap();
+        assert_eq!(q, Quality::WaitingForData);
+        assert_eq!((q.code(), q.name()), (5, "waiting for first data"));
+        assert!(
+            until(&engine, Duration::from_secs(5), |e| e
+                .image()
+                .with(0, |d| d.quality(Instant::now()) == Quality::Good)
+                .unwrap())
+            .await
+        );
+        faults.set_connected(1, false);
+        assert!(
+            until(&engine, Duration::from_secs(10), |e| e
+                .image()
+                .with(0, |d| d.quality(Instant::now()) == Quality::NoReply)
+                .unwrap())
+            .await
+        );
+    });
+}

@@ -19,6 +19,10 @@ use crate::wire::EncodeError;
 /// command, byte count, 255 bytes, check byte.
 pub const MAX_PDU_LEN: usize = 1 + 5 + 3 + 1 + 1 + 255 + 1;
 
+/// Most preambles [`FrameSpec::encode`] writes: far more than any device needs (HART
+/// asks 5 to 20), few enough that a frame always fits a small buffer.
+pub const MAX_PREAMBLES: usize = 255;
+
 /// Preamble byte.
 pub const PREAMBLE: u8 = 0xFF;
 
@@ -791,7 +795,12 @@ impl<'a> FrameSpec<'a> {
 
     /// Bytes [`FrameSpec::encode`] writes.
     pub fn encoded_len(&self) -> usize {
-        self.preambles + 1 + self.address.len() + self.expansion.len() + 2 + self.body_len() + 1
+        // Saturating: a caller's absurd preamble count gives a length no buffer has
+        // (encode then refuses it), never an overflow.
+        self.preambles
+            .saturating_add(1 + self.address.len() + 2 + 1)
+            .saturating_add(self.expansion.len())
+            .saturating_add(self.body_len())
     }
 
     fn is_extended(&self) -> bool {
@@ -799,13 +808,15 @@ impl<'a> FrameSpec<'a> {
     }
 
     fn body_len(&self) -> usize {
-        usize::from(self.frame_type.has_status()) * 2
-            + usize::from(self.is_extended()) * 2
-            + self.data.len()
+        (usize::from(self.frame_type.has_status()) * 2 + usize::from(self.is_extended()) * 2)
+            .saturating_add(self.data.len())
     }
 
     /// Writes the frame into `out`, returning its length.
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        if self.preambles > MAX_PREAMBLES {
+            return Err(EncodeError::Invalid("at most 255 preambles"));
+        }
         if self.expansion.len() > 3 {
             return Err(EncodeError::Invalid("at most 3 expansion bytes"));
         }

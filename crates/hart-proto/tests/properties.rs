@@ -161,6 +161,32 @@ proptest! {
     }
 
     #[test]
+    fn encode_never_panics_on_any_spec(
+        preambles in prop_oneof![0usize..300, Just(usize::MAX), Just(usize::MAX - 3)],
+        data_len in prop_oneof![0usize..300, Just(100_000usize)],
+        command in any::<u16>(),
+        address in address(),
+        frame_type in frame_type(),
+        extended in any::<bool>(),
+    ) {
+        let data = vec![0x5Au8; data_len];
+        let spec = FrameSpec {
+            preambles,
+            frame_type,
+            extended,
+            status: frame_type.has_status().then_some((0, 0)),
+            ..FrameSpec::request(address, command, &data)
+        };
+        let _ = spec.encoded_len();
+        let mut out = [0u8; 600];
+        if let Ok(n) = spec.encode(&mut out) {
+            prop_assert!(n <= out.len());
+            prop_assert!(preambles <= hart_proto::frame::MAX_PREAMBLES);
+            prop_assert!(Frame::parse(&out[..n]).is_ok());
+        }
+    }
+
+    #[test]
     fn parse_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
         let _ = Frame::parse(&bytes);
         let _ = Frame::parse_pdu(&bytes);

@@ -506,6 +506,32 @@ fn check_segments(
                 });
             }
         }
+        // Finite coefficients may still overflow: the polynomial must be finite over
+        // every count it converts (the end segments also convert the counts beyond
+        // them). A quadratic is largest at its ends or its vertex.
+        if s.raw_from <= s.raw_to {
+            let from = if k == 0 { 0 } else { s.raw_from };
+            let to = if k + 1 == segments.len() {
+                MAX_COUNT
+            } else {
+                s.raw_to
+            };
+            let mut points = vec![from, to];
+            if s.a2 != 0.0 {
+                let vertex = -s.a1 / (2.0 * s.a2);
+                if vertex.is_finite() && vertex > f64::from(from) && vertex < f64::from(to) {
+                    points.push(vertex as u32);
+                }
+            }
+            if let Some(&raw) = points.iter().find(|&&r| !s.eval(r).is_finite()) {
+                return Err(CalibrationError::NotFiniteOver {
+                    line,
+                    sensor,
+                    segment,
+                    raw,
+                });
+            }
+        }
         if s.raw_from > s.raw_to {
             return Err(CalibrationError::Reversed {
                 line,
@@ -624,6 +650,18 @@ pub enum CalibrationError {
         /// The column: `a0`, `a1` or `a2`.
         column: &'static str,
     },
+    /// A segment's polynomial is not finite somewhere over the counts it converts
+    /// (finite coefficients whose products overflow a double).
+    NotFiniteOver {
+        /// Its line.
+        line: Option<usize>,
+        /// The sensor.
+        sensor: Option<Sensor>,
+        /// The segment.
+        segment: usize,
+        /// A count where it is not finite.
+        raw: u32,
+    },
     /// A raw count is above [`MAX_COUNT`].
     RawOutOfRange {
         /// Its line.
@@ -689,6 +727,7 @@ impl CalibrationError {
             | E::BadSegmentNumber { line, .. }
             | E::DuplicateSegment { line, .. } => Some(*line),
             E::NotFinite { line, .. }
+            | E::NotFiniteOver { line, .. }
             | E::RawOutOfRange { line, .. }
             | E::Reversed { line, .. }
             | E::Gap { line, .. }
@@ -773,6 +812,16 @@ impl fmt::Display for CalibrationError {
             } => write!(
                 f,
                 "{column} of {} is not finite (infinite or NaN, or too large for a double): check the coefficient",
+                Subject(*segment, *sensor)
+            ),
+            E::NotFiniteOver {
+                sensor,
+                segment,
+                raw,
+                ..
+            } => write!(
+                f,
+                "the polynomial of {} is not finite at count {raw} (its terms overflow a double): check the coefficients",
                 Subject(*segment, *sensor)
             ),
             E::RawOutOfRange {
@@ -1533,5 +1582,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn finite_coefficients_whose_terms_overflow_are_refused() {
+        let mut segs = Table::builtin(Sensor::Temperature).segments().to_vec();
+        segs[3].a1 = 1e308;
+        segs[3].a2 = -1e308;
+        let e = Table::new(segs).unwrap_err();
+        assert!(
+            matches!(e, CalibrationError::NotFiniteOver { segment: 4, .. }),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("segment 4"), "{e}");
+        // The end segments convert the counts beyond them too.
+        let mut segs = Table::builtin(Sensor::Level).segments().to_vec();
+        segs[9].a2 = 1e300;
+        assert!(matches!(
+            Table::new(segs),
+            Err(CalibrationError::NotFiniteOver { segment: 10, .. })
+        ));
     }
 }

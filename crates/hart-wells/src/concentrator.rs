@@ -340,6 +340,11 @@ impl Concentrator {
                     .entry(minute)
                     .or_insert_with(|| Record::empty(minute));
                 let x = table.eval(v[0]);
+                if !x.is_finite() {
+                    // Checked tables are finite over every count; should one not be,
+                    // the minute stays invalid rather than valid with no value.
+                    continue;
+                }
                 match view.status.kind {
                     Sensor::Temperature => {
                         r.valid |= VALID_TEMPERATURE;

@@ -86,6 +86,19 @@ impl Frame {
     }
 
     fn build(spec: &hart_proto::FrameSpec<'_>) -> PyResult<Self> {
+        if spec.preambles > hart_proto::frame::MAX_PREAMBLES {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "preambles: {} is too many (at most {}; HART devices ask 5 to 20)",
+                spec.preambles,
+                hart_proto::frame::MAX_PREAMBLES
+            )));
+        }
+        if spec.data.len() > 255 {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "data: {} bytes, at most 255 in a frame (less for extended commands and replies)",
+                spec.data.len()
+            )));
+        }
         let mut buf = vec![0u8; spec.encoded_len()];
         let n = spec
             .encode(&mut buf)

@@ -88,9 +88,23 @@ pub struct ModbusSection {
     /// A custom register map (`[[modbus.register]]`), replacing the default one.
     #[serde(default)]
     pub register: Vec<Entry>,
-    /// Most TCP connections at once (default 64).
+    /// Most TCP connections at once (default 64); a full pool closes its oldest idle
+    /// connection to admit a new one.
     #[serde(default)]
     pub max_connections: Option<usize>,
+    /// Most TCP connections from one address (default 16; priority hosts aside).
+    #[serde(default)]
+    pub max_per_address: Option<usize>,
+    /// Hosts (addresses or networks) whose connections are never closed to admit
+    /// others nor limited per address: the SCADA hosts.
+    #[serde(default)]
+    pub priority: Vec<String>,
+    /// A new connection must complete a request within this (default 10 s).
+    #[serde(default, with = "humantime_serde")]
+    pub first_request: Option<Duration>,
+    /// A request begun must be whole within this (default 5 s).
+    #[serde(default, with = "humantime_serde")]
+    pub request: Option<Duration>,
     /// Clients that may write, as networks (`["10.0.0.0/24"]`); loopback only by
     /// default. Others' writes are answered "illegal function".
     #[serde(default)]
@@ -152,6 +166,8 @@ pub struct ServeOptions {
     pub device_commands: Option<PathBuf>,
     /// `--modbus-write-from NET...`.
     pub modbus_write_from: Vec<String>,
+    /// `--modbus-priority NET...`.
+    pub modbus_priority: Vec<String>,
     /// `--allow-commands`.
     pub allow_commands: Option<hart_ip_server::access::CommandAllowList>,
     /// `--audit-file`: every write let through by HART-IP or OPC UA, one JSON line each.
@@ -321,7 +337,23 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
         map,
         float_order: opts.float_order.or(section.float_order).unwrap_or_default(),
         read_only: opts.read_only,
-        max_connections: section.max_connections.unwrap_or(64),
+        limits: {
+            let d = hart_modbus::connections::Limits::default();
+            let priority: Vec<String> = opts
+                .modbus_priority
+                .iter()
+                .chain(&section.priority)
+                .cloned()
+                .collect();
+            hart_modbus::connections::Limits {
+                max_connections: section.max_connections.unwrap_or(d.max_connections).max(1),
+                max_per_address: section.max_per_address.unwrap_or(d.max_per_address).max(1),
+                first_request: section.first_request.unwrap_or(d.first_request),
+                request: section.request.unwrap_or(d.request),
+                priority: hart_access::NetList::parse(&priority)
+                    .map_err(|e| (format!("--modbus-priority / [modbus] priority: {e}"), 2))?,
+            }
+        },
         write_from: match (opts.modbus_write_from.is_empty(), &section.write_from) {
             (false, _) => hart_access::NetList::parse(&opts.modbus_write_from)
                 .map_err(|e| (format!("--modbus-write-from: {e}"), 2))?,
@@ -531,11 +563,8 @@ pub fn run(opts: ServeOptions) -> Result<String, Failure> {
                         hart_host::target::AnyTransport::Sim(Box::new(sim)),
                     ))
                 }
-                Source::Target(t) => Line::client(hart_host::Client::new(
-                    hart_host::target::open_async(&t)
-                        .await
-                        .map_err(|e| (e, 2))?,
-                )),
+                // Opened again whenever it fails.
+                Source::Target(t) => Line::open(&t).await.map_err(|e| (e, 5))?,
             };
             specs.push(LoopSpec { settings, line });
         }
@@ -685,6 +714,24 @@ async fn console_view(engine: Engine, json: bool) {
         let now = std::time::Instant::now();
         let mut out = std::io::stdout();
         let image = engine.image().snapshot();
+        // A loop whose port is down says so first.
+        for channel in 0..engine.loop_count() {
+            if let Some(why) = engine.loop_failure(channel) {
+                let name = engine.loop_name(channel).unwrap_or("?");
+                let _ = if json {
+                    writeln!(
+                        out,
+                        "{}",
+                        serde_json::json!({"loop": name, "port_failed": why})
+                    )
+                } else {
+                    writeln!(
+                        out,
+                        "loop {name}: the port is down ({why}); opening it again"
+                    )
+                };
+            }
+        }
         if !json {
             let _ = writeln!(
                 out,

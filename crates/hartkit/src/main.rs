@@ -1579,6 +1579,10 @@ struct ServeCli {
     /// for more. Default: loopback only. Others' writes get exception 01.
     #[arg(long = "modbus-write-from", value_name = "NET")]
     modbus_write_from: Vec<String>,
+    /// Modbus clients (addresses or networks) whose connections are never closed to
+    /// admit others nor limited per address: the SCADA hosts. Repeat for more.
+    #[arg(long = "modbus-priority", value_name = "NET")]
+    modbus_priority: Vec<String>,
     /// Only these commands may be sent over HART-IP (ranges, e.g. 0-22,48,74-84);
     /// others are answered "access restricted" (16). Every level of command 77 is
     /// checked.
@@ -1621,6 +1625,7 @@ impl ServeCli {
             plain_rights: self.plain_rights,
             device_commands: self.device_commands.clone(),
             modbus_write_from: self.modbus_write_from.clone(),
+            modbus_priority: self.modbus_priority.clone(),
             allow_commands: self.allow_commands.clone(),
             audit_file: self.audit_file.clone(),
             modbus: self.modbus.clone(),
