@@ -976,7 +976,7 @@ impl Demodulator {
     /// before it, or is started afresh when the carrier comes on: the high-pass
     /// filter's sums are re-added every 65536 samples, the running sums rebased and the
     /// oscillators re-derived every 4096, the level and tone dominance averages
-    /// restarted every [`LEVEL_EPOCH`] (all at multiples of these sample counts); the
+    /// restarted every 16384 (all at multiples of these sample counts); the
     /// clock, the detector and the deframer start afresh with every burst. So from
     /// sample [`Self::quiet_from`] on this demodulator's level is the one a
     /// demodulator started at sample 0 has, bit for bit, and after a *quiet point*

@@ -401,9 +401,9 @@ enum ModemCmd {
         /// error.
         #[arg(long)]
         live: bool,
-        /// Decode a long file on N cores (default: all of them); the output is the same
-        /// as on one. Standard input, the live view and files under a minute or so
-        /// decode on one.
+        /// Decode a long file on N cores (default: every core this process may use);
+        /// the output is the same as on one, byte for byte. Standard input, the live
+        /// view and files under 2^21 samples (44 s at 48 kHz) decode on one.
         #[arg(long, value_name = "N")]
         jobs: Option<usize>,
         /// Samples per piece decoded on its own with --jobs (tests).
