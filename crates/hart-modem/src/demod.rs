@@ -279,16 +279,22 @@ struct LinearHighPass {
     /// Delay of the cascade, samples.
     delay: usize,
     sums: [f64; 3],
-    /// Inputs of each stage: the last [`HP_HIST`] before the piece being filtered, then
-    /// the piece (stage 0 holds raw samples, used for the delayed path too).
-    hist: [[f64; HP_HIST + PIECE]; 3],
+    /// Inputs of each stage, oldest first, up to `pos` (stage 0 holds raw samples, used
+    /// for the delayed path too); at least [`HP_HIST`] of them.
+    hist: [[f64; HP_BUF]; 3],
+    /// Where the next input goes in `hist`.
+    pos: usize,
     /// Samples filtered.
     n: usize,
 }
 
-/// Inputs each stage of the high-pass keeps from before the piece: at least the
-/// longest average (161 samples at 192 kHz) and the delay (239 samples).
+/// Inputs each stage of the high-pass needs from before a piece: at least the longest
+/// average (161 samples at 192 kHz) and the delay (239 samples).
 const HP_HIST: usize = 256;
+/// Length of the high-pass filter's input buffers: the newest [`HP_HIST`] inputs are
+/// moved back to the start when a piece no longer fits, at most once every [`PIECE`]
+/// samples however small the pieces (the analog loop pushes 16 at a time).
+const HP_BUF: usize = HP_HIST + 2 * PIECE;
 
 impl LinearHighPass {
     fn new(fs: f64) -> Self {
@@ -307,7 +313,8 @@ impl LinearHighPass {
             inv_len: len.map(|l| 1.0 / l as f64),
             delay,
             sums: [0.0; 3],
-            hist: [[0.0; HP_HIST + PIECE]; 3],
+            hist: [[0.0; HP_BUF]; 3],
+            pos: HP_HIST,
             n: 0,
         }
     }
@@ -318,14 +325,24 @@ impl LinearHighPass {
     fn run_piece(&mut self, piece: &[f32], vpu: f64, mut sink: impl FnMut(f64)) {
         const H: usize = HP_HIST;
         let p = piece.len();
+        if self.pos + p > HP_BUF {
+            // Keep the newest inputs, at the start.
+            for h in self.hist.iter_mut() {
+                h.copy_within(self.pos - H..self.pos, 0);
+            }
+            self.pos = H;
+        }
+        let at = self.pos;
         let [l0, l1, l2] = self.len;
         let [i0, i1, i2] = self.inv_len;
         let d = self.delay;
-        assert!(p <= PIECE && l0 <= H && l1 <= H && l2 <= H && d <= H);
-        let (b0, b1, b2, bd) = (H - l0, H - l1, H - l2, H - d);
+        assert!(
+            p <= PIECE && at >= H && at + p <= HP_BUF && l0 <= H && l1 <= H && l2 <= H && d <= H
+        );
+        let (b0, b1, b2, bd) = (at - l0, at - l1, at - l2, at - d);
         let [mut s0, mut s1, mut s2] = self.sums;
         let [h0, h1, h2] = &mut self.hist;
-        for (o, &x) in h0[H..H + p].iter_mut().zip(piece) {
+        for (o, &x) in h0[at..at + p].iter_mut().zip(piece) {
             let x = f64::from(x) * vpu;
             // Untrusted input: NaN and infinities become silence.
             *o = if x.is_finite() { x } else { 0.0 };
@@ -335,9 +352,9 @@ impl LinearHighPass {
         // cells let both views of the one buffer go through the loop together.
         let h1 = core::cell::Cell::from_mut(&mut h1[..]).as_slice_of_cells();
         let h2 = core::cell::Cell::from_mut(&mut h2[..]).as_slice_of_cells();
-        let stage0 = h0[H..H + p].iter().zip(&h0[b0..b0 + p]);
-        let stage1 = h1[H..H + p].iter().zip(&h1[b1..b1 + p]);
-        let stage2 = h2[H..H + p].iter().zip(&h2[b2..b2 + p]);
+        let stage0 = h0[at..at + p].iter().zip(&h0[b0..b0 + p]);
+        let stage1 = h1[at..at + p].iter().zip(&h1[b1..b1 + p]);
+        let stage2 = h2[at..at + p].iter().zip(&h2[b2..b2 + p]);
         let delayed = &h0[bd..bd + p];
         for ((((&x, &old0), (in1, old1)), (in2, old2)), &d) in
             stage0.zip(stage1).zip(stage2).zip(delayed)
@@ -353,18 +370,15 @@ impl LinearHighPass {
             sink(d - v2);
         }
         self.sums = [s0, s1, s2];
+        self.pos = at + p;
         self.n = self.n.wrapping_add(p);
         if self.n % HP_READD == 0 {
             // Re-add the windows from scratch so rounding cannot accumulate (newest
             // first).
             for st in 0..3 {
-                let end = H + p;
+                let end = self.pos;
                 self.sums[st] = self.hist[st][end - self.len[st]..end].iter().rev().sum();
             }
-        }
-        // Keep the newest inputs for the next piece.
-        for h in self.hist.iter_mut() {
-            h.copy_within(p..p + H, 0);
         }
     }
 }
@@ -964,7 +978,7 @@ impl Demodulator {
     /// oscillators re-derived every 4096, the level and tone dominance averages
     /// restarted every [`LEVEL_EPOCH`] (all at multiples of these sample counts); the
     /// clock, the detector and the deframer start afresh with every burst. So from
-    /// sample [`Self::settled_from`] on this demodulator's level is the one a
+    /// sample [`Self::quiet_from`] on this demodulator's level is the one a
     /// demodulator started at sample 0 has, bit for bit, and after a *quiet point*
     /// (see [`Self::quiet_point`]) everything it reports is what that one reports.
     pub fn starting_at(config: DemodConfig, start: u64) -> Self {
@@ -1014,11 +1028,12 @@ impl Demodulator {
 
     /// The latest quiet point: the sample count of a carrier-detect update at which
     /// the level had been below both carrier thresholds for two updates in a row (from
-    /// [`Self::quiet_from`] on), and the number of frames reported before it. At a quiet point the carrier is off and nothing is being received, and
-    /// every part of the state that decides what is reported later (the filters and
-    /// sums, the level, the deframer's hunt) is what any other settled demodulator
-    /// fed the same recording has: two such demodulators report the same frames,
-    /// bit for bit, after a quiet point both have seen.
+    /// [`Self::quiet_from`] on), and the number of frames reported before it. At a
+    /// quiet point the carrier is off and nothing is being received, and every part
+    /// of the state that decides what is reported later (the filters and sums, the
+    /// level, the deframer's hunt) is what any other settled demodulator fed the same
+    /// recording has: two such demodulators report the same frames, bit for bit,
+    /// after a quiet point both have seen.
     pub fn quiet_point(&self) -> Option<(u64, u64)> {
         self.quiet
     }
@@ -1136,9 +1151,8 @@ impl Demodulator {
         }
     }
 
-    /// Keeps the running sums small: subtract the newest value from the whole ring
-    /// (differences are unchanged).
-    /// Only the last [`RING`] sums are ever read again.
+    /// Keeps the running sums small: subtract the newest value from the ring
+    /// (differences are unchanged); only the last [`RING`] sums are ever read again.
     fn rebase(&mut self) {
         const M: usize = RING_LEN - 1;
         let n = self.n as usize;
@@ -1183,7 +1197,7 @@ impl Demodulator {
     }
 
     /// Correlations with both tones over [a, b) (samples), global oscillator phase.
-    #[inline]
+    #[inline(always)]
     fn corr(&self, a: f64, b: f64) -> (C64, C64) {
         let d = self.prefix(b).sub(self.prefix(a));
         (d.lane(0), d.lane(1))
@@ -1767,17 +1781,15 @@ fn ceil_count(t: f64) -> u64 {
     (if f < t { i + 1 } else { i }) as u64
 }
 
-/// `floor_fast(x)` as an index and as a float (x >= 0, as sample positions are): one
-/// conversion each way instead of two.
+/// `floor_fast(x)` as a float and as an index (`floor_fast(x) as usize`: 0 for a
+/// negative position, which the start of a recording can give), with one conversion
+/// each way instead of two.
 #[inline]
 fn floor_parts(x: f64) -> (usize, f64) {
     let i = x as i64;
     let f = i as f64;
-    if f > x {
-        ((i - 1) as usize, f - 1.0)
-    } else {
-        (i as usize, f)
-    }
+    let (i, f) = if f > x { (i - 1, f - 1.0) } else { (i, f) };
+    (i.max(0) as usize, f)
 }
 
 /// Nearest integer, halves rounded up (the callers do not care which way).
@@ -1873,7 +1885,7 @@ pub fn decode(config: DemodConfig, samples: &[f32]) -> alloc::vec::Vec<DecodedFr
 
 #[cfg(test)]
 mod tests {
-    use super::{floor_fast, robust_slope, AcqPoint, C64};
+    use super::{floor_fast, floor_parts, robust_slope, AcqPoint, C64};
 
     /// Preamble-like transitions (pairs one bit apart, eleven bits between pairs) of a
     /// signal 2 % slow, 40 samples per nominal bit.
@@ -1951,6 +1963,16 @@ mod tests {
             -12_345.678,
         ] {
             assert_eq!(floor_fast(x), libm::floor(x), "{x}");
+        }
+    }
+
+    #[test]
+    fn floor_parts_is_floor_fast_and_its_index() {
+        for x in [
+            -130.5, -2.5, -1.0, -0.25, -0.0, 0.0, 0.25, 1.0, 39.999, 40.0, 12_345.678,
+        ] {
+            let f = floor_fast(x);
+            assert_eq!(floor_parts(x), (f as usize, f), "{x}");
         }
     }
 
