@@ -1070,7 +1070,13 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             json,
             port,
         } => hartkit::demo::run(port, *duration, *json).map(|_| String::new()),
-        Top::Serve(a) => hartkit::gateway::run(a.options()),
+        Top::Serve(a) => hartkit::gateway::run(
+            a.options(),
+            hartkit::gateway::RunMode {
+                print_map: a.print_map,
+                run_for: a.run_for,
+            },
+        ),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         Top::Modbus(ModbusCmd::Bench(a)) => modbus_bench(a),
         Top::Opcua(OpcUaCmd::Trust(a)) => hartkit::gateway::opcua_trust(
@@ -1638,9 +1644,7 @@ impl ServeCli {
             opcua_users: self.opcua_users.clone(),
             opcua_pki: self.opcua_pki.clone(),
             poll_period: self.poll_period,
-            print_map: self.print_map,
             json: self.json,
-            run_for: self.run_for,
         }
     }
 }

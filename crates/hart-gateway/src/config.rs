@@ -1,0 +1,457 @@
+//! One value that says the whole gateway: its loops, the engine's settings and every
+//! front end's, resolved from the configuration file and the options.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use hart_modbus::map::RegisterMap;
+use hart_poller::{EngineConfig, LoopSettings};
+
+use crate::file::GatewayFile;
+use crate::options::ServeOptions;
+use crate::Error;
+
+/// Where a loop's line comes from.
+#[derive(Debug, Clone)]
+pub enum LoopSource {
+    /// A `--port` target: a HART modem's serial port, `rs485:...`, `udp://...`,
+    /// `tcp://...`, `sim`; opened again whenever it fails.
+    Target(String),
+    /// A simulated plant: with `instant`, its devices answer in memory without the
+    /// line's timing.
+    Sim {
+        /// The plant.
+        plant: hart_host::transport::Plant,
+        /// Answer in memory.
+        instant: bool,
+    },
+}
+
+/// One loop of the gateway.
+#[derive(Debug, Clone)]
+pub struct LoopConfig {
+    /// Name, listed devices, scan.
+    pub settings: LoopSettings,
+    /// Its line.
+    pub source: LoopSource,
+}
+
+/// The terminal view shown when no front end is asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConsoleConfig {
+    /// One JSON line per device instead of a table.
+    pub json: bool,
+    /// How often the view is printed.
+    pub every: Duration,
+}
+
+/// The whole gateway: what [`crate::Gateway::start`] runs.
+#[derive(Clone)]
+pub struct GatewayConfig {
+    /// The polling engine's settings.
+    pub engine: EngineConfig,
+    /// The loops, in channel order.
+    pub loops: Vec<LoopConfig>,
+    /// The HART-IP server, if any.
+    pub hart_ip: Option<hart_ip_server::Config>,
+    /// The Modbus TCP server's address, if any.
+    pub modbus_tcp: Option<SocketAddr>,
+    /// The Modbus register map and rules (TCP and RTU).
+    pub modbus: hart_modbus::Config,
+    /// The Modbus RTU slave's port, if any.
+    pub modbus_rtu: Option<hart_modbus::RtuPort>,
+    /// The OPC UA server, if any.
+    pub opcua: Option<hart_opcua::Config>,
+    /// The console view, when no front end is asked for.
+    pub console: Option<ConsoleConfig>,
+    /// Everything is read only: HART-IP refuses changes, Modbus writes, OPC UA method
+    /// calls.
+    pub read_only: bool,
+}
+
+/// `ADDR[:PORT]` (`port` when none) as a socket address; `what` names the option.
+pub fn socket_addr(what: &str, text: &str, port: u16) -> Result<SocketAddr, Error> {
+    use std::net::ToSocketAddrs;
+    let with_port = if text
+        .rsplit_once(':')
+        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+    {
+        text.to_string()
+    } else {
+        format!("{text}:{port}")
+    };
+    with_port
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .ok_or_else(|| Error::config(format!("{what} {text}: not an address")))
+}
+
+/// Where the OPC UA certificate and the trust list of client certificates are kept by
+/// default: `$XDG_DATA_HOME/hartkit/opcua-pki`, `~/.local/share/hartkit/opcua-pki`, or
+/// `./hartkit-opcua-pki`.
+pub fn default_pki_dir() -> PathBuf {
+    std::env::var_os("XDG_DATA_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/share")))
+        .map(|d| d.join("hartkit/opcua-pki"))
+        .unwrap_or_else(|| PathBuf::from("hartkit-opcua-pki"))
+}
+
+impl GatewayConfig {
+    /// The gateway that `opts` ask for: the configuration file they name (if any) with
+    /// the options added to and over it.
+    pub fn from_options(opts: &ServeOptions) -> Result<GatewayConfig, Error> {
+        let file = match &opts.config {
+            Some(p) => GatewayFile::load(p)?,
+            None => GatewayFile::default(),
+        };
+        Self::from_file(&file, opts)
+    }
+
+    /// The gateway of configuration `file` with the options `opts` over it.
+    pub fn from_file(file: &GatewayFile, opts: &ServeOptions) -> Result<GatewayConfig, Error> {
+        if opts.instant && opts.sim.is_none() {
+            return Err(Error::config(
+                "--instant answers simulated devices in memory, so it needs --sim \
+                 [PROFILES...]; a loop given with --port keeps its line timing",
+            ));
+        }
+        let hart_ip = opts
+            .hart_ip
+            .clone()
+            .or(file.hart_ip.as_ref().map(|h| h.bind.clone()));
+        let modbus = opts
+            .modbus
+            .clone()
+            .or(file.modbus.as_ref().and_then(|m| m.bind.clone()));
+        let modbus_rtu = rtu_port(file, opts);
+        let modbus_cfg = modbus_config(file, opts)?;
+        let opcua = opcua_config(file, opts)?;
+        // Polling serves the image's readers: Modbus, OPC UA, the console view (no
+        // front end at all); or when the configuration or --poll-period asks.
+        let console =
+            hart_ip.is_none() && modbus.is_none() && modbus_rtu.is_none() && opcua.is_none();
+        let poll = modbus.is_some()
+            || modbus_rtu.is_some()
+            || opcua.is_some()
+            || console
+            || file.poll.is_some()
+            || opts.poll_period.is_some();
+        let mut defaults = file.poll.clone().unwrap_or_default();
+        if let Some(s) = opts.poll_period {
+            if !(s > 0.0 && s <= 86_400.0) {
+                return Err(Error::config(format!(
+                    "--poll-period {s}: give seconds, more than 0 and at most 86400"
+                )));
+            }
+            defaults.period = Duration::from_secs_f64(s);
+        }
+        let loops = loops(file, opts)?;
+        if opts.transparent && loops.len() > 1 {
+            return Err(Error::config(
+                "--transparent needs exactly one loop: with several, polling address 0 of \
+                 each loop is reached by the device's unique ID",
+            ));
+        }
+        // Checked whichever front ends run: a mistake in the file is said at once.
+        let device_commands = device_commands(file, opts)?;
+        let hart_ip = match hart_ip {
+            Some(bind) => Some(hart_ip_config(file, opts, &bind, device_commands)?),
+            None => None,
+        };
+        let modbus_tcp = modbus
+            .as_deref()
+            .map(|b| socket_addr("--modbus", b, 502))
+            .transpose()?;
+        Ok(GatewayConfig {
+            engine: EngineConfig { poll, defaults },
+            loops,
+            hart_ip,
+            modbus_tcp,
+            modbus: modbus_cfg,
+            modbus_rtu,
+            opcua,
+            console: console.then_some(ConsoleConfig {
+                json: opts.json,
+                every: Duration::from_secs(5),
+            }),
+            read_only: opts.read_only,
+        })
+    }
+
+    /// Whether the gateway answers in memory only (`--sim --instant`): its loops cost
+    /// no line time.
+    pub fn in_memory(&self) -> bool {
+        self.loops
+            .iter()
+            .any(|l| matches!(l.source, LoopSource::Sim { instant: true, .. }))
+    }
+}
+
+/// The loops: --sim, --port targets, then the file's [[loop]]s.
+fn loops(file: &GatewayFile, opts: &ServeOptions) -> Result<Vec<LoopConfig>, Error> {
+    let mut loops = vec![];
+    let cli_loop = |name: Option<String>| LoopSettings {
+        name,
+        scan_to: opts.scan_to,
+        ..Default::default()
+    };
+    if let Some(profiles) = &opts.sim {
+        let plant = sim_plant(profiles)?;
+        let mut settings = cli_loop(Some("sim".into()));
+        // The plant's devices are known: listed first (their unit ids), then the scan.
+        settings.device = plant
+            .device
+            .iter()
+            .map(|d| hart_poller::DeviceSettings {
+                poll: d.poll,
+                name: None,
+                period: None,
+                read: None,
+            })
+            .collect();
+        loops.push(LoopConfig {
+            settings,
+            source: LoopSource::Sim {
+                plant,
+                instant: opts.instant,
+            },
+        });
+    }
+    for p in &opts.ports {
+        loops.push(LoopConfig {
+            settings: cli_loop(None),
+            source: LoopSource::Target(p.clone()),
+        });
+    }
+    for l in &file.loops {
+        l.check()
+            .map_err(|e| Error::config(format!("--config: {e}")))?;
+        let Some(port) = l.port.clone() else {
+            return Err(Error::config(format!(
+                "--config: loop {} has no port; give port = \"/dev/ttyUSB0\" (any --port \
+                 target, or \"sim\")",
+                l.name.as_deref().unwrap_or("(unnamed)")
+            )));
+        };
+        loops.push(LoopConfig {
+            settings: l.clone(),
+            source: LoopSource::Target(port),
+        });
+    }
+    if loops.is_empty() {
+        return Err(Error::config(
+            "no loop: give --port TARGET (a HART modem, rs485:..., udp://...), --sim, or \
+             [[loop]] sections in --config",
+        ));
+    }
+    Ok(loops)
+}
+
+/// The plant behind `--sim [PROFILES...]`: the profiles at polling addresses 1, 2, ...,
+/// or the demo plant when none are given.
+fn sim_plant(profiles: &[String]) -> Result<hart_host::transport::Plant, Error> {
+    use hart_host::transport::Plant;
+    if profiles.is_empty() {
+        Ok(Plant::demo())
+    } else {
+        Plant::from_profiles(profiles).map_err(|e| Error::config(format!("--sim: {e}")))
+    }
+}
+
+/// The HART-IP server bound to `bind`.
+fn hart_ip_config(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+    bind: &str,
+    device_commands: hart_access::DeviceCommands,
+) -> Result<hart_ip_server::Config, Error> {
+    let addr = socket_addr("--hart-ip", bind, hart_ip::PORT)?;
+    let plain = opts
+        .plain
+        .as_deref()
+        .map(|p| socket_addr("--plain", p, hart_ip::PORT))
+        .transpose()?;
+    let psk = opts
+        .psk_file
+        .as_ref()
+        .map(|p| hart_ip_tls::PskTable::load(p).map(std::sync::Arc::new))
+        .transpose()
+        .map_err(|e| Error::config(format!("--psk-file: {e}")))?;
+    // Plain sessions are unauthenticated: beside secure ones they only read unless
+    // told otherwise.
+    let plain_rights = opts
+        .plain_rights
+        .or(file.hart_ip.as_ref().and_then(|h| h.plain_rights))
+        .unwrap_or(if psk.is_some() {
+            hart_access::Rights::ReadOnly
+        } else {
+            hart_access::Rights::ReadWrite
+        });
+    Ok(hart_ip_server::Config {
+        bind: addr,
+        udp: opts.udp || !opts.tcp,
+        tcp: opts.tcp || !opts.udp,
+        max_sessions: opts.max_sessions,
+        max_sessions_per_host: opts.max_sessions_per_host,
+        read_only: opts.read_only,
+        transparent: opts.transparent,
+        scan_to: Some(opts.scan_to),
+        psk,
+        plain,
+        plain_rights,
+        device_commands,
+        allow_commands: opts.allow_commands.clone(),
+        audit_file: opts.audit_file.clone(),
+        ..hart_ip_server::Config::default()
+    })
+}
+
+/// The Modbus RTU port from `--modbus-rtu` and `[modbus_rtu]`.
+fn rtu_port(file: &GatewayFile, opts: &ServeOptions) -> Option<hart_modbus::RtuPort> {
+    let section = file.modbus_rtu.as_ref();
+    let path = opts
+        .modbus_rtu
+        .clone()
+        .or(section.map(|s| s.port.clone()))?;
+    Some(hart_modbus::RtuPort {
+        path,
+        baud: opts
+            .modbus_baud
+            .or(section.and_then(|s| s.baud))
+            .unwrap_or(19_200),
+        parity: opts
+            .modbus_parity
+            .or(section.and_then(|s| s.parity))
+            .unwrap_or('E'),
+        stop_bits: section.and_then(|s| s.stop_bits).unwrap_or(1),
+    })
+}
+
+/// The OPC UA settings from the file's `[opcua]` and the options; `None`: no OPC UA.
+fn opcua_config(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<Option<hart_opcua::Config>, Error> {
+    let section = file.opcua.clone().unwrap_or_default();
+    let Some(bind) = opts.opcua.clone().or(section.bind.clone()) else {
+        return Ok(None);
+    };
+    let bind = socket_addr("--opcua", &bind, 4840)?;
+    let mut users = vec![];
+    for u in opts.opcua_users.iter().chain(&section.users) {
+        let Some((name, pass)) = u
+            .split_once(':')
+            .filter(|(n, p)| !n.is_empty() && !p.is_empty())
+        else {
+            return Err(Error::config(format!(
+                "--opcua-user {u:?}: give NAME:PASSWORD (both non-empty)"
+            )));
+        };
+        users.push((name.to_string(), pass.to_string()));
+    }
+    // Where the security was chosen, for the messages.
+    let (security, from) = match (&opts.opcua_security, &section.security) {
+        (Some(s), _) => (Some(s.as_str()), format!("--opcua-security {s}")),
+        (None, Some(s)) => (
+            Some(s.as_str()),
+            format!("[opcua] security = {s:?} in --config"),
+        ),
+        (None, None) => (None, String::new()),
+    };
+    let security = match security {
+        // Users are never ignored: they get the endpoint that takes them.
+        None if !users.is_empty() => hart_opcua::Security::Basic256Sha256,
+        None if bind.ip().is_loopback() => hart_opcua::Security::None,
+        None => hart_opcua::Security::Basic256Sha256,
+        Some("none") if !users.is_empty() => {
+            return Err(Error::config(format!(
+                "{from} with users (--opcua-user or [opcua] users): a password over \
+                 SecurityPolicy None travels in clear; give --opcua-security \
+                 basic256sha256 (users only, signed and encrypted) or both (anonymous \
+                 read-only on None, users on Basic256Sha256)"
+            )))
+        }
+        Some("none") => hart_opcua::Security::None,
+        Some("basic256sha256") => hart_opcua::Security::Basic256Sha256,
+        Some("both") => hart_opcua::Security::Both,
+        Some(_) => {
+            return Err(Error::config(format!(
+                "{from}: give none, basic256sha256 or both"
+            )))
+        }
+    };
+    let pki_dir = opts
+        .opcua_pki
+        .clone()
+        .or(section.pki_dir.clone())
+        .unwrap_or_else(default_pki_dir);
+    let config = hart_opcua::Config {
+        bind,
+        security,
+        users,
+        pki_dir,
+        read_only: opts.read_only,
+        audit: hart_access::Audit::new(opts.audit_file.clone()),
+    };
+    config
+        .check()
+        .map_err(|e| Error::config(format!("--opcua: {e}")))?;
+    Ok(Some(config))
+}
+
+/// The device-specific commands declared reads: `--device-commands FILE` and the
+/// configuration's `[[device_commands]]`.
+fn device_commands(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<hart_access::DeviceCommands, Error> {
+    let from_config = hart_access::DeviceCommands::from_entries(&file.device_commands)
+        .map_err(|e| Error::config(format!("--config: device_commands: {e}")))?;
+    let from_file = match &opts.device_commands {
+        Some(p) => hart_access::DeviceCommands::load(p).map_err(Error::config)?,
+        None => hart_access::DeviceCommands::default(),
+    };
+    Ok(from_config.merge(from_file))
+}
+
+/// The Modbus settings from the file's `[modbus]` and the options.
+fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus::Config, Error> {
+    let section = file.modbus.clone().unwrap_or_default();
+    let map = if section.register.is_empty() {
+        RegisterMap::default()
+    } else {
+        RegisterMap::new(section.register.clone()).map_err(Error::config)?
+    };
+    let d = hart_modbus::connections::Limits::default();
+    let priority: Vec<String> = opts
+        .modbus_priority
+        .iter()
+        .chain(&section.priority)
+        .cloned()
+        .collect();
+    Ok(hart_modbus::Config {
+        map,
+        float_order: opts.float_order.or(section.float_order).unwrap_or_default(),
+        read_only: opts.read_only,
+        limits: hart_modbus::connections::Limits {
+            max_connections: section.max_connections.unwrap_or(d.max_connections).max(1),
+            max_per_address: section.max_per_address.unwrap_or(d.max_per_address).max(1),
+            first_request: section.first_request.unwrap_or(d.first_request),
+            request: section.request.unwrap_or(d.request),
+            priority: hart_access::NetList::parse(&priority).map_err(|e| {
+                Error::config(format!("--modbus-priority / [modbus] priority: {e}"))
+            })?,
+        },
+        write_from: match (opts.modbus_write_from.is_empty(), &section.write_from) {
+            (false, _) => hart_access::NetList::parse(&opts.modbus_write_from)
+                .map_err(|e| Error::config(format!("--modbus-write-from: {e}")))?,
+            (true, Some(nets)) => hart_access::NetList::parse(nets)
+                .map_err(|e| Error::config(format!("--config: [modbus] write_from: {e}")))?,
+            (true, None) => hart_access::NetList::loopback(),
+        },
+        audit: hart_access::Audit::new(opts.audit_file.clone()),
+    })
+}

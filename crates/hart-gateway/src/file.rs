@@ -1,0 +1,133 @@
+//! The gateway's configuration file (`hartkit serve --config FILE`), as TOML.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use hart_modbus::map::{Entry, FloatOrder};
+use hart_poller::{LoopSettings, PollSettings};
+use serde::Deserialize;
+
+/// The gateway configuration file (`hartkit serve --config FILE`); every section is
+/// optional, and options on the command line add to it.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GatewayFile {
+    /// Poll defaults (`[poll]`).
+    #[serde(default)]
+    pub poll: Option<PollSettings>,
+    /// The loops (`[[loop]]`).
+    #[serde(default, rename = "loop")]
+    pub loops: Vec<LoopSettings>,
+    /// The HART-IP front end (`[hart_ip]`).
+    #[serde(default)]
+    pub hart_ip: Option<HartIpSection>,
+    /// The Modbus TCP front end (`[modbus]`).
+    #[serde(default)]
+    pub modbus: Option<ModbusSection>,
+    /// The Modbus RTU front end (`[modbus_rtu]`).
+    #[serde(default)]
+    pub modbus_rtu: Option<RtuSection>,
+    /// The OPC UA front end (`[opcua]`).
+    #[serde(default)]
+    pub opcua: Option<OpcUaSection>,
+    /// Device-specific commands declared reads (`[[device_commands]]`, as the
+    /// `[[device]]` tables of `--device-commands FILE`).
+    #[serde(default)]
+    pub device_commands: Vec<hart_access::devices::DeviceEntry>,
+}
+
+/// `[opcua]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OpcUaSection {
+    /// `ADDR[:PORT]` (port 4840 by default).
+    #[serde(default)]
+    pub bind: Option<String>,
+    /// `none`, `basic256sha256` or `both`; default `basic256sha256` when users are
+    /// configured, else `none` on a loopback address and `basic256sha256` on any other.
+    #[serde(default)]
+    pub security: Option<String>,
+    /// Users of the secure endpoint, `NAME:PASSWORD` (with any, anonymous sessions only
+    /// read; not with security `none`).
+    #[serde(default)]
+    pub users: Vec<String>,
+    /// Where the certificate and key are kept.
+    #[serde(default)]
+    pub pki_dir: Option<PathBuf>,
+}
+
+/// `[hart_ip]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HartIpSection {
+    /// `ADDR[:PORT]` (port 5094 by default).
+    pub bind: String,
+    /// What plain sessions may do: `read-only` (the default with a PSK file) or
+    /// `read-write` (the default without).
+    #[serde(default)]
+    pub plain_rights: Option<hart_access::Rights>,
+}
+
+/// `[modbus]`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusSection {
+    /// `ADDR[:PORT]` of the TCP server (port 502 by default); none: no TCP server
+    /// (the section then only sets the map for `[modbus_rtu]`).
+    #[serde(default)]
+    pub bind: Option<String>,
+    /// `abcd` (default), `cdab`, `badc` or `dcba`.
+    #[serde(default)]
+    pub float_order: Option<FloatOrder>,
+    /// A custom register map (`[[modbus.register]]`), replacing the default one.
+    #[serde(default)]
+    pub register: Vec<Entry>,
+    /// Most TCP connections at once (default 64); a full pool closes its oldest idle
+    /// connection to admit a new one.
+    #[serde(default)]
+    pub max_connections: Option<usize>,
+    /// Most TCP connections from one address (default 16; priority hosts aside).
+    #[serde(default)]
+    pub max_per_address: Option<usize>,
+    /// Hosts (addresses or networks) whose connections are never closed to admit
+    /// others nor limited per address: the SCADA hosts.
+    #[serde(default)]
+    pub priority: Vec<String>,
+    /// A new connection must complete a request within this (default 10 s).
+    #[serde(default, with = "humantime_serde")]
+    pub first_request: Option<Duration>,
+    /// A request begun must be whole within this (default 5 s).
+    #[serde(default, with = "humantime_serde")]
+    pub request: Option<Duration>,
+    /// Clients that may write, as networks (`["10.0.0.0/24"]`); loopback only by
+    /// default. Others' writes are answered "illegal function".
+    #[serde(default)]
+    pub write_from: Option<Vec<String>>,
+}
+
+/// `[modbus_rtu]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RtuSection {
+    /// Serial port.
+    pub port: String,
+    /// Baud rate (default 19200).
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// Parity `N`, `E` (default) or `O`.
+    #[serde(default)]
+    pub parity: Option<char>,
+    /// Stop bits (default 1; 2 with no parity).
+    #[serde(default)]
+    pub stop_bits: Option<u8>,
+}
+
+impl GatewayFile {
+    /// Reads and checks the file at `path`.
+    pub fn load(path: &std::path::Path) -> Result<GatewayFile, crate::Error> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| crate::Error::config(format!("--config {}: {e}", path.display())))?;
+        toml::from_str(&text)
+            .map_err(|e| crate::Error::config(format!("--config {}: {e}", path.display())))
+    }
+}

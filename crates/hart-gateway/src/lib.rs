@@ -1,0 +1,347 @@
+//! # hart-gateway
+//!
+//! hartkit's gateway, assembled from one value. A [`GatewayConfig`] says the whole
+//! gateway: the loops (serial modems, RS-485 lines, HART-IP servers upstream, simulated
+//! plants), the polling engine's settings, and the front ends on the engine (HART-IP,
+//! Modbus TCP and RTU, OPC UA, the console view). [`Gateway::start`] starts them all
+//! and [`Gateway::stop`] stops them; `hartkit serve` only turns its options into the
+//! value ([`GatewayConfig::from_options`]), so a test, the Python package or another
+//! program starts a whole gateway the same way.
+//!
+//! ```no_run
+//! # async fn f() -> Result<(), hart_gateway::Error> {
+//! use hart_gateway::{Gateway, GatewayConfig, ServeOptions};
+//! let config = GatewayConfig::from_options(&ServeOptions {
+//!     sim: Some(vec![]),
+//!     modbus: Some("127.0.0.1:1502".into()),
+//!     ..ServeOptions::default()
+//! })?;
+//! // Inside a tokio LocalSet: the loops' tasks stay on one thread.
+//! let gateway = Gateway::start(config).await?;
+//! println!("{}", gateway.started().join("\n"));
+//! gateway.stop();
+//! # Ok(()) }
+//! ```
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use hart_poller::{Engine, Line, LoopSpec, StartOptions};
+
+pub mod config;
+pub mod console;
+pub mod file;
+pub mod options;
+
+pub use config::{socket_addr, ConsoleConfig, GatewayConfig, LoopConfig, LoopSource};
+pub use file::GatewayFile;
+pub use options::ServeOptions;
+
+/// Why the gateway could not start.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Error {
+    /// What happened and what to check.
+    pub message: String,
+    /// A mistake in the configuration (`Config`), or the system refused something
+    /// (`Io`: a port that cannot be opened, an address in use).
+    pub kind: ErrorKind,
+}
+
+/// The two kinds of [`Error`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// The configuration or options are wrong (exit code 2).
+    Config,
+    /// An address, port or file could not be used (exit code 5).
+    Io,
+}
+
+impl Error {
+    /// A configuration mistake.
+    pub fn config(message: impl Into<String>) -> Self {
+        Error {
+            message: message.into(),
+            kind: ErrorKind::Config,
+        }
+    }
+
+    /// A refusal of the system.
+    pub fn io(message: impl Into<String>) -> Self {
+        Error {
+            message: message.into(),
+            kind: ErrorKind::Io,
+        }
+    }
+
+    /// The process exit code `hartkit` gives it: 2 for the configuration, 5 for I/O.
+    pub fn exit_code(&self) -> u8 {
+        match self.kind {
+            ErrorKind::Config => 2,
+            ErrorKind::Io => 5,
+        }
+    }
+}
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Error {}
+
+/// A running gateway: its engine, the front ends, and the lines that say where each
+/// one listens.
+pub struct Gateway {
+    engine: Engine,
+    started: Vec<String>,
+    loop_tasks: Vec<tokio::task::JoinHandle<()>>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    hart_ip: Vec<hart_ip_server::Server>,
+    opcua: Option<hart_opcua::OpcUaServer>,
+    modbus_tcp: Option<SocketAddr>,
+}
+
+/// Opens the loops' lines and starts the engine on them (inside a `LocalSet`).
+async fn start_engine(
+    config: &GatewayConfig,
+) -> Result<(Engine, Vec<tokio::task::JoinHandle<()>>), Error> {
+    let mut specs = vec![];
+    let mut queue = hart_poller::LOOP_QUEUE;
+    for l in &config.loops {
+        let line = match &l.source {
+            LoopSource::Sim {
+                plant,
+                instant: true,
+            } => {
+                queue = 1024;
+                let devices = plant
+                    .devices()
+                    .map_err(|e| Error::config(format!("--sim: {e}")))?;
+                Line::Memory(hart_poller::MemoryLoop::new(devices))
+            }
+            LoopSource::Sim {
+                plant,
+                instant: false,
+            } => {
+                let sim = hart_host::transport::SimTransport::new(plant, false)
+                    .map_err(|e| Error::config(format!("--sim: {e}")))?;
+                Line::client(hart_host::Client::new(
+                    hart_host::target::AnyTransport::Sim(Box::new(sim)),
+                ))
+            }
+            // Opened again whenever it fails.
+            LoopSource::Target(t) => Line::open(t).await.map_err(Error::io)?,
+        };
+        specs.push(LoopSpec {
+            settings: l.settings.clone(),
+            line,
+        });
+    }
+    Ok(Engine::start_with(
+        config.engine.clone(),
+        specs,
+        StartOptions {
+            queue,
+            ..StartOptions::default()
+        },
+    ))
+}
+
+impl Gateway {
+    /// Opens the loops, starts the engine and every front end of `config`. Call it
+    /// inside a `tokio::task::LocalSet` (the loops' tasks stay on one thread).
+    pub async fn start(config: GatewayConfig) -> Result<Gateway, Error> {
+        if let Some(h) = &config.hart_ip {
+            // Each session of a TCP server is a descriptor.
+            hart_host::load::raise_open_file_limit(h.max_sessions as u64 + 64);
+        }
+        let (engine, loop_tasks) = start_engine(&config).await?;
+        let mut gw = Gateway {
+            engine: engine.clone(),
+            started: vec![],
+            loop_tasks,
+            tasks: vec![],
+            hart_ip: vec![],
+            opcua: None,
+            modbus_tcp: None,
+        };
+        // A front end that cannot start stops what has started.
+        if let Err(e) = gw.start_front_ends(config).await {
+            gw.stop();
+            return Err(e);
+        }
+        Ok(gw)
+    }
+
+    async fn start_front_ends(&mut self, config: GatewayConfig) -> Result<(), Error> {
+        let engine = self.engine.clone();
+        let read_only = config.read_only;
+        if let Some(h) = config.hart_ip {
+            let bind = h.bind;
+            let plain_rights = h.plain_rights;
+            let server = hart_ip_server::start_with_engine(h, engine.clone(), vec![])
+                .await
+                .map_err(|e| Error::io(format!("--hart-ip {bind}: {e}")))?;
+            let show = |a: Option<SocketAddr>| a.map_or("-".to_string(), |a| a.to_string());
+            self.started.push(format!(
+                "hart-ip: udp {} tcp {}{}{}",
+                show(server.udp_addr),
+                show(server.tcp_addr),
+                if server.secure {
+                    " (DTLS/TLS with pre-shared keys)"
+                } else {
+                    ""
+                },
+                if read_only {
+                    " (read only)"
+                } else if !server.secure && plain_rights == hart_access::Rights::ReadOnly {
+                    " (read only: --plain-rights)"
+                } else {
+                    ""
+                }
+            ));
+            if server.plain_udp_addr.is_some() || server.plain_tcp_addr.is_some() {
+                self.started.push(format!(
+                    "hart-ip plain: udp {} tcp {} ({})",
+                    show(server.plain_udp_addr),
+                    show(server.plain_tcp_addr),
+                    if read_only {
+                        hart_access::Rights::ReadOnly
+                    } else {
+                        plain_rights
+                    }
+                ));
+            }
+            self.hart_ip.push(server);
+        }
+        let modbus = hart_modbus::Gateway::new(engine.clone(), config.modbus);
+        if let Some(addr) = config.modbus_tcp {
+            let (bound, serve) = hart_modbus::bind_tcp(modbus.clone(), addr)
+                .await
+                .map_err(|e| Error::io(format!("--modbus {addr}: {e}")))?;
+            self.modbus_tcp = Some(bound);
+            self.started.push(format!(
+                "modbus: tcp {bound} (floats {}){}",
+                modbus.config().float_order.name(),
+                if read_only { " (read only)" } else { "" }
+            ));
+            self.tasks.push(tokio::spawn(async move {
+                if let Err(e) = serve.await {
+                    tracing::error!("modbus: the TCP server stopped: {e}");
+                }
+            }));
+        }
+        if let Some(port) = config.modbus_rtu {
+            self.started.push(format!(
+                "modbus-rtu: {} {} {}{}{}",
+                port.path, port.baud, 8, port.parity, port.stop_bits
+            ));
+            self.tasks
+                .push(tokio::spawn(hart_modbus::serve_rtu_forever(modbus, port)));
+        }
+        if let Some(cfg) = config.opcua {
+            let bind = cfg.bind;
+            let describe = cfg.describe();
+            let server = hart_opcua::start(engine.clone(), cfg)
+                .map_err(|e| Error::io(format!("--opcua {bind}: {e}")))?;
+            self.started
+                .push(format!("opcua: {} ({describe})", server.url));
+            self.opcua = Some(server);
+        }
+        if let Some(c) = config.console {
+            self.tasks
+                .push(tokio::task::spawn_local(console::view(engine, c)));
+        }
+        Ok(())
+    }
+
+    /// The engine (its image, its loops).
+    pub fn engine(&self) -> &Engine {
+        &self.engine
+    }
+
+    /// One line per front end started, saying where it listens (what `hartkit serve`
+    /// prints first).
+    pub fn started(&self) -> &[String] {
+        &self.started
+    }
+
+    /// Where the Modbus TCP server listens, if it runs.
+    pub fn modbus_tcp_addr(&self) -> Option<SocketAddr> {
+        self.modbus_tcp
+    }
+
+    /// Stops the front ends, then the loops.
+    pub fn stop(self) {
+        for t in self.tasks {
+            t.abort();
+        }
+        if let Some(s) = self.opcua {
+            s.stop();
+        }
+        for s in self.hart_ip {
+            s.stop();
+        }
+        for t in self.loop_tasks {
+            t.abort();
+        }
+    }
+}
+
+/// The Modbus register map of the gateway `config` describes, once its loops have
+/// listed their devices: as text, or as JSON with `json` (`hartkit serve
+/// --print-map`). Call it inside a `LocalSet`.
+pub async fn print_map(config: GatewayConfig, json: bool) -> Result<String, Error> {
+    let (engine, tasks) = start_engine(&config).await?;
+    engine.ready().await;
+    let gw = hart_modbus::Gateway::new(engine, config.modbus);
+    for t in tasks {
+        t.abort();
+    }
+    Ok(if json {
+        serde_json::to_string_pretty(&hart_modbus::map_json(&gw))
+            .map_err(|e| Error::io(e.to_string()))?
+    } else {
+        hart_modbus::map_text(&gw).trim_end().to_string()
+    })
+}
+
+/// Runs the gateway of `config` on a runtime of its own until `until` ends (Ctrl-C,
+/// a time limit): prints the lines of [`Gateway::started`] to standard output first.
+pub fn run_until<F>(config: GatewayConfig, until: F) -> Result<(), Error>
+where
+    F: std::future::Future<Output = ()>,
+{
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| Error::io(e.to_string()))?;
+    let local = tokio::task::LocalSet::new();
+    local.block_on(&rt, async move {
+        let gateway = Gateway::start(config).await?;
+        {
+            use std::io::Write as _;
+            let mut stdout = std::io::stdout();
+            for line in gateway.started() {
+                let _ = writeln!(stdout, "{line}");
+            }
+            let _ = stdout.flush();
+        }
+        until.await;
+        gateway.stop();
+        Ok(())
+    })
+}
+
+/// Until Ctrl-C, or for `seconds` when given: the `until` of `hartkit serve`.
+pub async fn interrupted_or(seconds: Option<f64>) {
+    match seconds {
+        Some(s) => {
+            tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await
+        }
+        None => {
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+}

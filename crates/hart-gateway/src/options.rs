@@ -1,0 +1,74 @@
+//! The options of `hartkit serve`, as data.
+
+use std::path::PathBuf;
+
+use hart_modbus::map::FloatOrder;
+
+/// The options of `hartkit serve`: shortcuts for the configuration file's settings,
+/// which they add to or override ([`GatewayConfig::from_options`]).
+#[derive(Debug, Clone, Default)]
+pub struct ServeOptions {
+    /// `--config FILE`.
+    pub config: Option<PathBuf>,
+    /// `--hart-ip ADDR[:PORT]`.
+    pub hart_ip: Option<String>,
+    /// `--udp` / `--tcp` (neither: both).
+    pub udp: bool,
+    /// `--tcp`.
+    pub tcp: bool,
+    /// `--port TARGET...`: loops.
+    pub ports: Vec<String>,
+    /// `--sim [PROFILES...]`.
+    pub sim: Option<Vec<String>>,
+    /// `--instant`.
+    pub instant: bool,
+    /// `--read-only`: HART-IP refuses changes, Modbus refuses writes, OPC UA refuses
+    /// method calls.
+    pub read_only: bool,
+    /// `--max-sessions`.
+    pub max_sessions: usize,
+    /// `--max-sessions-per-host`.
+    pub max_sessions_per_host: usize,
+    /// `--transparent`.
+    pub transparent: bool,
+    /// `--scan-to`.
+    pub scan_to: u8,
+    /// `--psk-file`.
+    pub psk_file: Option<PathBuf>,
+    /// `--plain`.
+    pub plain: Option<String>,
+    /// `--plain-rights`.
+    pub plain_rights: Option<hart_access::Rights>,
+    /// `--device-commands FILE`.
+    pub device_commands: Option<PathBuf>,
+    /// `--modbus-write-from NET...`.
+    pub modbus_write_from: Vec<String>,
+    /// `--modbus-priority NET...`.
+    pub modbus_priority: Vec<String>,
+    /// `--allow-commands`.
+    pub allow_commands: Option<hart_ip_server::access::CommandAllowList>,
+    /// `--audit-file`: every write let through by HART-IP or OPC UA, one JSON line each.
+    pub audit_file: Option<PathBuf>,
+    /// `--modbus ADDR[:PORT]`.
+    pub modbus: Option<String>,
+    /// `--modbus-rtu PORT`.
+    pub modbus_rtu: Option<String>,
+    /// `--modbus-baud`.
+    pub modbus_baud: Option<u32>,
+    /// `--modbus-parity`.
+    pub modbus_parity: Option<char>,
+    /// `--float-order`.
+    pub float_order: Option<FloatOrder>,
+    /// `--opcua ADDR[:PORT]`.
+    pub opcua: Option<String>,
+    /// `--opcua-security`.
+    pub opcua_security: Option<String>,
+    /// `--opcua-user NAME:PASSWORD`.
+    pub opcua_users: Vec<String>,
+    /// `--opcua-pki DIR`.
+    pub opcua_pki: Option<PathBuf>,
+    /// `--poll-period` seconds.
+    pub poll_period: Option<f64>,
+    /// `--json`: the console view (no front end) prints JSON lines.
+    pub json: bool,
+}

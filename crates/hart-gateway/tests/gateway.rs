@@ -1,0 +1,148 @@
+//! A whole gateway started from one configuration value, as a program or a test
+//! starts it: the demo plant in memory behind Modbus TCP, read with a Modbus request
+//! written out byte by byte; and the configuration mistakes the value refuses.
+
+use std::time::Duration;
+
+use hart_gateway::{ErrorKind, Gateway, GatewayConfig, ServeOptions};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+fn local<F: std::future::Future>(f: F) -> F::Output {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, f)
+}
+
+fn sim_with_modbus() -> ServeOptions {
+    ServeOptions {
+        sim: Some(vec![]),
+        instant: true,
+        modbus: Some("127.0.0.1:0".into()),
+        scan_to: 15,
+        ..ServeOptions::default()
+    }
+}
+
+/// Reads input registers 10..14 (PV units, status, extended status, quality) of unit
+/// 1: Modbus TCP, function 4, transaction 7.
+async fn read_unit_1(addr: std::net::SocketAddr) -> Vec<u8> {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(&[0, 7, 0, 0, 0, 6, 1, 4, 0, 10, 0, 4])
+        .await
+        .unwrap();
+    let mut reply = vec![0; 9 + 8];
+    tokio::time::timeout(Duration::from_secs(5), s.read_exact(&mut reply))
+        .await
+        .expect("a reply within 5 s")
+        .unwrap();
+    reply
+}
+
+#[test]
+fn a_whole_gateway_starts_from_one_value() {
+    local(async {
+        let config = GatewayConfig::from_options(&sim_with_modbus()).unwrap();
+        assert!(config.in_memory());
+        assert!(config.engine.poll, "Modbus reads the image: the engine polls");
+        let gateway = Gateway::start(config).await.unwrap();
+        let addr = gateway.modbus_tcp_addr().unwrap();
+        assert!(
+            gateway.started()[0].starts_with(&format!("modbus: tcp {addr}")),
+            "{:?}",
+            gateway.started()
+        );
+        gateway.engine().ready().await;
+        let mut quality = u16::MAX;
+        for _ in 0..100 {
+            let r = read_unit_1(addr).await;
+            // MBAP: transaction 7, protocol 0, length 11, unit 1; function 4, 8 bytes.
+            assert_eq!(r[..9], [0, 7, 0, 0, 0, 11, 1, 4, 8]);
+            quality = u16::from_be_bytes([r[15], r[16]]);
+            if quality == 0 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert_eq!(quality, 0, "the demo plant's first device reads good");
+        gateway.stop();
+        assert!(
+            tokio::net::TcpStream::connect(addr).await.is_err()
+                || tokio::time::timeout(Duration::from_millis(500), read_unit_1(addr))
+                    .await
+                    .is_err(),
+            "stopped: nothing answers"
+        );
+    });
+}
+
+#[test]
+fn the_value_refuses_what_cannot_run() {
+    let cases: Vec<(ServeOptions, &str)> = vec![
+        (ServeOptions::default(), "no loop"),
+        (
+            ServeOptions {
+                ports: vec!["sim".into()],
+                instant: true,
+                ..ServeOptions::default()
+            },
+            "--instant",
+        ),
+        (
+            ServeOptions {
+                ports: vec!["sim".into(), "sim".into()],
+                transparent: true,
+                ..ServeOptions::default()
+            },
+            "--transparent needs exactly one loop",
+        ),
+        (
+            ServeOptions {
+                sim: Some(vec![]),
+                poll_period: Some(0.0),
+                ..ServeOptions::default()
+            },
+            "--poll-period 0",
+        ),
+        (
+            ServeOptions {
+                sim: Some(vec![]),
+                modbus: Some("no such host name.invalid".into()),
+                ..ServeOptions::default()
+            },
+            "not an address",
+        ),
+        (
+            ServeOptions {
+                sim: Some(vec![]),
+                opcua: Some("127.0.0.1:0".into()),
+                opcua_security: Some("none".into()),
+                opcua_users: vec!["op:secret".into()],
+                ..ServeOptions::default()
+            },
+            "travels in clear",
+        ),
+    ];
+    for (opts, says) in cases {
+        let e = GatewayConfig::from_options(&opts).err().expect(says);
+        assert_eq!(e.kind, ErrorKind::Config, "{e}");
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.message.contains(says), "{e} should say {says:?}");
+    }
+}
+
+/// A front end that cannot start (its address is taken) is an I/O error, and what
+/// had started is stopped.
+#[test]
+fn an_address_in_use_is_an_io_error() {
+    local(async {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let mut opts = sim_with_modbus();
+        opts.modbus = Some(taken.local_addr().unwrap().to_string());
+        let config = GatewayConfig::from_options(&opts).unwrap();
+        let e = Gateway::start(config).await.err().expect("refused");
+        assert_eq!(e.kind, ErrorKind::Io);
+        assert!(e.message.starts_with("--modbus 127.0.0.1:"), "{e}");
+    });
+}
