@@ -33,6 +33,18 @@ pub async fn view(engine: Engine, config: ConsoleConfig) {
                     )
                 };
             }
+            if let Some(why) = engine.loop_disturbed(channel) {
+                let name = engine.loop_name(channel).unwrap_or("?");
+                let _ = if json {
+                    writeln!(
+                        out,
+                        "{}",
+                        serde_json::json!({"loop": name, "disturbed": why})
+                    )
+                } else {
+                    writeln!(out, "loop {name}: disturbed: {why}")
+                };
+            }
         }
         if !json {
             let _ = writeln!(

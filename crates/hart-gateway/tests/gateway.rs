@@ -45,7 +45,10 @@ fn a_whole_gateway_starts_from_one_value() {
     local(async {
         let config = GatewayConfig::from_options(&sim_with_modbus()).unwrap();
         assert!(config.in_memory());
-        assert!(config.engine.poll, "Modbus reads the image: the engine polls");
+        assert!(
+            config.engine.poll,
+            "Modbus reads the image: the engine polls"
+        );
         let gateway = Gateway::start(config).await.unwrap();
         let addr = gateway.modbus_tcp_addr().unwrap();
         assert!(

@@ -105,6 +105,10 @@ pub struct MasterStats {
     pub retries: u64,
     /// Burst frames heard.
     pub bursts: u64,
+    /// Damaged frames and noise heard (parity, framing or check-byte errors, gaps
+    /// inside a frame), whoever sent them: a loop with a babbling device shows them
+    /// climbing while nothing completes.
+    pub damaged: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -250,15 +254,20 @@ impl Master {
     pub fn receive(&mut self, byte: u8, flags: UartFlags, now: Micros) {
         let mut got: Option<(FrameBuf, FrameType, Address, Option<u8>)> = None;
         let mut damage = 0u8;
+        let mut damaged = 0u64;
         self.line.receive(byte, flags, now, &mut |e, _| match e {
             DeframerEvent::Frame(f) => {
                 if let Some(fb) = FrameBuf::from_pdu(f.pdu) {
                     got = Some((fb, f.frame_type(), f.address, f.response_code));
                 }
             }
-            DeframerEvent::Damaged(d) => damage |= d.errors,
+            DeframerEvent::Damaged(d) => {
+                damage |= d.errors;
+                damaged += 1;
+            }
             _ => {}
         });
+        self.stats.damaged += damaged;
         if damage != 0 && matches!(self.state, State::AwaitReply { .. }) {
             if let Some(p) = self.pending.as_mut() {
                 p.last_error = damage;
@@ -409,11 +418,14 @@ impl Master {
             return Some(o);
         }
         let mut damage = 0u8;
+        let mut damaged = 0u64;
         self.line.poll_gap(now, &mut |e, _| {
             if let DeframerEvent::Damaged(d) = e {
-                damage |= d.errors
+                damage |= d.errors;
+                damaged += 1;
             }
         });
+        self.stats.damaged += damaged;
         if damage != 0 && matches!(self.state, State::AwaitReply { .. }) {
             if let Some(p) = self.pending.as_mut() {
                 p.last_error = damage;

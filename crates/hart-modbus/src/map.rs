@@ -70,7 +70,8 @@ pub enum Value {
     /// Extended device status byte.
     ExtendedStatus,
     /// Quality: 0 good, 1 stale, 2 no reply, 3 device malfunction, 4 configuration
-    /// changed, 5 waiting for first data (nothing asked yet).
+    /// changed, 5 waiting for first data (nothing asked yet), 6 loop disturbed (a babbling
+    /// device on the loop).
     Quality,
     /// Seconds since the last good reply (0xFFFFFFFF: none yet).
     Age,
@@ -143,7 +144,7 @@ impl Value {
             QvUnits => "QV units code",
             DeviceStatus => "field device status byte",
             ExtendedStatus => "extended device status byte",
-            Quality => "0 good, 1 stale, 2 no reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data",
+            Quality => "0 good, 1 stale, 2 no reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data, 6 loop disturbed",
             Age => "seconds since the last good reply (4294967295: none yet)",
             PollingAddress => "polling address (65535: unknown)",
             DeviceId => "device ID",

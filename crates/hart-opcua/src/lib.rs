@@ -234,6 +234,7 @@ fn status(q: Quality, present: bool, pending: bool) -> StatusCode {
         Quality::NoReply => StatusCode::BadNoCommunication,
         Quality::DeviceMalfunction => StatusCode::BadDeviceFailure,
         Quality::WaitingForData => StatusCode::BadWaitingForInitialData,
+        Quality::LoopDisturbed => StatusCode::BadCommunicationError,
     }
 }
 

@@ -35,11 +35,16 @@ pub enum Quality {
     /// The engine has not asked the device yet (the gateway just started, or the
     /// device was just found): no value, and no failure either.
     WaitingForData,
+    /// The device's loop is disturbed: a device on it babbles (garbage, burst frames
+    /// without pause, answers at addresses not its own), so values read on it may be
+    /// wrong or another device's.
+    LoopDisturbed,
 }
 
 impl Quality {
     /// The number front ends publish (Modbus register 13): 0 good, 1 stale, 2 no
-    /// reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data.
+    /// reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data,
+    /// 6 loop disturbed.
     pub fn code(self) -> u16 {
         match self {
             Quality::Good => 0,
@@ -48,6 +53,7 @@ impl Quality {
             Quality::DeviceMalfunction => 3,
             Quality::ConfigurationChanged => 4,
             Quality::WaitingForData => 5,
+            Quality::LoopDisturbed => 6,
         }
     }
 
@@ -60,6 +66,7 @@ impl Quality {
             Quality::DeviceMalfunction => "device malfunction",
             Quality::ConfigurationChanged => "configuration changed",
             Quality::WaitingForData => "waiting for first data",
+            Quality::LoopDisturbed => "loop disturbed",
         }
     }
 
@@ -162,6 +169,8 @@ pub struct DeviceImage {
     pub polls: u64,
     /// Polls without a reply.
     pub failures: u64,
+    /// The device's loop is disturbed ([`Quality::LoopDisturbed`]).
+    pub loop_disturbed: bool,
 }
 
 impl DeviceImage {
@@ -189,6 +198,7 @@ impl DeviceImage {
             stale_after,
             polls: 0,
             failures: 0,
+            loop_disturbed: false,
         }
     }
 
@@ -199,6 +209,9 @@ impl DeviceImage {
 
     /// The quality at `now`.
     pub fn quality(&self, now: Instant) -> Quality {
+        if self.loop_disturbed {
+            return Quality::LoopDisturbed;
+        }
         match self.last_poll {
             LastPoll::Pending => Quality::WaitingForData,
             LastPoll::NoReply => Quality::NoReply,

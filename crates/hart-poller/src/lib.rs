@@ -22,6 +22,7 @@ use tokio::sync::{broadcast, mpsc, watch, Mutex};
 
 pub mod clock;
 pub mod config;
+pub mod disturbance;
 pub mod image;
 pub mod line;
 pub mod request;
@@ -31,8 +32,9 @@ pub mod write;
 
 pub use clock::Clock;
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
+pub use disturbance::{Disturbance, LineCounters};
 pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
-pub use line::{Faults, Line, MemoryLoop, Reopening};
+pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
@@ -64,6 +66,8 @@ pub(crate) struct Shared {
     ready: watch::Sender<Vec<bool>>,
     /// Why each loop's port is down, when it is.
     failures: std::sync::Mutex<Vec<Option<String>>>,
+    /// Why each loop is disturbed, when it is.
+    disturbed: std::sync::Mutex<Vec<Option<String>>>,
 }
 
 impl Shared {
@@ -74,6 +78,20 @@ impl Shared {
             if *slot != failure {
                 *slot = failure;
             }
+        }
+    }
+
+    /// Loop `channel` is disturbed (`Some` with why) or not; returns whether that
+    /// changed.
+    pub(crate) fn set_disturbed(&self, channel: u8, reason: Option<&str>) -> bool {
+        let mut d = self.disturbed.lock().unwrap_or_else(|e| e.into_inner());
+        match d.get_mut(usize::from(channel)) {
+            Some(slot) if slot.as_deref() != reason => {
+                let was = slot.is_some();
+                *slot = reason.map(str::to_string);
+                was != reason.is_some()
+            }
+            _ => false,
         }
     }
 
@@ -233,6 +251,7 @@ impl Engine {
             bursts: broadcast::channel(64).0,
             ready: ready_tx,
             failures: std::sync::Mutex::new(vec![None; loops.len()]),
+            disturbed: std::sync::Mutex::new(vec![None; loops.len()]),
         });
         let mut requests = vec![];
         let mut writes = vec![];
@@ -292,6 +311,18 @@ impl Engine {
     pub fn loop_failure(&self, channel: usize) -> Option<String> {
         self.shared
             .failures
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(channel)
+            .cloned()
+            .flatten()
+    }
+
+    /// Why loop `channel` is disturbed (a device babbles on it: every device there is
+    /// [`Quality::LoopDisturbed`]), or `None` while it is not.
+    pub fn loop_disturbed(&self, channel: usize) -> Option<String> {
+        self.shared
+            .disturbed
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .get(channel)

@@ -8,6 +8,8 @@ use hart_host::Client;
 use hart_link::master::RetryPolicy;
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType};
 
+use crate::disturbance::LineCounters;
+
 /// A loop's line.
 pub enum Line {
     /// A line reached through a master client.
@@ -90,30 +92,62 @@ pub struct MemoryLoop {
     devices: Vec<hart_device::Device>,
     start: Instant,
     faults: Faults,
+    counters: LineCounters,
+}
+
+/// How a babbling device disturbs a [`MemoryLoop`] ([`Faults::set_babble`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Babble {
+    /// Nobody babbles.
+    #[default]
+    Quiet,
+    /// Garbage on the line: every reply is lost in it (three damaged frames heard per
+    /// request).
+    Garbage,
+    /// Burst frames without pause (fifty heard per turn of the loop's task).
+    Bursts,
+    /// The first device answers at every polling address.
+    AnswersEveryAddress,
+}
+
+#[derive(Default)]
+struct FaultState {
+    off: std::collections::HashSet<u8>,
+    babble: Babble,
 }
 
 /// Fault hooks of a [`MemoryLoop`], for tests: devices taken off the loop (by polling
-/// address) answer nothing until put back.
+/// address) answer nothing until put back; a babbling device disturbs the loop.
 #[derive(Clone, Default)]
-pub struct Faults(std::sync::Arc<std::sync::Mutex<std::collections::HashSet<u8>>>);
+pub struct Faults(std::sync::Arc<std::sync::Mutex<FaultState>>);
 
 impl Faults {
+    fn state(&self) -> std::sync::MutexGuard<'_, FaultState> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
     /// Takes the device at polling address `poll` off the loop (`false`) or puts it
     /// back (`true`).
     pub fn set_connected(&self, poll: u8, connected: bool) {
-        let mut off = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.state();
         if connected {
-            off.remove(&poll);
+            s.off.remove(&poll);
         } else {
-            off.insert(poll);
+            s.off.insert(poll);
         }
     }
 
+    /// Starts (or, with [`Babble::Quiet`], stops) a babbling device.
+    pub fn set_babble(&self, babble: Babble) {
+        self.state().babble = babble;
+    }
+
     fn is_off(&self, poll: u8) -> bool {
-        self.0
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .contains(&poll)
+        self.state().off.contains(&poll)
+    }
+
+    fn babble(&self) -> Babble {
+        self.state().babble
     }
 }
 
@@ -124,6 +158,7 @@ impl MemoryLoop {
             devices,
             start: Instant::now(),
             faults: Faults::default(),
+            counters: LineCounters::default(),
         }
     }
 
@@ -190,8 +225,35 @@ impl Line {
             }
             Line::Memory(m) => {
                 let t = m.now();
-                answer(&mut m.devices, &m.faults, pdu, t)
+                let babble = m.faults.babble();
+                if babble == Babble::Garbage {
+                    m.counters.damaged += 3;
+                    return None;
+                }
+                let reply = answer(&mut m.devices, &m.faults, babble, pdu, t);
+                if reply.is_some() {
+                    m.counters.completed += 1;
+                }
+                reply
             }
+        }
+    }
+
+    /// What the line has heard since it was opened: replies, damaged frames, bursts
+    /// (for [`crate::disturbance::Disturbance`]).
+    pub fn counters(&self) -> LineCounters {
+        let of = |s: hart_link::master::MasterStats| LineCounters {
+            completed: s.completed,
+            damaged: s.damaged,
+            bursts: s.bursts,
+        };
+        match self {
+            Line::Client(c) => of(c.stats()),
+            Line::Port(p) => p
+                .client
+                .as_ref()
+                .map_or_else(LineCounters::default, |c| of(c.stats())),
+            Line::Memory(m) => m.counters,
         }
     }
 
@@ -228,6 +290,22 @@ impl Line {
                 use hart_link::slave::Handler;
                 let t = m.now();
                 let mut out = vec![];
+                if m.faults.babble() == Babble::Bursts {
+                    // A stranger's command 1 burst frames, back to back.
+                    let data = [12, 0x42, 0x48, 0, 0];
+                    let flood = pdu(&FrameSpec {
+                        frame_type: FrameType::Back,
+                        status: Some((0, 0)),
+                        ..FrameSpec::request(
+                            Address::long(hart_proto::frame::UniqueId::new(0x26F3, 0x0B_AB1E))
+                                .with_burst(true),
+                            1,
+                            &data,
+                        )
+                    });
+                    out.extend(std::iter::repeat_n(flood, 50));
+                    m.counters.bursts += 50;
+                }
                 for d in &mut m.devices {
                     if d.burst_mode() && d.burst_due(t).is_some_and(|due| due <= t) {
                         let mut reply = hart_link::slave::Reply::default();
@@ -292,14 +370,22 @@ pub fn pdu(spec: &FrameSpec<'_>) -> Vec<u8> {
 fn answer(
     devices: &mut [hart_device::Device],
     faults: &Faults,
+    babble: Babble,
     request: &[u8],
     t: u64,
 ) -> Option<Vec<u8>> {
     let f = Frame::parse_pdu(request).ok()?;
+    let first = devices.first().map(|d| d.config().polling_address);
     devices
         .iter_mut()
         .filter(|d| !faults.is_off(d.config().polling_address))
         .filter(|d| match f.address {
+            Address::Short(_)
+                if babble == Babble::AnswersEveryAddress
+                    && Some(d.config().polling_address) == first =>
+            {
+                true
+            }
             Address::Short(a) => a.polling_address == d.config().polling_address,
             Address::Long(a) => {
                 a.id == d.unique_id() || (a.id.is_broadcast() && matches!(f.command_byte, 11 | 21))

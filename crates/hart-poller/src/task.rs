@@ -84,6 +84,7 @@ pub(crate) struct LoopTask {
     scan_turn: bool,
     epoch: Instant,
     clock: Clock,
+    disturbance: crate::disturbance::Disturbance,
 }
 
 impl LoopTask {
@@ -116,6 +117,7 @@ impl LoopTask {
             in_a_row: 0,
             scan_turn: true,
             epoch: clock.now(),
+            disturbance: Default::default(),
         }
     }
 
@@ -213,6 +215,32 @@ impl LoopTask {
                 }
             }
             self.bursts();
+            self.judge_line();
+        }
+    }
+
+    /// Whether the loop is disturbed (a babbling device): when that changes, it is
+    /// logged and every device of the loop is marked, so each front end shows it.
+    fn judge_line(&mut self) {
+        let counters = self.line.counters();
+        let reason = self
+            .disturbance
+            .observe(self.clock.now(), counters)
+            .map(str::to_string);
+        if !self.shared.set_disturbed(self.channel, reason.as_deref()) {
+            return;
+        }
+        let name = &self.shared.loop_names[usize::from(self.channel)];
+        match &reason {
+            Some(why) => tracing::warn!("{name}: the loop is disturbed: {why}"),
+            None => tracing::info!("{name}: the loop is quiet again"),
+        }
+        for d in self.shared.image.snapshot() {
+            if d.channel == self.channel {
+                self.shared
+                    .image
+                    .update(d.position, |d| d.loop_disturbed = reason.is_some());
+            }
         }
     }
 
@@ -348,6 +376,7 @@ impl LoopTask {
                 if let Some(m) = self.misses.get_mut(usize::from(poll)) {
                     *m = 0;
                 }
+                self.check_duplicate(poll, &info).await;
                 let io = info.is_io_system().then(|| info.unique_id());
                 self.register(info).await;
                 if let Some(io) = io {
@@ -378,6 +407,40 @@ impl LoopTask {
         self.last_scan = Some(self.clock.now());
         if !self.first_pass && !self.polling() {
             self.quiet_since = Some(self.clock.now());
+        }
+    }
+
+    /// A device found at `poll` that is listed at another polling address: asked there
+    /// again, and when it still answers there too, it answers addresses not its own
+    /// (a device whose address was changed answers only at the new one).
+    async fn check_duplicate(&mut self, poll: u8, info: &DeviceInfo) {
+        let id = info.unique_id();
+        let other = self
+            .shared
+            .subs
+            .lock()
+            .await
+            .iter()
+            .find(|s| {
+                s.channel == self.channel
+                    && s.present
+                    && s.info.unique_id() == id
+                    && s.info.polling_address.is_some_and(|p| p != poll)
+            })
+            .and_then(|s| s.info.polling_address);
+        let Some(other) = other else {
+            return;
+        };
+        let request = pdu(&FrameSpec::request(Address::short(other), 0, &[]));
+        let again = self.line.transact(&request, 1).await;
+        let same = again
+            .as_deref()
+            .and_then(|r| Frame::parse_pdu(r).ok())
+            .and_then(|f| Identity::decode(&mut Reader::new(f.data)).ok())
+            .is_some_and(|i| DeviceInfo::identified(i, None).unique_id() == id);
+        if same {
+            self.disturbance
+                .duplicate(self.clock.now(), &id.to_string(), other, poll);
         }
     }
 

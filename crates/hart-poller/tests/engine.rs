@@ -476,3 +476,115 @@ fn changes_end_when_the_engine_does() {
         assert!(n >= waiting);
     });
 }
+
+/// Two loops of the demo plant in memory on tokio's clock, polled every second; the
+/// first loop's fault hooks.
+fn two_loops() -> (Engine, hart_poller::Faults) {
+    let a = MemoryLoop::new(Plant::demo().devices().unwrap());
+    let faults = a.faults();
+    let b = MemoryLoop::new(Plant::demo().devices().unwrap());
+    let (engine, _) = Engine::start_with(
+        config(1000, ReadCommand::Dynamic),
+        vec![
+            LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(a),
+            },
+            LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(b),
+            },
+        ],
+        StartOptions {
+            clock: Clock::tokio(SystemTime::UNIX_EPOCH),
+            ..StartOptions::default()
+        },
+    );
+    (engine, faults)
+}
+
+fn qualities(engine: &Engine, channel: u8) -> Vec<Quality> {
+    let now = engine.clock().now();
+    engine
+        .image()
+        .snapshot()
+        .iter()
+        .filter(|d| d.channel == channel)
+        .map(|d| d.quality(now))
+        .collect()
+}
+
+fn polls(engine: &Engine, channel: u8) -> u64 {
+    engine
+        .image()
+        .snapshot()
+        .iter()
+        .filter(|d| d.channel == channel)
+        .map(|d| d.polls)
+        .sum()
+}
+
+/// A babbling device (garbage, then burst frames without pause) disturbs its own loop
+/// only: its devices say "loop disturbed" and the loop says why, the other loop goes on
+/// polling at its rate, and the loop recovers by itself when the device goes quiet.
+#[test]
+fn a_babbling_loop_is_marked_and_recovers_without_stalling_the_others() {
+    paused(async {
+        let (engine, faults) = two_loops();
+        tokio::time::sleep(Duration::from_secs(10)).await;
+        assert!(qualities(&engine, 0).iter().all(|q| *q == Quality::Good));
+        for (babble, says) in [
+            (hart_poller::Babble::Garbage, "garbage"),
+            (hart_poller::Babble::Bursts, "burst frames without pause"),
+        ] {
+            faults.set_babble(babble);
+            let before = polls(&engine, 1);
+            tokio::time::sleep(Duration::from_secs(15)).await;
+            assert!(
+                qualities(&engine, 0)
+                    .iter()
+                    .all(|q| *q == Quality::LoopDisturbed),
+                "{babble:?}: {:?}",
+                qualities(&engine, 0)
+            );
+            let why = engine.loop_disturbed(0).expect("the loop says why");
+            assert!(why.contains(says), "{why}");
+            assert_eq!(engine.loop_disturbed(1), None);
+            assert!(qualities(&engine, 1).iter().all(|q| *q == Quality::Good));
+            // Four devices polled every second: the other loop kept its rate.
+            let done = polls(&engine, 1) - before;
+            assert!(done >= 4 * 13, "{done} polls on the quiet loop in 15 s");
+            faults.set_babble(hart_poller::Babble::Quiet);
+            tokio::time::sleep(Duration::from_secs(15)).await;
+            assert_eq!(engine.loop_disturbed(0), None);
+            assert!(
+                qualities(&engine, 0).iter().all(|q| *q == Quality::Good),
+                "{babble:?} over: {:?}",
+                qualities(&engine, 0)
+            );
+        }
+    });
+}
+
+/// A device that answers at every polling address is found out by the scan (asked
+/// again at its own address, it still answers there) and disturbs the loop.
+#[test]
+fn a_device_answering_every_address_disturbs_its_loop() {
+    paused(async {
+        let (engine, faults) = two_loops();
+        tokio::time::sleep(Duration::from_secs(10)).await;
+        faults.set_babble(hart_poller::Babble::AnswersEveryAddress);
+        // The rescan visits the addresses again (one every RESCAN_IDLE at the most).
+        let mut disturbed = None;
+        for _ in 0..300 {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            if let Some(why) = engine.loop_disturbed(0) {
+                disturbed = Some(why);
+                break;
+            }
+        }
+        let why = disturbed.expect("disturbed within five minutes of rescans");
+        assert!(why.contains("answers at polling addresses"), "{why}");
+        assert_eq!(engine.loop_disturbed(1), None);
+    });
+}
