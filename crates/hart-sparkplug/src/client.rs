@@ -5,7 +5,7 @@
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, SystemTime};
 
 use hart_poller::{Engine, Quality};
 use rumqttc::{
@@ -16,6 +16,10 @@ use rumqttc::{
 use crate::config::{Broker, MqttConfig};
 use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
 use crate::Error;
+
+/// Image changes the publisher holds at most before the engine drops the oldest (and
+/// logs it): minutes of a busy gateway's polls.
+pub const CHANGE_QUEUE: usize = 65_536;
 
 /// The gateway's access rules that DCMD writes follow, like the other front ends'.
 #[derive(Debug, Clone, Default)]
@@ -271,11 +275,13 @@ struct Publisher {
 
 impl Publisher {
     async fn run(mut self, mut stop: tokio::sync::watch::Receiver<bool>) {
-        let mut changes = self.engine.image().subscribe();
+        // The image as it is, then every commit after it, in order, each with the
+        // device as it was then (a commit between the two is carried by the next).
+        self.feed_all();
+        let mut changes = self.engine.image().changes(CHANGE_QUEUE);
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let mut retry_at: Option<tokio::time::Instant> = None;
-        self.feed_all();
         loop {
             self.hand_over();
             self.publish_status();
@@ -294,14 +300,26 @@ impl Publisher {
                     }
                 },
                 _ = wait_retry => retry_at = None,
-                r = changes.recv() => match r {
-                    Ok(position) => self.feed(position),
-                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => self.feed_all(),
-                    Err(tokio::sync::broadcast::error::RecvError::Closed) => {
-                        changes = self.engine.image().subscribe();
+                c = changes.recv() => match c {
+                    Some(c) => {
+                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        self.apply(out);
+                    }
+                    None => {
+                        tracing::info!("mqtt: the engine has stopped: disconnecting");
+                        self.shutdown().await;
+                        return;
                     }
                 },
-                _ = tick.tick() => self.feed_all(),
+                _ = tick.tick() => {
+                    // Qualities that change with time alone (stale): after the changes
+                    // waiting, so that nothing older follows the current image.
+                    while let Some(c) = changes.try_recv() {
+                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        self.apply(out);
+                    }
+                    self.feed_all();
+                }
                 _ = stop.changed() => {
                     self.shutdown().await;
                     return;
@@ -447,7 +465,7 @@ impl Publisher {
     }
 
     fn feed(&mut self, position: usize) {
-        let now = Instant::now();
+        let now = self.engine.clock().now();
         let Some((image, quality)) = self
             .engine
             .image()
@@ -455,7 +473,7 @@ impl Publisher {
         else {
             return;
         };
-        let wall = SystemTime::now();
+        let wall = self.engine.clock().wall();
         let at = match quality {
             Quality::Good | Quality::ConfigurationChanged | Quality::DeviceMalfunction => {
                 image.updated.unwrap_or(wall)
