@@ -400,16 +400,15 @@ impl Publisher {
                 let out = self.core.received(&p.topic, &p.payload, SystemTime::now());
                 self.apply(out);
             }
-            Event::Incoming(Packet::SubAck(s)) => {
+            Event::Incoming(Packet::SubAck(s))
                 if s.return_codes
                     .iter()
-                    .any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure))
-                {
-                    tracing::warn!(
-                        "mqtt: the broker refused a subscription (NCMD, DCMD or STATE): commands \
-                         will not arrive; check the broker's access rules for this user"
-                    );
-                }
+                    .any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) =>
+            {
+                tracing::warn!(
+                    "mqtt: the broker refused a subscription (NCMD, DCMD or STATE): commands \
+                     will not arrive; check the broker's access rules for this user"
+                );
             }
             Event::Outgoing(Outgoing::Publish(_)) => {
                 self.inflight.pop_front();

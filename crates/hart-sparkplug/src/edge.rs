@@ -373,7 +373,7 @@ impl EdgeNode {
             }
             return out;
         }
-        if !d.born && alive || d.born && alive && units_changed {
+        if alive && (!d.born || units_changed) {
             self.dbirth(position, now, &mut out);
         } else if d.born && !alive {
             // Its last values (quality "no reply") first, then the death.

@@ -391,8 +391,7 @@ async fn births_data_aliases_rebirth_writes_and_bad_commands() {
                     .into_iter()
                     .filter(|v| v["topic"].as_str().unwrap().ends_with(&format!("/{device}")))
                     .flat_map(metrics)
-                    .filter(|m| num(&m["alias"]) == pv_alias)
-                    .last()
+                    .rfind(|m| num(&m["alias"]) == pv_alias)
                     .map(|m| m["float_value"].as_f64().unwrap() as f32);
                 if last == Some(now) {
                     break;
@@ -772,8 +771,7 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
             let broker = Broker::start(
                 &t,
                 dir.path(),
-                &format!("password_file {}\n", passwd.display())
-                    .replace("allow_anonymous true", ""),
+                &format!("password_file {}\n", passwd.display()),
             );
             std::fs::write(dir.path().join("wrong"), "wrong\n").unwrap();
             let mut c = config(&broker.url(), "gw-auth");
