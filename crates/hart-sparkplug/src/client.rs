@@ -1,0 +1,544 @@
+//! The MQTT side: a `rumqttc` client that carries out what the [`EdgeNode`] asks,
+//! feeds it the engine's image changes and the broker's messages, and reconnects with
+//! backoff. Writes from DCMD go through `Engine::apply` (access rules and audit of
+//! every front end).
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+
+use hart_poller::{Engine, Quality};
+use rumqttc::{
+    AsyncClient, ConnectReturnCode, ConnectionError, Event, EventLoop, LastWill, MqttOptions,
+    Outgoing, Packet, QoS, TlsConfiguration, Transport,
+};
+
+use crate::config::{Broker, MqttConfig};
+use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
+use crate::Error;
+
+/// Image changes the publisher holds at most before the engine drops the oldest (and
+/// logs it): minutes of a busy gateway's polls.
+pub const CHANGE_QUEUE: usize = 65_536;
+
+/// The gateway's access rules that DCMD writes follow, like the other front ends'.
+#[derive(Debug, Clone, Default)]
+pub struct Access {
+    /// Where writes let through are recorded.
+    pub audit: hart_access::Audit,
+    /// Only these HART commands may be sent (`--allow-commands`).
+    pub allow: Option<hart_access::CommandAllowList>,
+    /// The whole gateway is read-only (`--read-only`).
+    pub read_only: bool,
+}
+
+/// What the publisher is doing, for status pages and tests.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Status {
+    /// An MQTT session is up.
+    pub connected: bool,
+    /// Births are out and data flow (connected, and the primary host online).
+    pub live: bool,
+    /// `bdSeq` of the current or last connection.
+    pub bd_seq: u8,
+    /// Samples waiting to be sent.
+    pub backlog: usize,
+    /// Counters of the edge node.
+    pub counters: crate::edge::Counters,
+    /// Why the last connection failed or ended.
+    pub last_error: Option<String>,
+}
+
+/// A running publisher.
+pub struct Handle {
+    status: Arc<Mutex<Status>>,
+    stop: tokio::sync::watch::Sender<bool>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Handle {
+    /// The current status.
+    pub fn status(&self) -> Status {
+        self.status
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Stops: an NDEATH and a clean DISCONNECT when connected (Sparkplug 3.0 section
+    /// 5.5), then the task ends.
+    pub async fn shutdown(self) {
+        let _ = self.stop.send(true);
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.task).await;
+    }
+}
+
+/// Starts publishing the engine's devices to the broker of `config`. Returns once the
+/// settings are checked and the files read; the connection is made (and made again)
+/// in the background, with a log line for each failure.
+pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<Handle, Error> {
+    let broker = config.check()?;
+    let password = match &config.password_file {
+        Some(p) => Some(
+            std::fs::read_to_string(p)
+                .map_err(|e| Error::File(p.clone(), e.to_string()))?
+                .lines()
+                .next()
+                .unwrap_or_default()
+                .to_string(),
+        ),
+        None => None,
+    };
+    let tls = if broker.tls {
+        Some(tls_config(config.ca_file.as_deref())?)
+    } else {
+        if config.ca_file.is_some() {
+            return Err(Error::Config(format!(
+                "[mqtt] ca_file is given but {} is not mqtts://",
+                config.url
+            )));
+        }
+        None
+    };
+    let settings = Settings {
+        group: config.group.clone(),
+        edge_node: config.edge_node.clone(),
+        primary_host: config.primary_host.clone(),
+        backlog: config.backlog,
+        read_only: config.read_only || access.read_only,
+        allow: access.allow.clone(),
+    };
+    let mut core = EdgeNode::new(settings);
+    let client_id = config
+        .client_id
+        .clone()
+        .unwrap_or_else(|| format!("hartkit-{}-{}", config.group, config.edge_node));
+    let mut options = MqttOptions::new(client_id, broker.host.clone(), broker.port);
+    // Sparkplug 3.0 section 2.5: an edge node's session is never persistent.
+    options.set_clean_session(true);
+    options.set_keep_alive(Duration::from_secs(10));
+    options.set_max_packet_size(1 << 20, 1 << 20);
+    if let Some(u) = &config.username {
+        options.set_credentials(u.clone(), password.unwrap_or_default());
+    }
+    if let Some(t) = tls {
+        options.set_transport(Transport::Tls(t));
+    }
+    options.set_last_will(last_will(core.will(SystemTime::now())));
+    let (client, eventloop) = AsyncClient::new(options, 1024);
+    let status = Arc::new(Mutex::new(Status::default()));
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let publisher = Publisher {
+        engine,
+        access,
+        core,
+        client,
+        eventloop,
+        url: config.url.clone(),
+        broker,
+        outbox: VecDeque::new(),
+        inflight: VecDeque::new(),
+        connected: false,
+        failures: 0,
+        status: status.clone(),
+        last_error: None,
+    };
+    let task = tokio::spawn(publisher.run(stop_rx));
+    Ok(Handle { status, stop, task })
+}
+
+/// A rustls configuration with the ring provider and the CA file's roots (or the
+/// system's).
+fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
+    use rustls::pki_types::{pem::PemObject, CertificateDer};
+    let mut roots = rustls::RootCertStore::empty();
+    match ca_file {
+        Some(path) => {
+            let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_file_iter(path)
+                .map_err(|e| Error::File(path.to_path_buf(), e.to_string()))?
+                .collect::<Result<_, _>>()
+                .map_err(|e| {
+                    Error::File(
+                        path.to_path_buf(),
+                        format!("not a PEM certificate file: {e}"),
+                    )
+                })?;
+            if certs.is_empty() {
+                return Err(Error::File(
+                    path.to_path_buf(),
+                    "no certificate in it (PEM, -----BEGIN CERTIFICATE-----)".into(),
+                ));
+            }
+            for c in certs {
+                roots.add(c).map_err(|e| {
+                    Error::File(
+                        path.to_path_buf(),
+                        format!("a certificate is not usable: {e}"),
+                    )
+                })?;
+            }
+        }
+        None => {
+            let found = rustls_native_roots();
+            if found.is_empty() {
+                return Err(Error::Config(
+                    "mqtts:// without ca_file, and no system certificate authorities were found; give [mqtt] ca_file".into(),
+                ));
+            }
+            for c in found {
+                let _ = roots.add(c);
+            }
+        }
+    }
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let config = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .map_err(|e| Error::Config(format!("TLS: {e}")))?
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    Ok(TlsConfiguration::Rustls(Arc::new(config)))
+}
+
+/// The system's certificate authorities (Debian's bundle).
+fn rustls_native_roots() -> Vec<rustls::pki_types::CertificateDer<'static>> {
+    use rustls::pki_types::{pem::PemObject, CertificateDer};
+    for f in [
+        "/etc/ssl/certs/ca-certificates.crt",
+        "/etc/pki/tls/certs/ca-bundle.crt",
+        "/etc/ssl/cert.pem",
+    ] {
+        if let Ok(it) = CertificateDer::pem_file_iter(f) {
+            let v: Vec<_> = it.filter_map(Result::ok).collect();
+            if !v.is_empty() {
+                return v;
+            }
+        }
+    }
+    vec![]
+}
+
+fn last_will(m: Message) -> LastWill {
+    LastWill::new(m.topic, m.payload, qos(m.qos), m.retain)
+}
+
+fn qos(q: u8) -> QoS {
+    if q == 0 {
+        QoS::AtMostOnce
+    } else {
+        QoS::AtLeastOnce
+    }
+}
+
+/// Why the broker connection failed, and what to check.
+fn explain(e: &ConnectionError, broker: &Broker) -> String {
+    let at = format!("{}:{}", broker.host, broker.port);
+    match e {
+        ConnectionError::ConnectionRefused(
+            ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
+        ) => format!(
+            "the broker at {at} refused the credentials ({e}); check [mqtt] username and password_file"
+        ),
+        ConnectionError::ConnectionRefused(c) => {
+            format!("the broker at {at} refused the connection ({c:?}); check its configuration and the client ID")
+        }
+        ConnectionError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused => format!(
+            "nothing accepts connections at {at} ({io}); check that the broker runs and the host and port of --mqtt"
+        ),
+        ConnectionError::Tls(t) => format!(
+            "TLS with {at} failed ({t}); check [mqtt] ca_file and that the broker's certificate names the host {}",
+            broker.host
+        ),
+        ConnectionError::NetworkTimeout => {
+            format!("no answer from {at} in time; check the network and the address of --mqtt")
+        }
+        other => format!("connection to {at}: {other}"),
+    }
+}
+
+struct Publisher {
+    engine: Engine,
+    access: Access,
+    core: EdgeNode,
+    client: AsyncClient,
+    eventloop: EventLoop,
+    url: String,
+    broker: Broker,
+    /// What the edge node asked that the client's queue has not taken yet.
+    outbox: VecDeque<Output>,
+    /// The samples of each publish handed to the client and not yet written, in order.
+    inflight: VecDeque<Vec<Sample>>,
+    connected: bool,
+    failures: u32,
+    status: Arc<Mutex<Status>>,
+    last_error: Option<String>,
+}
+
+impl Publisher {
+    async fn run(mut self, mut stop: tokio::sync::watch::Receiver<bool>) {
+        // The image as it is, then every commit after it, in order, each with the
+        // device as it was then (a commit between the two is carried by the next).
+        self.feed_all();
+        let mut changes = self.engine.image().changes(CHANGE_QUEUE);
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut retry_at: Option<tokio::time::Instant> = None;
+        loop {
+            self.hand_over();
+            self.publish_status();
+            let wait_retry = async {
+                match retry_at {
+                    Some(t) => tokio::time::sleep_until(t).await,
+                    None => std::future::pending().await,
+                }
+            };
+            tokio::select! {
+                ev = self.eventloop.poll(), if retry_at.is_none() => match ev {
+                    Ok(ev) => self.event(ev),
+                    Err(e) => {
+                        let delay = self.lost(&e);
+                        retry_at = Some(tokio::time::Instant::now() + delay);
+                    }
+                },
+                _ = wait_retry => retry_at = None,
+                c = changes.recv() => match c {
+                    Some(c) => {
+                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        self.apply(out);
+                    }
+                    None => {
+                        tracing::info!("mqtt: the engine has stopped: disconnecting");
+                        self.shutdown().await;
+                        return;
+                    }
+                },
+                _ = tick.tick() => {
+                    // Qualities that change with time alone (stale): after the changes
+                    // waiting, so that nothing older follows the current image.
+                    while let Some(c) = changes.try_recv() {
+                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        self.apply(out);
+                    }
+                    self.feed_all();
+                }
+                _ = stop.changed() => {
+                    self.shutdown().await;
+                    return;
+                }
+            }
+        }
+    }
+
+    fn publish_status(&self) {
+        let mut s = self.status.lock().unwrap_or_else(|e| e.into_inner());
+        *s = Status {
+            connected: self.connected,
+            live: self.core.is_live(),
+            bd_seq: self.core.bd_seq(),
+            backlog: self.core.backlog_len(),
+            counters: self.core.counters(),
+            last_error: self.last_error.clone(),
+        };
+    }
+
+    /// Gives the client what it will take now.
+    fn hand_over(&mut self) {
+        while let Some(o) = self.outbox.front() {
+            let r = match o {
+                Output::Publish(m) => self.client.try_publish(
+                    m.topic.clone(),
+                    qos(m.qos),
+                    m.retain,
+                    m.payload.clone(),
+                ),
+                Output::Subscribe { topic, qos: q } => {
+                    self.client.try_subscribe(topic.clone(), qos(*q))
+                }
+                Output::Disconnect => self.client.try_disconnect(),
+                Output::Write(_) => Ok(()),
+            };
+            if r.is_err() {
+                // The client's queue is full: the rest waits for the next turn.
+                return;
+            }
+            if let Some(Output::Publish(m)) = self.outbox.pop_front() {
+                self.inflight.push_back(m.keep);
+            }
+        }
+    }
+
+    fn apply(&mut self, outputs: Vec<Output>) {
+        for o in outputs {
+            match o {
+                Output::Write(w) => self.write(w),
+                o => self.outbox.push_back(o),
+            }
+        }
+    }
+
+    fn event(&mut self, ev: Event) {
+        match ev {
+            Event::Incoming(Packet::ConnAck(_)) => {
+                self.connected = true;
+                self.failures = 0;
+                self.last_error = None;
+                tracing::info!(
+                    "mqtt: connected to {} as edge node {}/{} (bdSeq {})",
+                    self.url,
+                    self.core.settings().group,
+                    self.core.settings().edge_node,
+                    self.core.bd_seq()
+                );
+                if let Some(h) = &self.core.settings().primary_host {
+                    tracing::info!(
+                        "mqtt: waiting for primary host {h} to be online (spBv1.0/STATE/{h})"
+                    );
+                }
+                let out = self.core.connected(SystemTime::now());
+                self.apply(out);
+            }
+            Event::Incoming(Packet::Publish(p)) => {
+                let out = self.core.received(&p.topic, &p.payload, SystemTime::now());
+                self.apply(out);
+            }
+            Event::Incoming(Packet::SubAck(s))
+                if s.return_codes
+                    .iter()
+                    .any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) =>
+            {
+                tracing::warn!(
+                    "mqtt: the broker refused a subscription (NCMD, DCMD or STATE): commands \
+                     will not arrive; check the broker's access rules for this user"
+                );
+            }
+            Event::Outgoing(Outgoing::Publish(_)) => {
+                self.inflight.pop_front();
+            }
+            Event::Outgoing(Outgoing::Disconnect) => {
+                // Asked by the edge node (primary host offline): connect again at once
+                // and wait for the host there.
+                self.eventloop.network = None;
+                self.forget_session(None);
+            }
+            _ => {}
+        }
+    }
+
+    /// The connection failed or ended: log why, keep what was not sent, prepare the
+    /// next CONNECT's will. Returns how long to wait before trying again.
+    fn lost(&mut self, e: &ConnectionError) -> Duration {
+        let why = explain(e, &self.broker);
+        if self.connected {
+            tracing::warn!(
+                "mqtt: connection lost: {why}; connecting again, samples are kept meanwhile"
+            );
+        } else if self.failures == 0 || self.failures.is_power_of_two() {
+            tracing::warn!(
+                "mqtt: cannot connect: {why} (attempt {}; samples are kept meanwhile)",
+                self.failures + 1
+            );
+        }
+        self.failures = self.failures.saturating_add(1);
+        self.forget_session(Some(why));
+        Duration::from_millis(250u64 << self.failures.min(7)).min(Duration::from_secs(15))
+    }
+
+    fn forget_session(&mut self, why: Option<String>) {
+        if why.is_some() {
+            self.last_error = why;
+        }
+        self.connected = false;
+        // Nothing of the old session may go out in the new one: rumqttc would send
+        // its queued requests after the next CONNACK.
+        self.eventloop.pending.clear();
+        self.eventloop.state.events.clear();
+        let mut unsent: Vec<Sample> = self.inflight.drain(..).flatten().collect();
+        for o in self.outbox.drain(..) {
+            if let Output::Publish(m) = o {
+                unsent.extend(m.keep);
+            }
+        }
+        self.core.disconnected(unsent);
+        self.eventloop
+            .mqtt_options
+            .set_last_will(last_will(self.core.will(SystemTime::now())));
+    }
+
+    fn feed(&mut self, position: usize) {
+        let now = self.engine.clock().now();
+        let Some((image, quality)) = self
+            .engine
+            .image()
+            .with(position, |d| (d.clone(), d.quality(now)))
+        else {
+            return;
+        };
+        let wall = self.engine.clock().wall();
+        let at = match quality {
+            Quality::Good | Quality::ConfigurationChanged | Quality::DeviceMalfunction => {
+                image.updated.unwrap_or(wall)
+            }
+            _ => wall,
+        };
+        let out = self.core.device(&image, quality, at, wall);
+        self.apply(out);
+    }
+
+    fn feed_all(&mut self) {
+        for p in 0..self.engine.image().len() {
+            self.feed(p);
+        }
+    }
+
+    fn write(&mut self, w: WriteRequest) {
+        let engine = self.engine.clone();
+        let audit = self.access.audit.clone();
+        let peer = self.url.clone();
+        tokio::spawn(async move {
+            let origin = hart_poller::Origin {
+                audit: &audit,
+                record: hart_access::WriteRecord {
+                    front_end: "mqtt",
+                    peer,
+                    via: w.via.clone(),
+                    ..Default::default()
+                },
+            };
+            for op in &w.ops {
+                match engine.apply(w.position, op, &origin).await {
+                    Ok(_) => tracing::info!("mqtt: DCMD for {}: {} done", w.device, op.describe()),
+                    Err(e) => {
+                        tracing::warn!(
+                            "mqtt: DCMD for {}: {} not done: {e}",
+                            w.device,
+                            op.describe()
+                        );
+                        break;
+                    }
+                }
+            }
+        });
+    }
+
+    async fn shutdown(&mut self) {
+        if !self.connected {
+            return;
+        }
+        self.outbox.clear();
+        // The NDEATH of this session: the bdSeq it was born with.
+        let m = self.core.death(SystemTime::now());
+        let _ = self
+            .client
+            .try_publish(m.topic, QoS::AtLeastOnce, false, m.payload);
+        let _ = self.client.try_disconnect();
+        let _ = tokio::time::timeout(Duration::from_secs(3), async {
+            loop {
+                match self.eventloop.poll().await {
+                    Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_) => break,
+                    Ok(_) => {}
+                }
+            }
+        })
+        .await;
+        tracing::info!("mqtt: NDEATH sent, disconnected from {}", self.url);
+    }
+}

@@ -1,0 +1,547 @@
+//! The edge node state machine, byte-scripted: events in, topics and payloads out,
+//! each payload decoded back and checked field by field against the Sparkplug 3.0
+//! rules.
+
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use hart_poller::{DeviceImage, Quality, Variable, WriteOp};
+use hart_sparkplug::edge::{millis, EdgeNode, Message, Output, Settings};
+use hart_sparkplug::metrics::{device_alias, index_of};
+use hart_sparkplug::proto::payload::{metric::Value as V, Metric};
+use hart_sparkplug::proto::Payload;
+use prost::Message as _;
+
+fn t(ms: u64) -> SystemTime {
+    UNIX_EPOCH + Duration::from_millis(1_700_000_000_000 + ms)
+}
+
+fn settings() -> Settings {
+    Settings {
+        group: "Plant".into(),
+        edge_node: "gw1".into(),
+        primary_host: None,
+        backlog: 1000,
+        read_only: false,
+        allow: None,
+    }
+}
+
+/// An identified device at `position` (unique ID from `id`), PV `pv` kPa.
+fn device(position: usize, id: u8, long_tag: Option<&str>, pv: f32) -> DeviceImage {
+    use hart_proto::wire::{Reader, Wire};
+    let bytes = [254, 0x26, 0x01, 5, 5, 1, 1, 0x08, 0, 0x10, 0x20, id];
+    let identity = hart_proto::command::Identity::decode(&mut Reader::new(&bytes)).unwrap();
+    let mut info = hart_host::DeviceInfo::identified(identity, Some(position as u8));
+    info.tag = Some("PT-101".into());
+    info.long_tag = long_tag.map(str::to_string);
+    let mut d = DeviceImage::new(position, 0, "loop1", Duration::from_secs(10));
+    d.position = position;
+    d.polling_address = Some(position as u8);
+    d.info = Some(info);
+    d.variables[0] = Some(Variable {
+        value: pv,
+        units: 12,
+        status: None,
+    });
+    d.loop_current = Some(12.0);
+    d
+}
+
+fn publishes(out: &[Output]) -> Vec<&Message> {
+    out.iter()
+        .filter_map(|o| match o {
+            Output::Publish(m) => Some(m),
+            _ => None,
+        })
+        .collect()
+}
+
+fn decode(m: &Message) -> Payload {
+    Payload::decode(m.payload.as_slice()).unwrap()
+}
+
+fn named<'a>(p: &'a Payload, name: &str) -> &'a Metric {
+    p.metrics
+        .iter()
+        .find(|m| m.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("no metric {name}"))
+}
+
+fn connected(node: &mut EdgeNode, now: SystemTime) -> Vec<Output> {
+    let _will = node.will(now);
+    node.connected(now)
+}
+
+#[test]
+fn will_births_and_data() {
+    let mut node = EdgeNode::new(settings());
+    let will = node.will(t(0));
+    assert_eq!(will.topic, "spBv1.0/Plant/NDEATH/gw1");
+    assert_eq!((will.qos, will.retain), (1, false));
+    let p = decode(&will);
+    assert_eq!(p.seq, None, "NDEATH has no seq");
+    assert_eq!(p.metrics.len(), 1);
+    let bd = &p.metrics[0];
+    assert_eq!(bd.name.as_deref(), Some("bdSeq"));
+    assert_eq!(bd.datatype, Some(4), "Int64");
+    assert_eq!(bd.value, Some(V::LongValue(0)));
+
+    // A device seen before the session: born with the node.
+    assert!(node
+        .device(
+            &device(0, 1, Some("Feed pressure"), 50.0),
+            Quality::Good,
+            t(5),
+            t(5)
+        )
+        .is_empty());
+    let out = node.connected(t(10));
+    assert_eq!(
+        out[..2],
+        [
+            Output::Subscribe {
+                topic: "spBv1.0/Plant/NCMD/gw1".into(),
+                qos: 1
+            },
+            Output::Subscribe {
+                topic: "spBv1.0/Plant/DCMD/gw1/+".into(),
+                qos: 1
+            },
+        ]
+    );
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 2);
+    assert_eq!(msgs[0].topic, "spBv1.0/Plant/NBIRTH/gw1");
+    assert_eq!((msgs[0].qos, msgs[0].retain), (0, false));
+    let nbirth = decode(msgs[0]);
+    assert_eq!(nbirth.seq, Some(0));
+    assert_eq!(nbirth.timestamp, Some(millis(t(10))));
+    assert_eq!(named(&nbirth, "bdSeq").value, Some(V::LongValue(0)));
+    let rebirth = named(&nbirth, "Node Control/Rebirth");
+    assert_eq!(
+        (rebirth.datatype, &rebirth.value),
+        (Some(11), &Some(V::BooleanValue(false)))
+    );
+
+    assert_eq!(msgs[1].topic, "spBv1.0/Plant/DBIRTH/gw1/Feed pressure");
+    let dbirth = decode(msgs[1]);
+    assert_eq!(dbirth.seq, Some(1));
+    for m in &dbirth.metrics {
+        assert!(
+            m.name.is_some() && m.alias.is_some() && m.datatype.is_some(),
+            "{m:?}"
+        );
+        assert!(m.value.is_some() || m.is_null == Some(true), "{m:?}");
+    }
+    let pv = named(&dbirth, "PV");
+    assert_eq!(pv.alias, Some(device_alias(0, 0)));
+    assert_eq!(
+        (pv.datatype, &pv.value),
+        (Some(9), &Some(V::FloatValue(50.0)))
+    );
+    assert_eq!(pv.timestamp, Some(millis(t(5))));
+    let props = pv.properties.as_ref().unwrap();
+    assert_eq!(props.keys, ["engUnit", "hartUnitCode"]);
+    assert_eq!(named(&dbirth, "SV").is_null, Some(true));
+    assert_eq!(
+        named(&dbirth, "Status/Quality").value,
+        Some(V::StringValue("good".into()))
+    );
+    assert_eq!(
+        named(&dbirth, "Properties/Tag").value,
+        Some(V::StringValue("PT-101".into()))
+    );
+    assert_eq!(
+        named(&dbirth, "Properties/UniqueId").value,
+        Some(V::StringValue("2601102001".into()))
+    );
+
+    // A change: DDATA with the changed metric only, by alias, no name.
+    let out = node.device(
+        &device(0, 1, Some("Feed pressure"), 51.5),
+        Quality::Good,
+        t(20),
+        t(21),
+    );
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 1);
+    assert_eq!(msgs[0].topic, "spBv1.0/Plant/DDATA/gw1/Feed pressure");
+    let p = decode(msgs[0]);
+    assert_eq!(p.seq, Some(2));
+    assert_eq!(p.timestamp, Some(millis(t(21))));
+    assert_eq!(p.metrics.len(), 1);
+    let m = &p.metrics[0];
+    assert_eq!(
+        (m.name.as_deref(), m.alias),
+        (None, Some(device_alias(0, 0)))
+    );
+    assert_eq!(
+        (m.value.clone(), m.timestamp, m.is_historical),
+        (Some(V::FloatValue(51.5)), Some(millis(t(20))), None)
+    );
+
+    // Nothing changed: nothing sent.
+    assert!(node
+        .device(
+            &device(0, 1, Some("Feed pressure"), 51.5),
+            Quality::Good,
+            t(30),
+            t(30)
+        )
+        .is_empty());
+}
+
+#[test]
+fn death_and_rebirth_of_a_device() {
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    let out = node.device(&device(0, 1, None, 1.0), Quality::Good, t(1), t(1));
+    assert_eq!(
+        publishes(&out)[0].topic,
+        "spBv1.0/Plant/DBIRTH/gw1/PT-101",
+        "the tag when no long tag"
+    );
+    let out = node.device(&device(0, 1, None, 1.0), Quality::NoReply, t(2), t(2));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 2);
+    assert_eq!(msgs[0].topic, "spBv1.0/Plant/DDATA/gw1/PT-101");
+    let q = decode(msgs[0]);
+    assert_eq!(
+        q.metrics
+            .iter()
+            .find(|m| m.alias == Some(device_alias(0, index_of("Status/Quality").unwrap())))
+            .unwrap()
+            .value,
+        Some(V::StringValue("no reply".into()))
+    );
+    assert_eq!(msgs[1].topic, "spBv1.0/Plant/DDEATH/gw1/PT-101");
+    let d = decode(msgs[1]);
+    assert_eq!((d.seq, d.metrics.len()), (Some(3), 0));
+    // Still silent: nothing more.
+    assert!(node
+        .device(&device(0, 1, None, 1.0), Quality::NoReply, t(3), t(3))
+        .is_empty());
+    // Back: DBIRTH again.
+    let out = node.device(&device(0, 1, None, 2.0), Quality::Good, t(4), t(4));
+    let msgs = publishes(&out);
+    assert_eq!(msgs[0].topic, "spBv1.0/Plant/DBIRTH/gw1/PT-101");
+    assert_eq!(decode(msgs[0]).seq, Some(4));
+    // A units change is a new birth (units are properties of the birth).
+    let mut d = device(0, 1, None, 2.0);
+    d.variables[0].as_mut().unwrap().units = 7;
+    let out = node.device(&d, Quality::Good, t(5), t(5));
+    assert_eq!(publishes(&out)[0].topic, "spBv1.0/Plant/DBIRTH/gw1/PT-101");
+}
+
+#[test]
+fn seq_wraps_after_255_and_rebirth_restarts_it() {
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0)); // seq 1
+    let mut seqs = vec![];
+    for i in 1..=300u64 {
+        let out = node.device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i));
+        seqs.push(decode(publishes(&out)[0]).seq.unwrap());
+    }
+    assert_eq!(seqs[0], 2);
+    assert_eq!(seqs[253], 255);
+    assert_eq!(seqs[254], 0);
+    assert!(seqs.windows(2).all(|w| w[1] == (w[0] + 1) % 256));
+
+    let ncmd = Payload {
+        timestamp: Some(1),
+        metrics: vec![Metric {
+            name: Some("Node Control/Rebirth".into()),
+            datatype: Some(11),
+            value: Some(V::BooleanValue(true)),
+            ..Default::default()
+        }],
+        ..Default::default()
+    }
+    .encode_to_vec();
+    let out = node.received("spBv1.0/Plant/NCMD/gw1", &ncmd, t(400));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 2);
+    let nbirth = decode(msgs[0]);
+    assert_eq!(
+        (nbirth.seq, named(&nbirth, "bdSeq").value.clone()),
+        (Some(0), Some(V::LongValue(0))),
+        "same bdSeq: same connection"
+    );
+    assert_eq!(decode(msgs[1]).seq, Some(1));
+
+    // Malformed and foreign commands: logged, nothing published.
+    for bad in [&[0xFFu8, 0x01][..], &[], b"not protobuf at all"] {
+        assert!(node
+            .received("spBv1.0/Plant/NCMD/gw1", bad, t(500))
+            .is_empty());
+    }
+    assert!(node.counters().bad_commands >= 2);
+}
+
+#[test]
+fn samples_while_away_come_back_historical_in_order() {
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    // A DDATA handed to the client that never went out, then the connection drops.
+    let out = node.device(&device(0, 1, None, 1.0), Quality::Good, t(1), t(1));
+    let unsent = publishes(&out)[0].keep.clone();
+    node.disconnected(unsent);
+    for i in 2..6u64 {
+        assert!(node
+            .device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i))
+            .is_empty());
+    }
+    assert_eq!(node.backlog_len(), 5);
+    let will = node.will(t(10));
+    assert_eq!(
+        decode(&will).metrics[0].value,
+        Some(V::LongValue(1)),
+        "bdSeq + 1 per CONNECT"
+    );
+    let out = node.connected(t(10));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 2 + 5);
+    assert_eq!(
+        named(&decode(msgs[0]), "bdSeq").value,
+        Some(V::LongValue(1))
+    );
+    assert_eq!(
+        named(&decode(msgs[1]), "PV").value,
+        Some(V::FloatValue(5.0)),
+        "the birth has the current value"
+    );
+    let mut values = vec![];
+    for (k, m) in msgs[2..].iter().enumerate() {
+        assert_eq!(m.topic, "spBv1.0/Plant/DDATA/gw1/PT-101");
+        let p = decode(m);
+        assert_eq!(p.seq, Some(2 + k as u64));
+        let pv = &p.metrics[0];
+        assert_eq!(pv.is_historical, Some(true));
+        assert_eq!(pv.timestamp, Some(millis(t(1 + k as u64))));
+        values.push(pv.value.clone());
+    }
+    assert_eq!(
+        values,
+        (1..6)
+            .map(|i| Some(V::FloatValue(i as f32)))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(node.backlog_len(), 0);
+    assert_eq!(node.counters().replayed, 5);
+}
+
+#[test]
+fn backlog_bound_drops_the_oldest() {
+    let mut node = EdgeNode::new(Settings {
+        backlog: 3,
+        ..settings()
+    });
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    for i in 1..=5u64 {
+        node.device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i));
+    }
+    assert_eq!(node.backlog_len(), 3);
+    assert_eq!(node.counters().dropped, 2);
+    let out = connected(&mut node, t(10));
+    let first = decode(publishes(&out)[2]);
+    assert_eq!(first.metrics[0].value, Some(V::FloatValue(3.0)));
+}
+
+fn state(online: bool, ts: u64) -> Vec<u8> {
+    format!("{{\"online\": {online}, \"timestamp\": {ts}}}").into_bytes()
+}
+
+#[test]
+fn primary_host_state() {
+    let mut node = EdgeNode::new(Settings {
+        primary_host: Some("scada".into()),
+        ..settings()
+    });
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let out = connected(&mut node, t(1));
+    assert!(out.contains(&Output::Subscribe {
+        topic: "spBv1.0/STATE/scada".into(),
+        qos: 1
+    }));
+    assert!(
+        publishes(&out).is_empty(),
+        "no birth before the host is online"
+    );
+    assert!(node
+        .received("spBv1.0/STATE/scada", &state(false, 100), t(2))
+        .is_empty());
+    assert!(node
+        .received("spBv1.0/STATE/scada", b"{online", t(2))
+        .is_empty());
+    assert!(node
+        .received("spBv1.0/STATE/other", &state(true, 200), t(2))
+        .is_empty());
+    let out = node.received("spBv1.0/STATE/scada", &state(true, 200), t(3));
+    assert_eq!(publishes(&out)[0].topic, "spBv1.0/Plant/NBIRTH/gw1");
+    assert!(node.is_live());
+    // An older STATE (a late retained one) changes nothing.
+    assert!(node
+        .received("spBv1.0/STATE/scada", &state(false, 150), t(4))
+        .is_empty());
+    let out = node.received("spBv1.0/STATE/scada", &state(false, 300), t(5));
+    assert_eq!(out.len(), 2);
+    let ndeath = publishes(&out)[0];
+    assert_eq!(ndeath.topic, "spBv1.0/Plant/NDEATH/gw1");
+    assert_eq!(decode(ndeath).metrics[0].value, Some(V::LongValue(0)));
+    assert_eq!(out[1], Output::Disconnect);
+    assert!(!node.is_live());
+    // Samples while the host is away are kept.
+    node.device(&device(0, 1, None, 7.0), Quality::Good, t(6), t(6));
+    assert_eq!(node.backlog_len(), 1);
+}
+
+fn dcmd(metrics: Vec<Metric>) -> Vec<u8> {
+    Payload {
+        timestamp: Some(1),
+        metrics,
+        ..Default::default()
+    }
+    .encode_to_vec()
+}
+
+fn float(name: &str, x: f32) -> Metric {
+    Metric {
+        name: Some(name.into()),
+        datatype: Some(9),
+        value: Some(V::FloatValue(x)),
+        ..Default::default()
+    }
+}
+
+#[test]
+fn dcmd_writes_follow_the_rules() {
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let topic = "spBv1.0/Plant/DCMD/gw1/PT-101";
+    let out = node.received(topic, &dcmd(vec![float("Config/Damping", 2.5)]), t(1));
+    let Output::Write(w) = &out[0] else {
+        panic!("{out:?}")
+    };
+    assert_eq!(
+        (w.position, w.ops.clone()),
+        (0, vec![WriteOp::Damping(2.5)])
+    );
+    assert_eq!(w.via, "DCMD Config/Damping");
+    // The range's two values make one command 35; by alias works too.
+    let mut lower = float("", 0.0);
+    lower.name = None;
+    lower.alias = Some(device_alias(0, index_of("Config/LowerRange").unwrap()));
+    let out = node.received(
+        topic,
+        &dcmd(vec![float("Config/UpperRange", 200.0), lower]),
+        t(1),
+    );
+    let Output::Write(w) = &out[0] else {
+        panic!("{out:?}")
+    };
+    assert_eq!(
+        w.ops,
+        vec![WriteOp::Range {
+            upper: Some(200.0),
+            lower: Some(0.0),
+            units: None
+        }]
+    );
+    // Refused: not writable, wrong type, unknown device, not a payload, NaN.
+    for (topic, payload) in [
+        (topic, dcmd(vec![float("PV", 1.0)])),
+        (topic, dcmd(vec![float("Properties/Tag", 1.0)])),
+        (topic, dcmd(vec![float("Config/Damping", f32::NAN)])),
+        (
+            "spBv1.0/Plant/DCMD/gw1/nobody",
+            dcmd(vec![float("Config/Damping", 1.0)]),
+        ),
+        (topic, vec![0x0A, 0xFF]),
+    ] {
+        assert!(
+            node.received(topic, &payload, t(2)).is_empty(),
+            "{payload:02X?}"
+        );
+    }
+    // Read-only, and the allow-list without command 34.
+    let mut ro = EdgeNode::new(Settings {
+        read_only: true,
+        ..settings()
+    });
+    connected(&mut ro, t(0));
+    ro.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    assert!(ro
+        .received(topic, &dcmd(vec![float("Config/Damping", 2.5)]), t(1))
+        .is_empty());
+    let mut allow = EdgeNode::new(Settings {
+        allow: Some("0-33,35-200".parse().unwrap()),
+        ..settings()
+    });
+    connected(&mut allow, t(0));
+    allow.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    assert!(allow
+        .received(topic, &dcmd(vec![float("Config/Damping", 2.5)]), t(1))
+        .is_empty());
+    assert_eq!(
+        allow
+            .received(topic, &dcmd(vec![float("Config/UpperRange", 2.5)]), t(1))
+            .len(),
+        1
+    );
+}
+
+#[test]
+fn device_ids_are_valid_unique_and_stable() {
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(
+        &device(0, 1, Some("Reactor feed"), 0.0),
+        Quality::Good,
+        t(0),
+        t(0),
+    );
+    node.device(
+        &device(1, 2, Some("reactor FEED"), 0.0),
+        Quality::Good,
+        t(0),
+        t(0),
+    );
+    node.device(&device(2, 3, Some("a/b"), 0.0), Quality::Good, t(0), t(0));
+    let mut d = device(3, 4, None, 0.0);
+    d.info.as_mut().unwrap().tag = Some("  ".into());
+    node.device(&d, Quality::Good, t(0), t(0));
+    assert_eq!(node.device_id(0), Some("Reactor feed"));
+    assert_eq!(
+        node.device_id(1),
+        Some("reactor FEED-2601102002"),
+        "same in lower case: suffixed"
+    );
+    assert_eq!(
+        node.device_id(2),
+        Some("PT-101"),
+        "'/' is not allowed: the tag"
+    );
+    assert_eq!(
+        node.device_id(3),
+        Some("2601102004"),
+        "no usable tag: the unique ID"
+    );
+    // A new long tag later does not move the device.
+    node.device(
+        &device(0, 1, Some("Renamed"), 0.0),
+        Quality::Good,
+        t(1),
+        t(1),
+    );
+    assert_eq!(node.device_id(0), Some("Reactor feed"));
+    // Not identified: not published.
+    let mut anon = DeviceImage::new(4, 0, "loop1", Duration::from_secs(10));
+    anon.position = 4;
+    assert!(node
+        .device(&anon, Quality::WaitingForData, t(2), t(2))
+        .is_empty());
+    assert_eq!(node.device_id(4), None);
+}
