@@ -63,8 +63,14 @@ pub struct GatewayConfig {
     pub modbus_rtu: Option<hart_modbus::RtuPort>,
     /// The OPC UA server, if any.
     pub opcua: Option<hart_opcua::Config>,
+    /// The MQTT Sparkplug B publisher, if any.
+    pub mqtt: Option<hart_sparkplug::MqttConfig>,
     /// The console view, when no front end is asked for.
     pub console: Option<ConsoleConfig>,
+    /// Only these HART commands may be sent by clients (`--allow-commands`).
+    pub allow_commands: Option<hart_access::CommandAllowList>,
+    /// Where every write let through is recorded (`--audit-file`).
+    pub audit_file: Option<PathBuf>,
     /// Everything is read only: HART-IP refuses changes, Modbus writes, OPC UA method
     /// calls.
     pub read_only: bool,
@@ -129,13 +135,18 @@ impl GatewayConfig {
         let modbus_rtu = rtu_port(file, opts);
         let modbus_cfg = modbus_config(file, opts)?;
         let opcua = opcua_config(file, opts)?;
-        // Polling serves the image's readers: Modbus, OPC UA, the console view (no
-        // front end at all); or when the configuration or --poll-period asks.
-        let console =
-            hart_ip.is_none() && modbus.is_none() && modbus_rtu.is_none() && opcua.is_none();
+        let mqtt = mqtt_config(file, opts)?;
+        // Polling serves the image's readers: Modbus, OPC UA, MQTT, the console view
+        // (no front end at all); or when the configuration or --poll-period asks.
+        let console = hart_ip.is_none()
+            && modbus.is_none()
+            && modbus_rtu.is_none()
+            && opcua.is_none()
+            && mqtt.is_none();
         let poll = modbus.is_some()
             || modbus_rtu.is_some()
             || opcua.is_some()
+            || mqtt.is_some()
             || console
             || file.poll.is_some()
             || opts.poll_period.is_some();
@@ -173,6 +184,9 @@ impl GatewayConfig {
             modbus: modbus_cfg,
             modbus_rtu,
             opcua,
+            mqtt,
+            allow_commands: opts.allow_commands.clone(),
+            audit_file: opts.audit_file.clone(),
             console: console.then_some(ConsoleConfig {
                 json: opts.json,
                 every: Duration::from_secs(5),
@@ -399,6 +413,49 @@ fn opcua_config(
     config
         .check()
         .map_err(|e| Error::config(format!("--opcua: {e}")))?;
+    Ok(Some(config))
+}
+
+/// The MQTT settings from the file's `[mqtt]` and the options; `None`: no MQTT.
+fn mqtt_config(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<Option<hart_sparkplug::MqttConfig>, Error> {
+    let mut config = match (&opts.mqtt, &file.mqtt) {
+        (Some(url), Some(section)) => hart_sparkplug::MqttConfig {
+            url: url.clone(),
+            ..section.clone()
+        },
+        (Some(url), None) => hart_sparkplug::MqttConfig::new(
+            url,
+            hart_sparkplug::DEFAULT_GROUP,
+            &hart_sparkplug::default_edge_node(),
+        ),
+        (None, Some(section)) => section.clone(),
+        (None, None) => {
+            if opts.mqtt_group.is_some()
+                || opts.mqtt_edge_node.is_some()
+                || opts.mqtt_primary_host.is_some()
+            {
+                return Err(Error::config(
+                    "--group, --edge-node and --primary-host are settings of the MQTT \
+                     publisher: give --mqtt mqtt://HOST[:PORT] (or [mqtt] url in --config)",
+                ));
+            }
+            return Ok(None);
+        }
+    };
+    if let Some(g) = &opts.mqtt_group {
+        config.group = g.clone();
+    }
+    if let Some(e) = &opts.mqtt_edge_node {
+        config.edge_node = e.clone();
+    }
+    if let Some(h) = &opts.mqtt_primary_host {
+        config.primary_host = Some(h.clone());
+    }
+    config.read_only |= opts.read_only;
+    config.check().map_err(|e| Error::config(e.to_string()))?;
     Ok(Some(config))
 }
 

@@ -30,6 +30,9 @@ pub struct GatewayFile {
     /// The OPC UA front end (`[opcua]`).
     #[serde(default)]
     pub opcua: Option<OpcUaSection>,
+    /// The MQTT Sparkplug B publisher (`[mqtt]`).
+    #[serde(default)]
+    pub mqtt: Option<hart_sparkplug::MqttConfig>,
     /// Device-specific commands declared reads (`[[device_commands]]`, as the
     /// `[[device]]` tables of `--device-commands FILE`).
     #[serde(default)]

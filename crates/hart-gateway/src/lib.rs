@@ -3,7 +3,7 @@
 //! hartkit's gateway, assembled from one value. A [`GatewayConfig`] says the whole
 //! gateway: the loops (serial modems, RS-485 lines, HART-IP servers upstream, simulated
 //! plants), the polling engine's settings, and the front ends on the engine (HART-IP,
-//! Modbus TCP and RTU, OPC UA, the console view). [`Gateway::start`] starts them all
+//! Modbus TCP and RTU, OPC UA, MQTT Sparkplug B, the console view). [`Gateway::start`] starts them all
 //! and [`Gateway::stop`] stops them; `hartkit serve` only turns its options into the
 //! value ([`GatewayConfig::from_options`]), so a test, the Python package or another
 //! program starts a whole gateway the same way.
@@ -19,7 +19,7 @@
 //! // Inside a tokio LocalSet: the loops' tasks stay on one thread.
 //! let gateway = Gateway::start(config).await?;
 //! println!("{}", gateway.started().join("\n"));
-//! gateway.stop();
+//! gateway.stop().await;
 //! # Ok(()) }
 //! ```
 
@@ -99,6 +99,7 @@ pub struct Gateway {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     hart_ip: Vec<hart_ip_server::Server>,
     opcua: Option<hart_opcua::OpcUaServer>,
+    mqtt: Option<hart_sparkplug::Handle>,
     modbus_tcp: Option<SocketAddr>,
 }
 
@@ -164,11 +165,12 @@ impl Gateway {
             tasks: vec![],
             hart_ip: vec![],
             opcua: None,
+            mqtt: None,
             modbus_tcp: None,
         };
         // A front end that cannot start stops what has started.
         if let Err(e) = gw.start_front_ends(config).await {
-            gw.stop();
+            gw.stop().await;
             return Err(e);
         }
         Ok(gw)
@@ -249,6 +251,35 @@ impl Gateway {
                 .push(format!("opcua: {} ({describe})", server.url));
             self.opcua = Some(server);
         }
+        if let Some(m) = config.mqtt {
+            let access = hart_sparkplug::Access {
+                audit: hart_access::Audit::new(config.audit_file.clone()),
+                allow: config.allow_commands.clone(),
+                read_only,
+            };
+            let what = format!(
+                "mqtt: {} as spBv1.0/{}/+/{}{}{}",
+                m.url,
+                m.group,
+                m.edge_node,
+                m.primary_host
+                    .as_ref()
+                    .map_or(String::new(), |h| format!(" (primary host {h})")),
+                if read_only || m.read_only {
+                    " (read only)"
+                } else {
+                    ""
+                }
+            );
+            let handle = hart_sparkplug::run(engine.clone(), m, access)
+                .await
+                .map_err(|e| match e {
+                    hart_sparkplug::Error::Config(m) => Error::config(format!("--mqtt: {m}")),
+                    e @ hart_sparkplug::Error::File(..) => Error::io(format!("--mqtt: {e}")),
+                })?;
+            self.started.push(what);
+            self.mqtt = Some(handle);
+        }
         if let Some(c) = config.console {
             self.tasks
                 .push(tokio::task::spawn_local(console::view(engine, c)));
@@ -272,8 +303,11 @@ impl Gateway {
         self.modbus_tcp
     }
 
-    /// Stops the front ends, then the loops.
-    pub fn stop(self) {
+    /// Stops the front ends (the MQTT publisher says its NDEATH), then the loops.
+    pub async fn stop(self) {
+        if let Some(m) = self.mqtt {
+            m.shutdown().await;
+        }
         for t in self.tasks {
             t.abort();
         }
@@ -329,7 +363,7 @@ where
             let _ = stdout.flush();
         }
         until.await;
-        gateway.stop();
+        gateway.stop().await;
         Ok(())
     })
 }

@@ -69,6 +69,15 @@ pub struct ServeOptions {
     pub opcua_pki: Option<PathBuf>,
     /// `--poll-period` seconds.
     pub poll_period: Option<f64>,
+    /// `--mqtt URL`: publish to this MQTT broker as a Sparkplug B edge node.
+    pub mqtt: Option<String>,
+    /// `--group G`: the Sparkplug group (default `hartkit`).
+    pub mqtt_group: Option<String>,
+    /// `--edge-node NAME`: the Sparkplug edge node (default: the host name).
+    pub mqtt_edge_node: Option<String>,
+    /// `--primary-host ID`: publish only while that primary host application is
+    /// online.
+    pub mqtt_primary_host: Option<String>,
     /// `--json`: the console view (no front end) prints JSON lines.
     pub json: bool,
 }

@@ -69,7 +69,7 @@ fn a_whole_gateway_starts_from_one_value() {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         assert_eq!(quality, 0, "the demo plant's first device reads good");
-        gateway.stop();
+        gateway.stop().await;
         assert!(
             tokio::net::TcpStream::connect(addr).await.is_err()
                 || tokio::time::timeout(Duration::from_millis(500), read_unit_1(addr))

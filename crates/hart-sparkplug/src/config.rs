@@ -10,9 +10,12 @@ pub struct MqttConfig {
     /// The broker: `mqtt://HOST[:PORT]` (port 1883 by default) or
     /// `mqtts://HOST[:PORT]` (TLS, port 8883 by default).
     pub url: String,
-    /// Sparkplug group ID.
+    /// Sparkplug group ID (default [`DEFAULT_GROUP`]).
+    #[serde(default = "default_group")]
     pub group: String,
-    /// Sparkplug edge node ID.
+    /// Sparkplug edge node ID (default: this machine's host name,
+    /// [`default_edge_node`]).
+    #[serde(default = "default_edge_node")]
     pub edge_node: String,
     /// The primary host application's ID: births wait for its `spBv1.0/STATE/ID`
     /// to say online, and data are kept while it says offline.
@@ -38,6 +41,38 @@ pub struct MqttConfig {
     /// MQTT client ID (default `hartkit-GROUP-EDGE_NODE`).
     #[serde(default)]
     pub client_id: Option<String>,
+}
+
+/// The Sparkplug group of a gateway that names none.
+pub const DEFAULT_GROUP: &str = "hartkit";
+
+fn default_group() -> String {
+    DEFAULT_GROUP.into()
+}
+
+/// The edge node ID of a gateway that names none: this machine's host name, with the
+/// characters a Sparkplug ID may not hold (`+`, `/`, `#`, control characters) turned
+/// into `-`; `hartkit-gateway` when the host name cannot be read.
+pub fn default_edge_node() -> String {
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .unwrap_or_default();
+    let name: String = name
+        .trim()
+        .chars()
+        .map(|c| {
+            if matches!(c, '+' | '/' | '#') || c.is_control() {
+                '-'
+            } else {
+                c
+            }
+        })
+        .collect();
+    if name.is_empty() {
+        "hartkit-gateway".into()
+    } else {
+        name
+    }
 }
 
 /// The default store-and-forward bound: 100 000 samples (a few tens of MB).

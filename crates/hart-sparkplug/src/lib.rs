@@ -20,7 +20,7 @@ pub mod metrics;
 pub mod proto;
 
 pub use client::{run, Access, Handle, Status};
-pub use config::{Broker, MqttConfig, DEFAULT_BACKLOG};
+pub use config::{default_edge_node, Broker, MqttConfig, DEFAULT_BACKLOG, DEFAULT_GROUP};
 pub use edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
 
 /// Why the publisher could not start.

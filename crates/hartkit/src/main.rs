@@ -1482,8 +1482,8 @@ fn main() -> ExitCode {
 #[derive(Args)]
 struct ServeCli {
     /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
-    /// [modbus_rtu], [opcua], [[device_commands]]; see docs/gateway.md). Options given
-    /// here add to it.
+    /// [modbus_rtu], [opcua], [mqtt], [[device_commands]]; see docs/gateway.md).
+    /// Options given here add to it.
     #[arg(long, value_name = "FILE")]
     config: Option<std::path::PathBuf>,
     /// Serve HART-IP here, e.g. 0.0.0.0 or 127.0.0.1:5094 (port 5094 by default).
@@ -1531,6 +1531,20 @@ struct ServeCli {
     /// trust list of client certificates (trusted/, rejected/).
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
+    /// Publish every device to this MQTT broker as a Sparkplug B edge node:
+    /// mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (see docs/mqtt.md).
+    #[arg(long, value_name = "URL")]
+    mqtt: Option<String>,
+    /// Sparkplug group ID of --mqtt (default hartkit).
+    #[arg(long, value_name = "G")]
+    group: Option<String>,
+    /// Sparkplug edge node ID of --mqtt (default: this machine's host name).
+    #[arg(long, value_name = "NAME")]
+    edge_node: Option<String>,
+    /// Publish only while this Sparkplug primary host application says it is online
+    /// (spBv1.0/STATE/ID); data are kept meanwhile.
+    #[arg(long, value_name = "ID")]
+    primary_host: Option<String>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit.
     #[arg(long)]
     print_map: bool,
@@ -1644,6 +1658,10 @@ impl ServeCli {
             opcua_users: self.opcua_users.clone(),
             opcua_pki: self.opcua_pki.clone(),
             poll_period: self.poll_period,
+            mqtt: self.mqtt.clone(),
+            mqtt_group: self.group.clone(),
+            mqtt_edge_node: self.edge_node.clone(),
+            mqtt_primary_host: self.primary_host.clone(),
             json: self.json,
         }
     }
