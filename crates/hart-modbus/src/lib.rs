@@ -914,8 +914,9 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
     };
     let mut framer = rtu::Framer::new(timing, units(&gateway));
     let peer = Peer::Rtu(port.path.as_str().into());
-    // Requests whose last byte came before this were received while another was being
-    // answered: their master has moved on (or retried), they are not answered late.
+    // Requests whose last byte came before this were received while the previous reply
+    // was being made: their master has moved on (or retried), they are not answered
+    // late.
     let mut busy_until = Instant::now();
     loop {
         let deadline = framer.deadline().map(tokio::time::Instant::from_std);
@@ -966,8 +967,10 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
                 tokio::time::sleep_until(tokio::time::Instant::from_std(frame.end + timing.t35))
                     .await;
                 write_port(&writer, &reply).await?;
+                // (A broadcast has no reply: its master goes on at once, and its next
+                // request may come in the same read.)
+                busy_until = Instant::now();
             }
-            busy_until = Instant::now();
         }
     }
 }
