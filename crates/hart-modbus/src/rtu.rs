@@ -37,8 +37,17 @@
 //!   frame with a gap over t1.5 but under t3.5 is kept whole and judged by its CRC, the
 //!   integrity check that does not depend on the host's timing. [`Timing::t15`] is
 //!   computed for reference and for the documentation.
-//! * At most 256 bytes (the RTU frame limit) are held: beyond that, bytes are dropped
-//!   until the next silence, which reports them as one discarded run.
+//! * **A request at the end of a run of garbage is taken.** When what came between two
+//!   silences is no good frame as a whole, but its last bytes are a complete request
+//!   for one of our units (not a broadcast) by the length its header gives, with a good
+//!   CRC, that request is taken and the bytes before it discarded. A master's silence
+//!   between garbage and its request does not always survive the way to us (an adapter's
+//!   burst, socat's relay, a busy host); the length and the CRC still tell the request.
+//!   Broadcasts are not taken this way: a write to every device is not worth the small
+//!   chance that garbage ends like one.
+//! * At most 256 bytes (the RTU frame limit) are held: beyond that the oldest are
+//!   dropped, and the next silence reports the run as too long (after taking a request
+//!   that ends it).
 //!
 //! A reply must not start before the line has been quiet for t3.5 after the request:
 //! [`Frame::end`] is when its last byte was read, and [`Framer::quiet_at`] when the line
@@ -146,9 +155,15 @@ pub enum Discard {
         /// Its length.
         len: usize,
     },
+    /// Bytes before a request for us with no silence between them (the request,
+    /// found by its length and CRC at the end of the run, is taken).
+    BeforeRequest {
+        /// Bytes before the request.
+        len: usize,
+    },
     /// More than [`MAX_FRAME`] bytes without a silence.
     TooLong {
-        /// Bytes that came (those over the limit were dropped).
+        /// Bytes that came (the first of them dropped, all but the last 256).
         len: usize,
     },
 }
@@ -188,6 +203,10 @@ impl fmt::Display for Discard {
                 f,
                 "a frame for unit {unit} with function code {function:#04x} and {len} \
                  bytes is no request (a reply or an exception, an echo?)"
+            ),
+            Discard::BeforeRequest { len } => write!(
+                f,
+                "{len} bytes with no silence before a request (which was taken)"
             ),
             Discard::TooLong { len } => write!(
                 f,
@@ -343,8 +362,10 @@ impl Framer {
         self.end_at_silence(now);
         for &b in bytes {
             if self.held.len() >= MAX_FRAME {
+                // Keep the last bytes: a request may still end the run (see
+                // `end_at_silence`).
+                self.held.remove(0);
                 self.dropped += 1;
-                continue;
             }
             self.held.push(b);
             self.end_by_length(now);
@@ -390,9 +411,44 @@ impl Framer {
             return;
         }
         let event = self.judge_whole(last);
-        self.out.push_back(event);
+        let tail = match event {
+            Event::Discarded(_) => self.request_at_the_end(last),
+            Event::Frame(_) => None,
+        };
+        match tail {
+            Some((start, frame)) => {
+                self.out.push_back(Event::Discarded(Discard::BeforeRequest {
+                    len: start + self.dropped,
+                }));
+                self.out.push_back(Event::Frame(frame));
+            }
+            None => self.out.push_back(event),
+        }
         self.held.clear();
         self.dropped = 0;
+    }
+
+    /// A request for one of our units (not a broadcast) that ends the bytes held, by
+    /// the length its header gives and a good CRC, after other bytes with no silence
+    /// between (a master's request after garbage that an adapter, or socat, handed over
+    /// in the same read): where it starts, and the frame.
+    fn request_at_the_end(&self, end: Instant) -> Option<(usize, Frame)> {
+        let f = &self.held;
+        (1..f.len().saturating_sub(3)).find_map(|start| {
+            let r = &f[start..];
+            (r[0] != 0 && self.ours(r[0]) && request_len(r) == Some(r.len()) && crc_ok(r)).then(
+                || {
+                    (
+                        start,
+                        Frame {
+                            unit: r[0],
+                            pdu: r[1..r.len() - 2].to_vec(),
+                            end,
+                        },
+                    )
+                },
+            )
+        })
     }
 
     /// What the bytes held make, taken whole at a silence.
@@ -488,6 +544,7 @@ impl Framer {
         };
         self.out.push_back(event);
         self.held.clear();
+        self.dropped = 0;
     }
 }
 
@@ -682,6 +739,44 @@ mod tests {
         assert!(
             e.iter()
                 .any(|e| matches!(e, Event::Discarded(Discard::TooLong { len: _ }))),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn a_request_right_after_garbage_in_one_read_is_taken_at_the_silence() {
+        let (mut f, t) = framer();
+        for junk_len in [1, 40, 300] {
+            let mut burst: Vec<u8> = (0..junk_len).map(|i| (i * 37 + 11) as u8).collect();
+            burst.extend(adu(2, &READ));
+            f.push(&burst, t);
+            assert_eq!(f.poll(t + MS), None, "waits for the silence");
+            let e = events(&mut f, t + 3 * MS);
+            assert_eq!(
+                e,
+                vec![
+                    Event::Discarded(Discard::BeforeRequest { len: junk_len }),
+                    Event::Frame(Frame {
+                        unit: 2,
+                        pdu: READ.to_vec(),
+                        end: t
+                    })
+                ]
+            );
+        }
+        // Not a broadcast, and not a request cut short.
+        let mut burst = vec![0x55; 9];
+        burst.extend(adu(0, &[6, 0, 4, 0x40, 0x20]));
+        f.push(&burst, t + 10 * MS);
+        let cut = adu(1, &READ);
+        f.push(&cut[..6], t + 20 * MS);
+        let e = events(&mut f, t + 30 * MS);
+        assert!(
+            matches!(e[0], Event::Discarded(Discard::BadCrc { len: 17 })),
+            "{e:?}"
+        );
+        assert!(
+            matches!(e[1], Event::Discarded(Discard::CutShort { .. })),
             "{e:?}"
         );
     }
