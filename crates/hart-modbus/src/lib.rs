@@ -966,10 +966,12 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
                 // Not before the line has been quiet for t3.5 after the request.
                 tokio::time::sleep_until(tokio::time::Instant::from_std(frame.end + timing.t35))
                     .await;
-                write_port(&writer, &reply).await?;
+                // Taken before the write: a busy host may stall between the write and
+                // the next statement, while the master's next request comes.
                 // (A broadcast has no reply: its master goes on at once, and its next
                 // request may come in the same read.)
                 busy_until = Instant::now();
+                write_port(&writer, &reply).await?;
             }
         }
     }
