@@ -26,6 +26,7 @@ use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 pub mod connections;
 pub mod load;
 pub mod map;
+pub mod rtu;
 
 use map::{FloatOrder, RegisterMap, Table, Value};
 
@@ -72,6 +73,9 @@ pub struct Stats {
     pub writes: AtomicU64,
     /// TCP connections refused (limit reached).
     pub refused: AtomicU64,
+    /// Runs of bytes on the RTU line not taken as requests for us (bad CRC, other
+    /// units' frames, frames cut short, garbage; see [`rtu::Discard`]).
+    pub discarded: AtomicU64,
 }
 
 /// What the Modbus service needs: the engine, the settings, counters.
@@ -134,6 +138,32 @@ impl Gateway {
     /// The settings.
     pub fn config(&self) -> &Config {
         &self.config
+    }
+
+    /// The reply frame to an RTU request `frame` (`None`: no reply, a broadcast), by
+    /// the same answer path as Modbus TCP's ([`Gateway::call`]); a PDU that does not
+    /// decode is answered with an exception (see [`rtu::decode_request`]).
+    async fn rtu_reply(self: Arc<Self>, frame: &rtu::Frame, peer: &Peer) -> Option<Vec<u8>> {
+        let function = frame.pdu.first().copied().unwrap_or(0);
+        let result = match rtu::decode_request(&frame.pdu) {
+            Ok(request) => self.clone().call(frame.unit, request, peer.clone()).await,
+            Err(_) if frame.unit == 0 => Ok(None),
+            Err(code) => {
+                self.stats.exceptions.fetch_add(1, Ordering::Relaxed);
+                Err(code)
+            }
+        };
+        let pdu = match result {
+            Ok(None) => return None,
+            Ok(Some(response)) => encode_response(&response).unwrap_or_else(|| {
+                vec![
+                    function | 0x80,
+                    u8::from(ExceptionCode::ServerDeviceFailure),
+                ]
+            }),
+            Err(code) => vec![function | 0x80, u8::from(code)],
+        };
+        Some(rtu::adu(frame.unit, &pdu))
     }
 
     /// Answers one request for `unit`. `None`: no answer at all (RTU broadcasts and
@@ -305,6 +335,29 @@ impl Gateway {
     }
 }
 
+/// The PDU of `response`, for the responses the gateway gives (register reads and
+/// writes); `None` for others.
+fn encode_response(response: &Response) -> Option<Vec<u8>> {
+    let words = |function: u8, words: &[u16]| {
+        let mut out = vec![function, u8::try_from(2 * words.len()).ok()?];
+        out.extend(words.iter().flat_map(|w| w.to_be_bytes()));
+        Some(out)
+    };
+    let two = |function: u8, a: u16, b: u16| {
+        let mut out = vec![function];
+        out.extend_from_slice(&a.to_be_bytes());
+        out.extend_from_slice(&b.to_be_bytes());
+        Some(out)
+    };
+    match response {
+        Response::ReadHoldingRegisters(w) => words(3, w),
+        Response::ReadInputRegisters(w) => words(4, w),
+        Response::WriteSingleRegister(register, word) => two(6, *register, *word),
+        Response::WriteMultipleRegisters(start, count) => two(16, *start, *count),
+        _ => None,
+    }
+}
+
 /// The typed writes that set `values` (one write request's): the range parts together
 /// in one, then damping and fixed current.
 fn operations(values: &[(Value, f32)]) -> Result<Vec<WriteOp>, ExceptionCode> {
@@ -470,7 +523,7 @@ mod tests {
     }
 }
 
-/// The tokio-modbus service of one connection (TCP) or port (RTU).
+/// The tokio-modbus service of one TCP connection.
 #[derive(Clone)]
 pub struct Service {
     gateway: Arc<Gateway>,
@@ -761,10 +814,9 @@ pub struct RtuPort {
 }
 
 /// Serves Modbus RTU on `port` for as long as the gateway runs: after the port fails (a
-/// USB adapter unplugged) or the decoder gives up on a frame, the port is opened again
-/// after [`RTU_REOPEN`]. (tokio-modbus's RTU server takes its serial stream whole, so
-/// RTU frames cannot pass the [`FrameGuard`] the TCP server has: a frame it would panic
-/// on ends that serving, and this starts the next.)
+/// USB adapter unplugged, a pseudo-terminal gone), it is opened again after
+/// [`RTU_REOPEN`], then less and less often while it keeps failing. Nothing a master or
+/// another slave sends stops the port: bad frames are ignored ([`rtu::Framer`]).
 pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
     // The engine's reconnect policy, from RTU_REOPEN: a port that keeps failing is
     // tried less and less often (up to 30 s), one that served a while starts over.
@@ -781,10 +833,7 @@ pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
             Ok(Ok(())) => tracing::warn!("modbus-rtu: {} closed", port.path),
             Ok(Err(e)) => tracing::error!("modbus-rtu: {e}"),
             Err(e) if e.is_panic() => {
-                tracing::error!(
-                    "modbus-rtu: {}: a frame the decoder could not take",
-                    port.path
-                )
+                tracing::error!("modbus-rtu: {}: the slave failed (a bug)", port.path)
             }
             Err(_) => return,
         }
@@ -802,41 +851,206 @@ pub async fn serve_rtu_forever(gateway: Arc<Gateway>, port: RtuPort) {
 /// keeps failing).
 pub const RTU_REOPEN: std::time::Duration = std::time::Duration::from_secs(2);
 
-/// Opens `port` and serves Modbus RTU on it until the port fails.
+impl RtuPort {
+    /// The line's speed and framing.
+    pub fn line(&self) -> std::io::Result<hart_serial::Line> {
+        let parity = match self.parity.to_ascii_uppercase() {
+            'N' => hart_serial::Parity::None,
+            'E' => hart_serial::Parity::Even,
+            'O' => hart_serial::Parity::Odd,
+            p => {
+                return Err(std::io::Error::other(format!(
+                    "parity {p:?}: give N, E or O"
+                )))
+            }
+        };
+        Ok(hart_serial::Line {
+            baud: self.baud,
+            parity,
+            stop_bits: if self.stop_bits == 2 { 2 } else { 1 },
+        })
+    }
+}
+
+/// What the RTU port's reader hands over: bytes and when they were read, or the
+/// port's failure.
+type Read = std::io::Result<(Vec<u8>, Instant)>;
+
+/// Aborts a task when dropped.
+struct AbortOnDrop(tokio::task::AbortHandle);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
+/// Opens `port` and serves Modbus RTU on it until the port fails (an error that says
+/// how). Frames are found by [`rtu::Framer`] (silence, length and CRC); requests for
+/// the gateway's units are answered by the same code as Modbus TCP's, t3.5 after the
+/// request at the earliest; broadcasts are carried out and not answered; everything
+/// else is ignored (logged at debug level, counted in [`Stats::discarded`]).
 pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<()> {
-    use tokio_serial::{DataBits, Parity, SerialPortBuilderExt, StopBits};
-    let parity = match port.parity.to_ascii_uppercase() {
-        'N' => Parity::None,
-        'E' => Parity::Even,
-        'O' => Parity::Odd,
-        p => {
-            return Err(std::io::Error::other(format!(
-                "parity {p:?}: give N, E or O"
-            )))
+    let line = port.line()?;
+    let path = std::path::Path::new(&port.path);
+    let serial = hart_serial::Port::open(
+        path,
+        &line,
+        hart_serial::OpenOptions {
+            exclusive: true,
+            mark_errors: false,
+        },
+    )?;
+    let writer = serial.try_clone()?;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    // Reads are timestamped by their own task, so that the times stay right while a
+    // write request is carried to a device.
+    let _reader = AbortOnDrop(tokio::spawn(read_port(serial, tx)).abort_handle());
+    let timing = rtu::Timing::for_line(&line);
+    let units = |gw: &Gateway| {
+        1..=u8::try_from(gw.engine.image().len())
+            .unwrap_or(247)
+            .min(247)
+    };
+    let mut framer = rtu::Framer::new(timing, units(&gateway));
+    let peer = Peer::Rtu(port.path.as_str().into());
+    // Requests whose last byte came before this were received while the previous reply
+    // was being made: their master has moved on (or retried), they are not answered
+    // late.
+    let mut busy_until = Instant::now();
+    loop {
+        let deadline = framer.deadline().map(tokio::time::Instant::from_std);
+        let first = tokio::select! {
+            biased;
+            r = rx.recv() => Some(r),
+            _ = tokio::time::sleep_until(deadline.unwrap_or_else(tokio::time::Instant::now)),
+                if deadline.is_some() => None,
+        };
+        let mut reads: Vec<Read> = vec![];
+        match first {
+            Some(Some(r)) => reads.push(r),
+            Some(None) => return Err(std::io::Error::other("the port's reader stopped")),
+            None => {}
+        }
+        while let Ok(r) = rx.try_recv() {
+            reads.push(r);
+        }
+        if !reads.is_empty() {
+            framer.set_units(units(&gateway));
+        }
+        for r in reads {
+            let (bytes, at) = r?;
+            framer.push(&bytes, at);
+        }
+        while let Some(event) = framer.poll(Instant::now()) {
+            let frame = match event {
+                rtu::Event::Frame(f) => f,
+                rtu::Event::Discarded(why) => {
+                    gateway.stats.discarded.fetch_add(1, Ordering::Relaxed);
+                    tracing::debug!("modbus-rtu: {}: ignored {why}", port.path);
+                    continue;
+                }
+            };
+            if frame.end < busy_until {
+                gateway.stats.discarded.fetch_add(1, Ordering::Relaxed);
+                tracing::debug!(
+                    "modbus-rtu: {}: ignored a request for unit {} that came while the \
+                     previous one was being answered",
+                    port.path,
+                    frame.unit
+                );
+                continue;
+            }
+            let reply = gateway.clone().rtu_reply(&frame, &peer).await;
+            if let Some(reply) = reply {
+                // Not before the line has been quiet for t3.5 after the request.
+                tokio::time::sleep_until(tokio::time::Instant::from_std(frame.end + timing.t35))
+                    .await;
+                // Taken before the write: a busy host may stall between the write and
+                // the next statement, while the master's next request comes.
+                // (A broadcast has no reply: its master goes on at once, and its next
+                // request may come in the same read.)
+                busy_until = Instant::now();
+                write_port(&writer, &reply).await?;
+            }
+        }
+    }
+}
+
+/// Reads `port` as bytes come, each read with the time it returned, until the port
+/// fails or hangs up (sent as an error) or the receiver is gone.
+async fn read_port(port: hart_serial::Port, tx: tokio::sync::mpsc::UnboundedSender<Read>) {
+    use std::io::{Error, ErrorKind};
+    let path = port.path().display().to_string();
+    // SAFETY: the port owns its descriptor; it stays open and refers to the same port
+    // until the AsyncFd (which owns the port) is dropped.
+    let fd = match unsafe { tokio::io::unix::AsyncFd::register(port) } {
+        Ok(fd) => fd,
+        Err(e) => {
+            let _ = tx.send(Err(Error::from(e)));
+            return;
         }
     };
-    let stream = tokio_serial::new(&port.path, port.baud)
-        .data_bits(DataBits::Eight)
-        .parity(parity)
-        .stop_bits(if port.stop_bits == 2 {
-            StopBits::Two
-        } else {
-            StopBits::One
-        })
-        .open_native_async()
-        .map_err(|e| {
-            std::io::Error::other(format!(
-                "{}: {e}; check the path and that you may open it (dialout group)",
-                port.path
-            ))
-        })?;
-    let server = tokio_modbus::server::rtu::Server::new(stream);
-    server
-        .serve_forever(Service {
-            gateway,
-            peer: Peer::Rtu(port.path.as_str().into()),
-        })
-        .await
+    let mut buf = [0u8; 1024];
+    loop {
+        let mut guard = match fd.readable().await {
+            Ok(g) => g,
+            Err(e) => {
+                let _ = tx.send(Err(e));
+                return;
+            }
+        };
+        let failure = match fd.get_ref().read(&mut buf) {
+            Ok(0) if fd.get_ref().hung_up() => Error::new(
+                ErrorKind::BrokenPipe,
+                format!("{path} hung up (the other end closed it or the adapter is gone)"),
+            ),
+            Ok(0) => {
+                // Nothing to read (a raw port with VMIN 0 answers 0).
+                guard.clear_ready();
+                continue;
+            }
+            Ok(n) => {
+                if tx.send(Ok((buf[..n].to_vec(), Instant::now()))).is_err() {
+                    return;
+                }
+                continue;
+            }
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                guard.clear_ready();
+                continue;
+            }
+            Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+            Err(e) => Error::new(e.kind(), format!("read from {path}: {e}")),
+        };
+        let _ = tx.send(Err(failure));
+        return;
+    }
+}
+
+/// Writes `bytes` to `port`, waiting while its buffer is full (at most a second).
+async fn write_port(port: &hart_serial::Port, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::ErrorKind;
+    let give_up = Instant::now() + std::time::Duration::from_secs(1);
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        match port.write(rest) {
+            Ok(n) => rest = &rest[n..],
+            Err(e)
+                if (e.kind() == ErrorKind::WouldBlock || e.kind() == ErrorKind::Interrupted)
+                    && Instant::now() < give_up =>
+            {
+                tokio::time::sleep(std::time::Duration::from_millis(1)).await
+            }
+            Err(e) => {
+                return Err(std::io::Error::new(
+                    e.kind(),
+                    format!("write to {}: {e}", port.path().display()),
+                ))
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The map as text: one line per entry, for `hartkit serve --print-map`.
