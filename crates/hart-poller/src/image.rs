@@ -1,7 +1,9 @@
 //! The current image: what the engine last learned of every device, with a time stamp
 //! and a quality, read by the front ends (Modbus, OPC UA) without touching the loop.
 
-use std::sync::RwLock;
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, RwLock, Weak};
 use std::time::{Duration, Instant, SystemTime};
 
 use hart_host::DeviceInfo;
@@ -12,6 +14,8 @@ use hart_proto::frame::UniqueId;
 use hart_proto::tables::field_device_status as fds;
 use hart_proto::wire::{Reader, Wire};
 use tokio::sync::broadcast;
+
+use crate::clock::Clock;
 
 /// How good a device's values are, as a SCADA reads it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -384,23 +388,165 @@ impl DeviceImage {
     }
 }
 
+/// One commit of a device's image: the whole image as it was just after the change,
+/// so a subscriber sees a consistent device (a new PV never beside an old range) and
+/// the value it had then, however late it reads.
+#[derive(Debug, Clone)]
+pub struct Change {
+    /// The device's image after the change (its position is inside).
+    pub device: Arc<DeviceImage>,
+    /// Its quality at the time of the change.
+    pub quality: Quality,
+    /// Wall-clock time of the change (the engine's clock).
+    pub at: SystemTime,
+    /// The engine-wide commit number: increases by one per change, in the order the
+    /// changes were made.
+    pub seq: u64,
+}
+
+/// What one change subscriber holds: a bounded queue of changes and what it lost.
+struct Subscriber {
+    queue: Mutex<VecDeque<Change>>,
+    capacity: usize,
+    dropped: AtomicU64,
+    notify: tokio::sync::Notify,
+    closed: AtomicBool,
+    /// When the last "fell behind" line was logged.
+    warned: Mutex<Option<Instant>>,
+}
+
+impl Subscriber {
+    fn push(&self, change: Change, now: Instant) {
+        let mut q = self.queue.lock().unwrap_or_else(|e| e.into_inner());
+        let mut lost = 0;
+        while q.len() >= self.capacity {
+            q.pop_front();
+            lost += 1;
+        }
+        q.push_back(change);
+        drop(q);
+        if lost > 0 {
+            let total = self.dropped.fetch_add(lost, Ordering::Relaxed) + lost;
+            let mut warned = self.warned.lock().unwrap_or_else(|e| e.into_inner());
+            if warned.is_none_or(|t| now.saturating_duration_since(t) >= Duration::from_secs(60)) {
+                *warned = Some(now);
+                tracing::warn!(
+                    "a change subscriber (history, MQTT) is {} changes behind and lost the \
+                     oldest ({total} so far): it cannot keep up with the loops; check the \
+                     database or broker it writes to",
+                    self.capacity
+                );
+            }
+        }
+        self.notify.notify_one();
+    }
+}
+
+/// A subscription to every change of the image, in commit order ([`Image::changes`]).
+/// It holds at most its capacity of changes not yet received; when the subscriber
+/// falls further behind, the oldest are dropped, counted ([`Changes::dropped`]) and
+/// logged, never silently.
+pub struct Changes {
+    sub: Arc<Subscriber>,
+}
+
+impl Changes {
+    /// The next change; `None` once the engine has stopped and every change has been
+    /// received.
+    pub async fn recv(&mut self) -> Option<Change> {
+        loop {
+            if let Some(c) = self.try_recv() {
+                return Some(c);
+            }
+            if self.sub.closed.load(Ordering::Acquire) {
+                return self.try_recv();
+            }
+            self.sub.notify.notified().await;
+        }
+    }
+
+    /// The next change if one is waiting.
+    pub fn try_recv(&mut self) -> Option<Change> {
+        self.sub
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pop_front()
+    }
+
+    /// Changes waiting.
+    pub fn len(&self) -> usize {
+        self.sub
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .len()
+    }
+
+    /// Whether no change is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Changes lost because this subscriber fell more than its capacity behind.
+    pub fn dropped(&self) -> u64 {
+        self.sub.dropped.load(Ordering::Relaxed)
+    }
+}
+
 /// Every device's image, shared by the engine (which writes) and the front ends (which
-/// read). Changes are announced on a broadcast channel by position.
+/// read). Each change is one commit under the image's lock: announced by position on
+/// a broadcast channel ([`Image::subscribe`], for readers that look at the current
+/// image) and, whole, to every [`Changes`] subscriber.
 pub struct Image {
     devices: RwLock<Vec<DeviceImage>>,
     changes: broadcast::Sender<usize>,
+    subscribers: Mutex<Vec<Weak<Subscriber>>>,
+    /// Whether any subscriber is alive (saves the copy of a change when none is).
+    subscribed: AtomicBool,
+    seq: AtomicU64,
+    clock: Clock,
 }
 
 impl Default for Image {
     fn default() -> Self {
-        Image {
-            devices: RwLock::new(vec![]),
-            changes: broadcast::channel(1024).0,
+        Image::with_clock(Clock::system())
+    }
+}
+
+impl Drop for Image {
+    fn drop(&mut self) {
+        for s in self
+            .subscribers
+            .get_mut()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .filter_map(Weak::upgrade)
+        {
+            s.closed.store(true, Ordering::Release);
+            s.notify.notify_one();
         }
     }
 }
 
 impl Image {
+    /// An empty image whose changes are stamped by `clock`.
+    pub fn with_clock(clock: Clock) -> Self {
+        Image {
+            devices: RwLock::new(vec![]),
+            changes: broadcast::channel(1024).0,
+            subscribers: Mutex::new(vec![]),
+            subscribed: AtomicBool::new(false),
+            seq: AtomicU64::new(0),
+            clock,
+        }
+    }
+
+    /// The clock that stamps the image's values and changes.
+    pub fn clock(&self) -> &Clock {
+        &self.clock
+    }
+
     fn read(&self) -> std::sync::RwLockReadGuard<'_, Vec<DeviceImage>> {
         self.devices.read().unwrap_or_else(|e| e.into_inner())
     }
@@ -429,18 +575,64 @@ impl Image {
         self.read().get(position).map(f)
     }
 
-    /// Receives the position of every device whose image changed.
+    /// Receives the position of every device whose image changed. A receiver more
+    /// than 1024 changes behind is told it lagged (and must look at the whole image);
+    /// a subscriber that needs every change takes [`Image::changes`].
     pub fn subscribe(&self) -> broadcast::Receiver<usize> {
         self.changes.subscribe()
     }
 
-    /// Changes the image at `position` and announces it.
-    pub fn update<R>(&self, position: usize, f: impl FnOnce(&mut DeviceImage) -> R) -> Option<R> {
-        let r = self.write().get_mut(position).map(f);
-        if r.is_some() {
-            let _ = self.changes.send(position);
+    /// Subscribes to every change from now on, each with the device's whole image as
+    /// committed, holding up to `capacity` (at least 1) not yet received.
+    pub fn changes(&self, capacity: usize) -> Changes {
+        let sub = Arc::new(Subscriber {
+            queue: Mutex::new(VecDeque::new()),
+            capacity: capacity.max(1),
+            dropped: AtomicU64::new(0),
+            notify: tokio::sync::Notify::new(),
+            closed: AtomicBool::new(false),
+            warned: Mutex::new(None),
+        });
+        let mut subs = self.subscribers.lock().unwrap_or_else(|e| e.into_inner());
+        subs.retain(|s| s.strong_count() > 0);
+        subs.push(Arc::downgrade(&sub));
+        self.subscribed.store(true, Ordering::Release);
+        Changes { sub }
+    }
+
+    /// Announces the change of `device` (called with the image's write lock held, so
+    /// commits reach subscribers in the order they were made).
+    fn announce(&self, device: &DeviceImage) {
+        let _ = self.changes.send(device.position);
+        if !self.subscribed.load(Ordering::Acquire) {
+            return;
         }
-        r
+        let mut subs = self.subscribers.lock().unwrap_or_else(|e| e.into_inner());
+        subs.retain(|s| s.strong_count() > 0);
+        if subs.is_empty() {
+            self.subscribed.store(false, Ordering::Release);
+            return;
+        }
+        let now = self.clock.now();
+        let change = Change {
+            device: Arc::new(device.clone()),
+            quality: device.quality(now),
+            at: self.clock.wall(),
+            seq: self.seq.fetch_add(1, Ordering::Relaxed),
+        };
+        for s in subs.iter().filter_map(Weak::upgrade) {
+            s.push(change.clone(), now);
+        }
+    }
+
+    /// Changes the image at `position` and announces it: one commit, however many
+    /// fields `f` changes.
+    pub fn update<R>(&self, position: usize, f: impl FnOnce(&mut DeviceImage) -> R) -> Option<R> {
+        let mut devices = self.write();
+        let d = devices.get_mut(position)?;
+        let r = f(d);
+        self.announce(d);
+        Some(r)
     }
 
     /// Adds a device at the end of the list; returns its position.
@@ -449,8 +641,7 @@ impl Image {
         device.position = d.len();
         let p = device.position;
         d.push(device);
-        drop(d);
-        let _ = self.changes.send(p);
+        self.announce(&d[p]);
         p
     }
 

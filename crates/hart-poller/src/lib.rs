@@ -20,6 +20,7 @@ use hart_host::DeviceInfo;
 use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
 use tokio::sync::{broadcast, mpsc, watch, Mutex};
 
+pub mod clock;
 pub mod config;
 pub mod image;
 pub mod line;
@@ -28,8 +29,9 @@ pub mod schedule;
 mod task;
 pub mod write;
 
+pub use clock::Clock;
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
-pub use image::{DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
+pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
 pub use line::{Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
@@ -132,6 +134,25 @@ pub struct WriteReply {
     pub data: Vec<u8>,
 }
 
+/// How an engine starts, besides its configuration and loops.
+#[derive(Debug, Clone, Copy)]
+pub struct StartOptions {
+    /// Client requests queued per loop ([`LOOP_QUEUE`]; in-memory loops take more: no
+    /// line time to wait for).
+    pub queue: usize,
+    /// Where the engine reads the time ([`Clock::system`] by default).
+    pub clock: Clock,
+}
+
+impl Default for StartOptions {
+    fn default() -> Self {
+        StartOptions {
+            queue: LOOP_QUEUE,
+            clock: Clock::system(),
+        }
+    }
+}
+
 /// Writes queued per loop at most (SCADA writes are few; more are answered "busy").
 pub const WRITE_QUEUE: usize = 16;
 
@@ -161,6 +182,23 @@ impl Engine {
         loops: Vec<LoopSpec>,
         queue: usize,
     ) -> (Engine, Vec<tokio::task::JoinHandle<()>>) {
+        Self::start_with(
+            config,
+            loops,
+            StartOptions {
+                queue,
+                ..StartOptions::default()
+            },
+        )
+    }
+
+    /// [`Engine::start`] with [`StartOptions`]: the queue length and the clock.
+    pub fn start_with(
+        config: EngineConfig,
+        loops: Vec<LoopSpec>,
+        options: StartOptions,
+    ) -> (Engine, Vec<tokio::task::JoinHandle<()>>) {
+        let StartOptions { queue, clock } = options;
         let loop_names: Vec<String> = loops
             .iter()
             .enumerate()
@@ -171,7 +209,7 @@ impl Engine {
                     .unwrap_or_else(|| format!("loop{}", i + 1))
             })
             .collect();
-        let image = Arc::new(Image::default());
+        let image = Arc::new(Image::with_clock(clock));
         for (channel, l) in loops.iter().enumerate() {
             for dev in &l.settings.device {
                 let (period, _) = config.device_settings(&l.settings, Some(dev));
@@ -222,6 +260,11 @@ impl Engine {
     /// The current image.
     pub fn image(&self) -> &Arc<Image> {
         &self.shared.image
+    }
+
+    /// The engine's clock: "now" for the image's qualities and ages.
+    pub fn clock(&self) -> &Clock {
+        self.shared.image.clock()
     }
 
     /// Devices found on the loops, for routing (HART-IP).

@@ -7,7 +7,7 @@
 //! do it listens to the line for burst frames.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use hart_host::DeviceInfo;
 use hart_proto::command::{Identity, LongTag, TagDescriptorDate};
@@ -16,6 +16,7 @@ use hart_proto::tables::field_device_status as fds;
 use hart_proto::wire::{Reader, Wire};
 use tokio::sync::mpsc;
 
+use crate::clock::Clock;
 use crate::config::{LoopSettings, ReadCommand};
 use crate::image::{DeviceImage, LastPoll};
 use crate::line::{pdu, Line};
@@ -82,6 +83,7 @@ pub(crate) struct LoopTask {
     in_a_row: u32,
     scan_turn: bool,
     epoch: Instant,
+    clock: Clock,
 }
 
 impl LoopTask {
@@ -94,6 +96,7 @@ impl LoopTask {
         writes: mpsc::Receiver<LoopRequest>,
     ) -> Self {
         let scan_order = settings.scan_order();
+        let clock = *shared.image.clock();
         LoopTask {
             channel,
             settings,
@@ -102,6 +105,7 @@ impl LoopTask {
             requests,
             writes,
             schedule: Schedule::new(RETRY_DEAD_AFTER.as_micros() as Micros),
+            clock,
             polled: Default::default(),
             scan_order,
             next_scan: 0,
@@ -111,12 +115,13 @@ impl LoopTask {
             last_scan: None,
             in_a_row: 0,
             scan_turn: true,
-            epoch: Instant::now(),
+            epoch: clock.now(),
         }
     }
 
+    /// Microseconds since the task started, on the engine's clock.
     fn now(&self) -> Micros {
-        self.epoch.elapsed().as_micros() as Micros
+        self.clock.since(self.epoch).as_micros() as Micros
     }
 
     fn polling(&self) -> bool {
@@ -216,7 +221,7 @@ impl LoopTask {
         if self.scan_order.is_empty() {
             return None;
         }
-        let since = |t: Option<Instant>| t.map_or(Duration::MAX, |t| t.elapsed());
+        let since = |t: Option<Instant>| t.map_or(Duration::MAX, |t| self.clock.since(t));
         let idle = since(self.quiet_since);
         if self.first_pass {
             return Some(SCAN_GRACE.saturating_sub(idle));
@@ -257,7 +262,7 @@ impl LoopTask {
             None => LoopOutcome::NoReply,
         };
         let _ = r.reply.send(outcome);
-        self.quiet_since = Some(Instant::now());
+        self.quiet_since = Some(self.clock.now());
     }
 
     /// A write that went through: read the device's configuration again on its next
@@ -370,9 +375,9 @@ impl LoopTask {
             self.next_scan = 0;
             self.first_pass_done();
         }
-        self.last_scan = Some(Instant::now());
+        self.last_scan = Some(self.clock.now());
         if !self.first_pass && !self.polling() {
-            self.quiet_since = Some(Instant::now());
+            self.quiet_since = Some(self.clock.now());
         }
     }
 
@@ -587,8 +592,6 @@ impl LoopTask {
             POLL_RETRIES
         };
         let reply = self.command(&info, command, &data, retries).await;
-        let wall = SystemTime::now();
-        let instant = Instant::now();
         let Some((rc, status, data)) = reply else {
             if img.last_poll != LastPoll::NoReply {
                 tracing::warn!(
@@ -621,6 +624,9 @@ impl LoopTask {
                 img.display_name()
             );
         }
+        // The replies of this poll are gathered and go into the image in one commit at
+        // the end: a reader never sees the new values beside the old status or range.
+        let mut replies = vec![Reply::new(&self.clock, command, rc, status, data)];
         // Configuration changed: shown for one period, then read again.
         let bit = status & fds::CONFIGURATION_CHANGED != 0;
         let first = img.range.is_none();
@@ -628,48 +634,43 @@ impl LoopTask {
         let reread = st.refresh || first || (img.config_changed_pending && !newly_changed);
         st.config_bit = bit;
         let tags = st.refresh_tags || img.config_changed_pending;
-        self.shared.image.update(position, |d| {
-            d.polls += 1;
-            d.apply_reply(command, rc, status, &data, instant, wall);
-            if newly_changed {
-                d.config_changed_pending = true;
-            }
-        });
         if status & fds::MORE_STATUS_AVAILABLE != 0 {
             self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 48, &[], POLL_RETRIES).await {
-                self.shared.image.update(position, |d| {
-                    d.apply_reply(48, rc, status, &data, Instant::now(), SystemTime::now())
-                });
+                replies.push(Reply::new(&self.clock, 48, rc, status, data));
             }
         }
+        let mut fresh_tags = None;
         if reread {
             self.carry_writes().await;
             if let Some((rc, status, data)) = self.command(&info, 15, &[], POLL_RETRIES).await {
-                self.shared.image.update(position, |d| {
-                    d.apply_reply(15, rc, status, &data, Instant::now(), SystemTime::now());
-                });
+                replies.push(Reply::new(&self.clock, 15, rc, status, data));
             }
             if tags {
                 self.carry_writes().await;
                 let mut fresh = info.clone();
                 self.read_tags(&mut fresh).await;
-                self.shared.image.update(position, |d| {
-                    if let Some(i) = &mut d.info {
-                        i.tag = fresh.tag.or(i.tag.take());
-                        i.descriptor = fresh.descriptor.or(i.descriptor.take());
-                        i.long_tag = fresh.long_tag.or(i.long_tag.take());
-                    }
-                });
-            }
-            if !newly_changed {
-                self.shared
-                    .image
-                    .update(position, |d| d.config_changed_pending = false);
+                fresh_tags = Some(fresh);
             }
             st.refresh = false;
             st.refresh_tags = false;
         }
+        self.shared.image.update(position, |d| {
+            d.polls += 1;
+            for r in &replies {
+                d.apply_reply(r.command, r.rc, r.status, &r.data, r.instant, r.wall);
+            }
+            if newly_changed {
+                d.config_changed_pending = true;
+            } else if reread {
+                d.config_changed_pending = false;
+            }
+            if let (Some(fresh), Some(i)) = (fresh_tags, &mut d.info) {
+                i.tag = fresh.tag.or(i.tag.take());
+                i.descriptor = fresh.descriptor.or(i.descriptor.take());
+                i.long_tag = fresh.long_tag.or(i.long_tag.take());
+            }
+        });
         self.polled.insert(position, st);
         self.schedule.polled(position, self.now(), true);
     }
@@ -694,19 +695,36 @@ impl LoopTask {
                     f.device_status,
                 ) {
                     let (command, data) = (f.command, f.data.to_vec());
-                    self.shared.image.update(p, |d| {
-                        d.apply_reply(
-                            command,
-                            rc,
-                            status,
-                            &data,
-                            Instant::now(),
-                            SystemTime::now(),
-                        )
-                    });
+                    let (now, wall) = (self.clock.now(), self.clock.wall());
+                    self.shared
+                        .image
+                        .update(p, |d| d.apply_reply(command, rc, status, &data, now, wall));
                 }
             }
             let _ = self.shared.bursts.send(b);
+        }
+    }
+}
+
+/// One reply of a poll, kept until the poll's commit.
+struct Reply {
+    command: u16,
+    rc: u8,
+    status: u8,
+    data: Vec<u8>,
+    instant: Instant,
+    wall: std::time::SystemTime,
+}
+
+impl Reply {
+    fn new(clock: &Clock, command: u16, rc: u8, status: u8, data: Vec<u8>) -> Self {
+        Reply {
+            command,
+            rc,
+            status,
+            data,
+            instant: clock.now(),
+            wall: clock.wall(),
         }
     }
 }

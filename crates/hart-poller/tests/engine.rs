@@ -2,12 +2,12 @@
 //! that dies and comes back, writes ahead of polls, configured devices and their
 //! positions, burst messages into the image.
 
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use hart_host::transport::Plant;
 use hart_poller::{
-    DeviceSettings, Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop, PollSettings,
-    Quality, ReadCommand,
+    Clock, DeviceSettings, Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop,
+    PollSettings, Quality, ReadCommand, StartOptions,
 };
 
 fn local<F: std::future::Future>(f: F) -> F::Output {
@@ -334,5 +334,145 @@ fn a_device_not_asked_yet_is_waiting_for_data() {
                 .unwrap())
             .await
         );
+    });
+}
+
+/// The engine on tokio's clock with time paused: an hour of polling in virtual time.
+fn paused<F: std::future::Future>(f: F) -> F::Output {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, f)
+}
+
+/// An engine on the demo plant in memory, polling every `period` on the engine's
+/// tokio clock (virtual when the runtime's time is paused).
+fn virtual_engine(period: Duration) -> Engine {
+    let m = MemoryLoop::new(Plant::demo().devices().unwrap());
+    let (engine, _) = Engine::start_with(
+        EngineConfig {
+            poll: true,
+            defaults: PollSettings {
+                period,
+                read: ReadCommand::Dynamic,
+                ..Default::default()
+            },
+        },
+        vec![LoopSpec {
+            settings: LoopSettings::default(),
+            line: Line::Memory(m),
+        }],
+        StartOptions {
+            clock: Clock::tokio(SystemTime::UNIX_EPOCH + Duration::from_secs(1_800_000_000)),
+            ..StartOptions::default()
+        },
+    );
+    engine
+}
+
+/// One poll is one commit: every change a subscriber sees is a whole device, so the
+/// first poll's change with a PV already has the range (command 15) read in the same
+/// poll. (Burst messages are commits of their own: the demo's burst device may show a
+/// PV before its first poll.)
+#[test]
+fn each_poll_is_one_commit() {
+    paused(async {
+        let engine = virtual_engine(Duration::from_secs(1));
+        let mut changes = engine.image().changes(100_000);
+        tokio::time::sleep(Duration::from_secs(60)).await;
+        let mut seen = 0;
+        let mut last_seq = None;
+        let mut polls = std::collections::HashMap::new();
+        while let Some(c) = changes.try_recv() {
+            if let Some(s) = last_seq {
+                assert_eq!(c.seq, s + 1, "commit numbers follow one another");
+            }
+            last_seq = Some(c.seq);
+            let before = polls.insert(c.device.position, c.device.polls).unwrap_or(0);
+            if c.device.polls > before && c.device.variables[0].is_some() {
+                assert!(c.device.range.is_some(), "a PV without its range: {c:?}");
+                seen += 1;
+            }
+        }
+        assert_eq!(changes.dropped(), 0);
+        // Four devices polled every second for a minute: one commit per poll.
+        assert!(
+            (4 * 55..=4 * 61).contains(&seen),
+            "{seen} changes with values"
+        );
+    });
+}
+
+/// An hour of polling runs in virtual time: the polls follow the period exactly, and
+/// the values' time stamps are the engine clock's.
+#[test]
+fn an_hour_of_polling_in_virtual_time() {
+    paused(async {
+        let engine = virtual_engine(Duration::from_secs(10));
+        let start = engine.clock().wall();
+        let real = Instant::now();
+        tokio::time::sleep(Duration::from_secs(3600)).await;
+        assert!(
+            real.elapsed() < Duration::from_secs(60),
+            "virtual, not real time"
+        );
+        let img = engine.image().snapshot();
+        assert_eq!(img.len(), 4);
+        for d in &img {
+            // 360 periods; the first poll at start.
+            assert!((358..=362).contains(&d.polls), "{} polls", d.polls);
+            let updated = d.updated.unwrap().duration_since(start).unwrap();
+            assert!(updated > Duration::from_secs(3580) && updated <= Duration::from_secs(3600));
+            assert_eq!(d.quality(engine.clock().now()), Quality::Good);
+        }
+    });
+}
+
+/// A subscriber that does not keep up loses the oldest changes, counted; the newest
+/// are kept.
+#[test]
+fn a_slow_subscriber_is_told_what_it_lost() {
+    paused(async {
+        let engine = virtual_engine(Duration::from_secs(1));
+        let mut changes = engine.image().changes(8);
+        tokio::time::sleep(Duration::from_secs(30)).await;
+        assert!(changes.dropped() > 50, "{} dropped", changes.dropped());
+        assert_eq!(changes.len(), 8);
+        let first = changes.try_recv().unwrap();
+        let mut last = first.seq;
+        while let Some(c) = changes.try_recv() {
+            assert_eq!(c.seq, last + 1);
+            last = c.seq;
+        }
+        assert_eq!(first.seq + 7, last);
+    });
+}
+
+/// When the engine is dropped, a subscriber receives what was left and then `None`.
+#[test]
+fn changes_end_when_the_engine_does() {
+    paused(async {
+        let engine = virtual_engine(Duration::from_secs(1));
+        let mut changes = engine.image().changes(1000);
+        tokio::time::sleep(Duration::from_secs(5)).await;
+        let waiting = changes.len();
+        assert!(waiting > 0);
+        // The tasks hold the engine's shared parts: end them with the runtime's loop.
+        drop(engine);
+        let mut n = 0;
+        while tokio::time::timeout(Duration::from_secs(1), changes.recv())
+            .await
+            .ok()
+            .flatten()
+            .is_some()
+        {
+            n += 1;
+            if n > waiting + 100 {
+                break;
+            }
+        }
+        assert!(n >= waiting);
     });
 }
