@@ -29,6 +29,8 @@ mod writer;
 
 pub mod bench;
 pub mod cli;
+#[doc(hidden)]
+pub mod pgtest;
 
 pub use config::{parse_size, HistoryConfig};
 pub use error::Error;

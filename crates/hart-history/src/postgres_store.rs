@@ -41,7 +41,7 @@ pub struct PgStore {
 }
 
 /// The URL without its password, for messages.
-fn redact(url: &str) -> String {
+pub(crate) fn redact(url: &str) -> String {
     // postgres://user:password@host/db -> postgres://user:***@host/db
     if let Some(scheme_end) = url.find("://") {
         let rest = &url[scheme_end + 3..];
@@ -62,10 +62,23 @@ fn redact(url: &str) -> String {
 
 /// A client error as a historian error about `db`.
 pub(crate) fn pg_error(db: &str, e: postgres::Error) -> Error {
+    // The client's own text of a server error is only "db error": say the server's.
+    let text = match e.as_db_error() {
+        Some(d) => format!("{}: {}", d.severity(), d.message()),
+        None => {
+            let mut s = e.to_string();
+            let mut src = std::error::Error::source(&e);
+            while let Some(x) = src {
+                s.push_str(&format!(": {x}"));
+                src = x.source();
+            }
+            s
+        }
+    };
     if let Some(code) = e.code() {
         if *code == SqlState::DISK_FULL || *code == SqlState::OUT_OF_MEMORY {
             return Error::Full(format!(
-                "history database {db}: the server's disk is full ({e}); free space on the server or lower [history] retention"
+                "history database {db}: the server's disk is full ({text}); free space on the server or lower [history] retention"
             ));
         }
         if *code == SqlState::ADMIN_SHUTDOWN
@@ -74,7 +87,7 @@ pub(crate) fn pg_error(db: &str, e: postgres::Error) -> Error {
             || code.code().starts_with("08")
         {
             return Error::Gone(format!(
-                "history database {db}: the server went away ({e}); check that PostgreSQL runs and is reachable"
+                "history database {db}: the server went away ({text}); check that PostgreSQL runs and is reachable"
             ));
         }
         if *code == SqlState::INVALID_PASSWORD
@@ -83,20 +96,20 @@ pub(crate) fn pg_error(db: &str, e: postgres::Error) -> Error {
             || *code == SqlState::INSUFFICIENT_PRIVILEGE
         {
             return Error::Io(format!(
-                "history database {db}: refused ({e}); check the user, password and database name, and that the user may create tables"
+                "history database {db}: refused ({text}); check the user, password and database name, and that the user may create tables"
             ));
         }
         if *code == SqlState::LOCK_NOT_AVAILABLE || *code == SqlState::T_R_DEADLOCK_DETECTED {
-            return Error::Locked(format!("history database {db}: {e}; retrying"));
+            return Error::Locked(format!("history database {db}: {text}; retrying"));
         }
-        return Error::Database(format!("history database {db}: {e}"));
+        return Error::Database(format!("history database {db}: {text}"));
     }
     if e.is_closed() || e.as_db_error().is_none() {
         return Error::Gone(format!(
-            "history database {db}: no connection ({e}); check that PostgreSQL runs, listens at that address and lets this host in (pg_hba.conf)"
+            "history database {db}: no connection ({text}); check that PostgreSQL runs, listens at that address and lets this host in (pg_hba.conf)"
         ));
     }
-    Error::Database(format!("history database {db}: {e}"))
+    Error::Database(format!("history database {db}: {text}"))
 }
 
 /// `YYYYMMDD` of day `day` since 1970 (UTC).
@@ -129,10 +142,6 @@ impl PgStore {
         };
         s.migrate()?;
         Ok(s)
-    }
-
-    fn err(&self) -> impl Fn(postgres::Error) -> Error + '_ {
-        move |e| pg_error(&self.url_shown, e)
     }
 
     fn migrate(&mut self) -> Result<(), Error> {
@@ -225,8 +234,10 @@ impl PgStore {
                             &[&k.unique_id, &k.tag, &k.loop_name],
                         )?
                         .get(0);
-                    self.ids
-                        .insert(k.unique_id.clone(), (id, k.tag.clone(), k.loop_name.clone()));
+                    self.ids.insert(
+                        k.unique_id.clone(),
+                        (id, k.tag.clone(), k.loop_name.clone()),
+                    );
                     fresh.push(k.unique_id.clone());
                     id
                 }
@@ -351,7 +362,10 @@ impl PgStore {
                 continue;
             };
             // Names sort as their days do (YYYYMMDD).
-            if day.len() == 8 && day.bytes().all(|b| b.is_ascii_digit()) && *day < *cutoff_day.as_str() {
+            if day.len() == 8
+                && day.bytes().all(|b| b.is_ascii_digit())
+                && *day < *cutoff_day.as_str()
+            {
                 self.client
                     .batch_execute(&format!("DROP TABLE IF EXISTS {p}"))
                     .map_err(e)?;

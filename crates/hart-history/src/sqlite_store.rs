@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension};
 
-use crate::store::{dedup_batch, query_sql, resolve_device, RetentionOutcome};
+use crate::store::{query_sql, resolve_device, RetentionOutcome};
 use crate::{from_micros, micros, DeviceSummary, Error, Point, Query, Sample, SCHEMA_VERSION};
 
 const DAY_US: i64 = 86_400_000_000;
@@ -178,8 +178,8 @@ impl SqliteStore {
                 let id = match self.ids.get(&k.unique_id) {
                     Some((id, tag, lp)) if *tag == k.tag && *lp == k.loop_name => *id,
                     _ => {
-                        let id: i64 = dev
-                            .query_row(params![k.unique_id, k.tag, k.loop_name], |r| r.get(0))?;
+                        let id: i64 =
+                            dev.query_row(params![k.unique_id, k.tag, k.loop_name], |r| r.get(0))?;
                         self.ids.insert(
                             k.unique_id.clone(),
                             (id, k.tag.clone(), k.loop_name.clone()),
@@ -238,7 +238,9 @@ impl SqliteStore {
                 .prepare("SELECT id, unique_id, tag, loop FROM devices WHERE upper(unique_id) = upper(?1) OR tag = ?1")
                 .map_err(e)?;
             let rows = st
-                .query_map([wanted], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))
+                .query_map([wanted], |r| {
+                    Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+                })
                 .map_err(e)?;
             rows.collect::<Result<Vec<_>, _>>().map_err(e)?
         };
@@ -358,7 +360,10 @@ impl SqliteStore {
         let e = |e| sqlite_error(&path, e);
         let mut out = RetentionOutcome::default();
         if let Some(c) = cutoff {
-            if !self.delete_before(c, deadline, &mut out.deleted).map_err(e)? {
+            if !self
+                .delete_before(c, deadline, &mut out.deleted)
+                .map_err(e)?
+            {
                 return Ok(out);
             }
         }

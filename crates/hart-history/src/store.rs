@@ -20,6 +20,14 @@ pub enum StoreKind {
 }
 
 impl StoreKind {
+    /// `db` for a log line: a PostgreSQL URL without its password.
+    pub fn name_of(self, db: &str) -> String {
+        match self {
+            StoreKind::Sqlite => db.to_string(),
+            StoreKind::Postgres => crate::postgres_store::redact(db),
+        }
+    }
+
     /// The backend of `db`: a `postgres://` or `postgresql://` URL, else a file path.
     pub fn of(db: &str) -> StoreKind {
         let l = db.trim_start().to_ascii_lowercase();
@@ -143,7 +151,9 @@ impl Store {
     pub fn open(db: &str, create: bool) -> Result<Store, Error> {
         match StoreKind::of(db) {
             StoreKind::Postgres => PgStore::open(db).map(Store::Postgres),
-            StoreKind::Sqlite => SqliteStore::open(std::path::Path::new(db), create).map(Store::Sqlite),
+            StoreKind::Sqlite => {
+                SqliteStore::open(std::path::Path::new(db), create).map(Store::Sqlite)
+            }
         }
     }
 
@@ -237,9 +247,9 @@ pub(crate) fn dedup_batch(samples: &[Sample]) -> Vec<&Sample> {
 pub(crate) fn query_sql(q: &Query) -> String {
     let range = "device = $1 AND var = $2 AND time >= $3 AND time < $4";
     match q.every {
-        None => format!(
-            "SELECT time, value, units, quality FROM samples WHERE {range} ORDER BY time"
-        ),
+        None => {
+            format!("SELECT time, value, units, quality FROM samples WHERE {range} ORDER BY time")
+        }
         Some(_) => {
             let value = match q.agg {
                 Agg::Last => "s.value".to_string(),

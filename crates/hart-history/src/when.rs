@@ -21,7 +21,8 @@ pub fn parse_time(s: &str, now: SystemTime) -> Result<SystemTime, Error> {
             .map_err(|e| Error::Usage(format!("'{s}': not a duration ({e}); {TIME_HELP}")))?;
         return now
             .checked_sub(d)
-            .ok_or_else(|| Error::Usage(format!("'{s}': too far in the past; {TIME_HELP}")));
+            .filter(|t| *t >= std::time::UNIX_EPOCH)
+            .ok_or_else(|| Error::Usage(format!("'{s}': before 1970; {TIME_HELP}")));
     }
     humantime::parse_rfc3339_weak(t)
         .map_err(|e| Error::Usage(format!("'{s}': not a time ({e}); {TIME_HELP}")))
@@ -66,15 +67,19 @@ mod tests {
         assert_eq!(parse_time("now", now).unwrap(), now);
         assert_eq!(parse_time("-1h", now).unwrap(), at(1_800_000_000 - 3600));
         assert_eq!(parse_time("-1d", now).unwrap(), at(1_800_000_000 - 86_400));
-        assert_eq!(
-            parse_time("1970-01-02T00:00:00Z", now).unwrap(),
-            at(86_400)
-        );
+        assert_eq!(parse_time("1970-01-02T00:00:00Z", now).unwrap(), at(86_400));
         assert_eq!(
             parse_time("1970-01-01 00:00:01.5Z", now).unwrap(),
             UNIX_EPOCH + Duration::from_millis(1500)
         );
-        for bad in ["", "yesterday", "-", "-1x", "2026-13-01T00:00:00Z", "-99999999999999d"] {
+        for bad in [
+            "",
+            "yesterday",
+            "-",
+            "-1x",
+            "2026-13-01T00:00:00Z",
+            "-99999999999999d",
+        ] {
             let e = parse_time(bad, now).unwrap_err();
             assert!(matches!(e, Error::Usage(_)), "{bad}: {e:?}");
             assert!(e.to_string().contains("RFC 3339"), "{e}");

@@ -245,6 +245,8 @@ struct Task {
     backoff: Option<Duration>,
     /// A failure that wants a new connection first.
     reconnect: bool,
+    /// The last try failed (cleared, with a log line, by the next success).
+    failing: bool,
     dropping: bool,
     next_retention: Instant,
     retention_pending: bool,
@@ -261,6 +263,7 @@ impl Task {
             pending: VecDeque::new(),
             backoff: None,
             reconnect: false,
+            failing: false,
             dropping: false,
             next_retention: now + Duration::from_secs(5),
             retention_pending: false,
@@ -383,7 +386,8 @@ impl Task {
                 s.batches.fetch_add(1, Ordering::Relaxed);
                 s.backlog
                     .store(self.pending.len() as u64, Ordering::Relaxed);
-                if self.backoff.take().is_some() || self.dropping {
+                self.backoff = None;
+                if std::mem::take(&mut self.failing) || self.dropping {
                     tracing::info!(
                         "history: writing to {} again ({} samples still waiting)",
                         self.store.describe(),
@@ -403,6 +407,7 @@ impl Task {
 
     fn failed(&mut self, e: Error, n: usize) {
         self.shared.failures.fetch_add(1, Ordering::Relaxed);
+        self.failing = true;
         self.reconnect = e.needs_reconnect();
         let backoff = self
             .backoff
