@@ -135,3 +135,62 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
     });
     Ok(Handle { writer, task })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hart_poller::Variable;
+    use hart_proto::command::Identity;
+    use hart_proto::wire::{Reader, Wire};
+    use std::time::{Duration, UNIX_EPOCH};
+
+    fn device() -> DeviceImage {
+        let id = Identity::decode(&mut Reader::new(&[
+            254, 0x26, 0xF1, 5, 5, 1, 1, 0, 0, 0x00, 0x00, 0x01,
+        ]))
+        .unwrap();
+        let mut d = DeviceImage::new(0, 0, "loop1", Duration::from_secs(10));
+        let mut info = hart_host::DeviceInfo::identified(id, Some(1));
+        info.tag = Some("PT-101  ".into());
+        d.info = Some(info);
+        d.variables[0] = Some(Variable {
+            value: 50.0,
+            units: 12,
+            status: None,
+        });
+        d.loop_current = Some(12.0);
+        d.updated = Some(UNIX_EPOCH);
+        d
+    }
+
+    #[test]
+    fn samples_of_an_identified_device() {
+        let s = samples_of(&device(), Quality::Good, UNIX_EPOCH);
+        let vars: Vec<_> = s.iter().map(|s| s.var).collect();
+        assert_eq!(vars, [Var::Pv, Var::LoopCurrent, Var::DeviceStatus]);
+        assert_eq!(s[0].device.tag, "PT-101");
+        assert_eq!(s[0].device.unique_id.len(), 10);
+        assert_eq!((s[0].value, s[0].units), (50.0, Some(12)));
+        assert_eq!(s[1].units, Some(39));
+        assert_eq!(s[2].units, None);
+    }
+
+    #[test]
+    fn a_change_stores_only_what_changed_a_period_everything() {
+        let mut r = Recorder::new();
+        let mut d = device();
+        assert_eq!(r.changed(&d, Quality::Good, UNIX_EPOCH).len(), 3);
+        assert!(r.changed(&d, Quality::Good, UNIX_EPOCH).is_empty(), "nothing new");
+        d.variables[0].as_mut().unwrap().value = 51.0;
+        let s = r.changed(&d, Quality::Good, UNIX_EPOCH);
+        assert_eq!(s.iter().map(|s| s.var).collect::<Vec<_>>(), [Var::Pv]);
+        // A quality change is a change of every value.
+        assert_eq!(r.changed(&d, Quality::Stale, UNIX_EPOCH).len(), 3);
+        assert_eq!(r.all(&d, Quality::Stale, UNIX_EPOCH).len(), 3);
+        assert!(r.changed(&d, Quality::Stale, UNIX_EPOCH).is_empty());
+        // NaN equals NaN here: a device reporting no value is not a change each poll.
+        d.variables[0].as_mut().unwrap().value = f32::NAN;
+        assert_eq!(r.changed(&d, Quality::Stale, UNIX_EPOCH).len(), 1);
+        assert!(r.changed(&d, Quality::Stale, UNIX_EPOCH).is_empty());
+    }
+}

@@ -506,3 +506,74 @@ fn postgres_suite() {
     let e = Store::open("postgres://x@[bad", true).err().unwrap();
     assert!(matches!(e, Error::Usage(_)), "{e:?}");
 }
+
+/// The feed on the demo plant (in memory, real time): every device's values are
+/// stored, a steady value only once per sample period.
+#[test]
+fn feed_stores_the_engine_changes_and_periodic_samples() {
+    use hart_host::transport::Plant;
+    use hart_poller::{
+        Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop, PollSettings, ReadCommand,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let stats = tokio::task::LocalSet::new().block_on(&rt, async {
+        let (engine, _) = Engine::start(
+            EngineConfig {
+                poll: true,
+                defaults: PollSettings {
+                    period: Duration::from_millis(20),
+                    read: ReadCommand::Dynamic,
+                    ..Default::default()
+                },
+            },
+            vec![LoopSpec {
+                settings: LoopSettings::default(),
+                line: Line::Memory(MemoryLoop::new(Plant::demo().devices().unwrap())),
+            }],
+        );
+        let mut config = hart_history::HistoryConfig::with_db(db.clone());
+        config.batch = Duration::from_millis(50);
+        config.sample_period = Duration::from_millis(300);
+        let h = hart_history::run(engine.clone(), config).await.unwrap();
+        engine.ready().await;
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        h.stop().await
+    });
+    assert_eq!(stats.dropped, 0, "{stats:?}");
+    assert!(stats.written > 0 && stats.batches > 0, "{stats:?}");
+    let mut s = Store::open(&db, false).unwrap();
+    let devices = s.devices().unwrap();
+    assert_eq!(devices.len(), 4, "{devices:?}");
+    for d in &devices {
+        let rows = s
+            .query(&Query {
+                device: d.unique_id.clone(),
+                var: Var::LoopCurrent,
+                from: UNIX_EPOCH,
+                to: SystemTime::now() + Duration::from_secs(60),
+                every: None,
+                agg: Agg::Last,
+            })
+            .unwrap();
+        assert!(!rows.is_empty(), "{d:?}");
+        assert!(rows.iter().all(|r| r.units == Some(39)), "mA");
+    }
+    // The device status of a healthy device does not change: stored at the first
+    // change and at each of the (about 5) sample periods, not at every 20 ms poll.
+    let status = s
+        .query(&Query {
+            device: devices[0].unique_id.clone(),
+            var: Var::DeviceStatus,
+            from: UNIX_EPOCH,
+            to: SystemTime::now() + Duration::from_secs(60),
+            every: None,
+            agg: Agg::Last,
+        })
+        .unwrap();
+    assert!((2..=12).contains(&status.len()), "{} device status rows", status.len());
+}
