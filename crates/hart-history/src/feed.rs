@@ -180,7 +180,10 @@ mod tests {
         let mut r = Recorder::new();
         let mut d = device();
         assert_eq!(r.changed(&d, Quality::Good, UNIX_EPOCH).len(), 3);
-        assert!(r.changed(&d, Quality::Good, UNIX_EPOCH).is_empty(), "nothing new");
+        assert!(
+            r.changed(&d, Quality::Good, UNIX_EPOCH).is_empty(),
+            "nothing new"
+        );
         d.variables[0].as_mut().unwrap().value = 51.0;
         let s = r.changed(&d, Quality::Good, UNIX_EPOCH);
         assert_eq!(s.iter().map(|s| s.var).collect::<Vec<_>>(), [Var::Pv]);

@@ -64,7 +64,11 @@ fn kill_9_loses_at_most_the_last_batch() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("h.sqlite").display().to_string();
     let mut c = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "kill_9_loses_at_most_the_last_batch", "--nocapture"])
+        .args([
+            "--exact",
+            "kill_9_loses_at_most_the_last_batch",
+            "--nocapture",
+        ])
         .env("HART_HISTORY_CRASH_CHILD", &db)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -86,7 +90,10 @@ fn kill_9_loses_at_most_the_last_batch() {
         .args(["-9", &c.id().to_string()])
         .status();
     let _ = c.wait();
-    assert!(commits >= 8, "the child committed {commits} batches in 60 s");
+    assert!(
+        commits >= 8,
+        "the child committed {commits} batches in 60 s"
+    );
 
     // The file opens, passes SQLite's check and holds a gap-free prefix that covers
     // everything reported committed.
@@ -108,7 +115,10 @@ fn kill_9_loses_at_most_the_last_batch() {
         })
         .unwrap();
     let n = rows.len() as u64;
-    assert!(n >= committed, "{n} rows stored, {committed} reported committed");
+    assert!(
+        n >= committed,
+        "{n} rows stored, {committed} reported committed"
+    );
     for (i, r) in rows.iter().enumerate() {
         assert_eq!(r.value, Some(i as f64), "row {i}: a gap");
     }

@@ -575,5 +575,9 @@ fn feed_stores_the_engine_changes_and_periodic_samples() {
             agg: Agg::Last,
         })
         .unwrap();
-    assert!((2..=12).contains(&status.len()), "{} device status rows", status.len());
+    assert!(
+        (2..=12).contains(&status.len()),
+        "{} device status rows",
+        status.len()
+    );
 }
