@@ -142,7 +142,7 @@ pub enum Store {
     /// An SQLite file in WAL mode.
     Sqlite(SqliteStore),
     /// A PostgreSQL database with a table partitioned by day.
-    Postgres(PgStore),
+    Postgres(Box<PgStore>),
 }
 
 impl Store {
@@ -150,7 +150,7 @@ impl Store {
     /// `postgresql://` URL or an SQLite file path. Creates or checks the schema.
     pub fn open(db: &str, create: bool) -> Result<Store, Error> {
         match StoreKind::of(db) {
-            StoreKind::Postgres => PgStore::open(db).map(Store::Postgres),
+            StoreKind::Postgres => PgStore::open(db).map(|s| Store::Postgres(Box::new(s))),
             StoreKind::Sqlite => {
                 SqliteStore::open(std::path::Path::new(db), create).map(Store::Sqlite)
             }

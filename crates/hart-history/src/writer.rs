@@ -341,9 +341,7 @@ impl Task {
     fn flush(&mut self) -> Result<(), Error> {
         self.backoff = None;
         while !self.pending.is_empty() {
-            if let Err(e) = self.write_chunk() {
-                return Err(e);
-            }
+            self.write_chunk()?;
         }
         Ok(())
     }
