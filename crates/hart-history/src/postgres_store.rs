@@ -122,7 +122,7 @@ fn day_name(day: i64) -> String {
 impl PgStore {
     /// Connects to `url` (5 s connect timeout unless the URL sets one) and creates or
     /// checks the schema.
-    pub fn open(url: &str) -> Result<PgStore, Error> {
+    pub fn open(url: &str, create: bool) -> Result<PgStore, Error> {
         let shown = redact(url);
         let mut config: Config = url.parse().map_err(|e| {
             Error::Usage(format!(
@@ -140,13 +140,40 @@ impl PgStore {
             ids: HashMap::new(),
             days: HashSet::new(),
         };
-        s.migrate()?;
+        s.migrate(create)?;
         Ok(s)
     }
 
-    fn migrate(&mut self) -> Result<(), Error> {
+    /// Creates the tables (with `create`) and checks the schema version.
+    fn migrate(&mut self, create: bool) -> Result<(), Error> {
         let shown = self.url_shown.clone();
         let e = |e| pg_error(&shown, e);
+        if !create {
+            let n: i64 = self
+                .client
+                .query_one(
+                    "SELECT count(*) FROM pg_tables WHERE tablename IN ('schema_version', 'devices', 'samples') AND schemaname = ANY (current_schemas(false))",
+                    &[],
+                )
+                .map_err(e)?
+                .get(0);
+            if n != 3 {
+                return Err(Error::Schema(format!(
+                    "{shown} holds no hartkit history (no schema_version, devices and samples tables); check the database name"
+                )));
+            }
+            let v: Option<i32> = self
+                .client
+                .query_one("SELECT max(version) FROM schema_version", &[])
+                .map_err(e)?
+                .get(0);
+            return match v {
+                Some(v) if i64::from(v) > SCHEMA_VERSION => Err(Error::Schema(format!(
+                    "history database {shown} has schema version {v}, newer than this hartkit's {SCHEMA_VERSION}; use a newer hartkit"
+                ))),
+                _ => Ok(()),
+            };
+        }
         let mut tx = self.client.transaction().map_err(e)?;
         // One creator at a time (two gateways starting together).
         tx.execute("SELECT pg_advisory_xact_lock(7236551)", &[])
@@ -187,7 +214,7 @@ impl PgStore {
             .config
             .connect(NoTls)
             .map_err(|e| pg_error(&self.url_shown, e))?;
-        self.migrate()
+        self.migrate(true)
     }
 
     /// Writes a batch in one transaction: the partitions of its days, its devices,

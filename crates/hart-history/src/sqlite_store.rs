@@ -80,7 +80,7 @@ impl SqliteStore {
             conn,
             ids: HashMap::new(),
         };
-        s.migrate()?;
+        s.migrate(create)?;
         Ok(s)
     }
 
@@ -112,11 +112,28 @@ impl SqliteStore {
         Ok(conn)
     }
 
-    fn migrate(&mut self) -> Result<(), Error> {
+    /// Creates the tables (with `create`) and checks the schema version.
+    fn migrate(&mut self, create: bool) -> Result<(), Error> {
         let path = self.path.clone();
         let e = |e| sqlite_error(&path, e);
         let tx = self.conn.transaction().map_err(e)?;
-        tx.execute_batch(SCHEMA).map_err(e)?;
+        if create {
+            tx.execute_batch(SCHEMA).map_err(e)?;
+        } else {
+            let n: i64 = tx
+                .query_row(
+                    "SELECT count(*) FROM sqlite_master WHERE type = 'table' AND name IN ('schema_version', 'devices', 'samples')",
+                    [],
+                    |r| r.get(0),
+                )
+                .map_err(e)?;
+            if n != 3 {
+                return Err(Error::Schema(format!(
+                    "{} is an SQLite database but not a hartkit history (no schema_version, devices and samples tables); check the path",
+                    path.display()
+                )));
+            }
+        }
         let v: Option<i64> = tx
             .query_row("SELECT max(version) FROM schema_version", [], |r| r.get(0))
             .map_err(e)?;
@@ -148,7 +165,7 @@ impl SqliteStore {
     pub fn reconnect(&mut self) -> Result<(), Error> {
         self.ids.clear();
         self.conn = Self::connect(&self.path, true)?;
-        self.migrate()
+        self.migrate(true)
     }
 
     /// Writes a batch in one transaction with prepared statements.

@@ -150,7 +150,7 @@ impl Store {
     /// `postgresql://` URL or an SQLite file path. Creates or checks the schema.
     pub fn open(db: &str, create: bool) -> Result<Store, Error> {
         match StoreKind::of(db) {
-            StoreKind::Postgres => PgStore::open(db).map(|s| Store::Postgres(Box::new(s))),
+            StoreKind::Postgres => PgStore::open(db, create).map(|s| Store::Postgres(Box::new(s))),
             StoreKind::Sqlite => {
                 SqliteStore::open(std::path::Path::new(db), create).map(Store::Sqlite)
             }
@@ -250,17 +250,20 @@ pub(crate) fn query_sql(q: &Query) -> String {
         None => {
             format!("SELECT time, value, units, quality FROM samples WHERE {range} ORDER BY time")
         }
+        // One pass groups the range into buckets (value, latest time, worst quality);
+        // the latest row of each bucket (its units, and its value for `last`) is then
+        // one primary-key look-up per bucket.
         Some(_) => {
             let value = match q.agg {
-                Agg::Last => "s.value".to_string(),
-                _ => "b.v".to_string(),
+                Agg::Last => "s.value",
+                _ => "b.v",
             };
             format!(
-                "WITH s AS (SELECT time - (((time % $5) + $5) % $5) AS bucket, time, value, units, quality \
-                   FROM samples WHERE {range}) \
-                 SELECT s.bucket, {value}, s.units, b.q FROM \
-                   (SELECT bucket, {agg} AS v, max(time) AS t, max(quality) AS q FROM s GROUP BY bucket) b \
-                   JOIN s ON s.bucket = b.bucket AND s.time = b.t ORDER BY s.bucket",
+                "SELECT b.bucket, {value}, s.units, b.q FROM \
+                   (SELECT time - (((time % $5) + $5) % $5) AS bucket, {agg} AS v, max(time) AS t, max(quality) AS q \
+                    FROM samples WHERE {range} GROUP BY bucket) b \
+                 JOIN samples s ON s.device = $1 AND s.var = $2 AND s.time = b.t \
+                 ORDER BY b.bucket",
                 agg = q.agg.sql()
             )
         }
