@@ -95,6 +95,11 @@ impl Handle {
 /// `sample_period`, through a writer thread committing every `batch`.
 pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error> {
     config.validate()?;
+    if config.max_size.is_some() && crate::StoreKind::of(&config.db) == crate::StoreKind::Postgres {
+        tracing::warn!(
+            "history: [history] max_size applies to SQLite only; PostgreSQL keeps what retention keeps"
+        );
+    }
     let wc = WriterConfig::from(&config);
     let db = config.db.clone();
     let writer = tokio::task::spawn_blocking(move || Writer::start(&db, wc))
