@@ -131,6 +131,10 @@ enum Top {
     /// The 4-20 mA loop: cable length from the network's RC time constant.
     #[command(subcommand)]
     Loop(LoopCmd),
+    /// The gateway's history (`hartkit serve --history`): the stored devices, and one
+    /// variable of one device over a time range (docs/history.md).
+    #[command(subcommand)]
+    History(HistoryCmd),
     /// Shell completions on standard output, e.g. `hartkit completions bash >
     /// ~/.local/share/bash-completion/completions/hartkit`.
     Completions {
@@ -172,6 +176,130 @@ enum CaptureCmd {
         #[arg(long)]
         json: bool,
     },
+}
+
+#[derive(Subcommand)]
+enum HistoryCmd {
+    /// One variable of one device over a time range: every stored sample, or buckets
+    /// of --every aggregated with --agg. Times: RFC 3339 in UTC
+    /// (2026-01-31T12:00:00Z), now, or before now (-1h, -30m, -7d).
+    Query {
+        /// The history database: an SQLite file or a postgres:// URL.
+        #[arg(long, value_name = "FILE|URL")]
+        db: String,
+        /// The device: its tag (long tag) or unique ID (10 hex digits).
+        #[arg(long, value_name = "TAG|UNIQUE_ID")]
+        device: String,
+        /// The variable: pv, sv, tv, qv, loop_current, percent_range or device_status.
+        #[arg(long, default_value = "pv")]
+        var: String,
+        /// From this time (included).
+        #[arg(
+            long,
+            value_name = "T",
+            default_value = "-1h",
+            allow_hyphen_values = true
+        )]
+        from: String,
+        /// To this time (excluded).
+        #[arg(
+            long,
+            value_name = "T",
+            default_value = "now",
+            allow_hyphen_values = true
+        )]
+        to: String,
+        /// Buckets of this width (1s, 1m, 15min, 1h, 1d), aligned on whole multiples
+        /// since 1970 UTC.
+        #[arg(long, value_name = "DURATION")]
+        every: Option<String>,
+        /// How a bucket's samples become one value: mean, min, max or last.
+        #[arg(long, default_value = "mean", requires = "every")]
+        agg: String,
+        /// A JSON array of {time, value, units, quality}.
+        #[arg(long, conflicts_with = "csv")]
+        json: bool,
+        /// CSV: time,value,units,quality.
+        #[arg(long)]
+        csv: bool,
+    },
+    /// The stored devices: unique ID, tag, loop, first and last sample, samples.
+    Devices {
+        /// The history database: an SQLite file or a postgres:// URL.
+        #[arg(long, value_name = "FILE|URL")]
+        db: String,
+        /// JSON.
+        #[arg(long, conflicts_with = "csv")]
+        json: bool,
+        /// CSV.
+        #[arg(long)]
+        csv: bool,
+    },
+    /// Inserts samples as the gateway's writer does and times a one-day query
+    /// (scripts/bench-history).
+    #[command(hide = true)]
+    Bench {
+        /// A new SQLite file, or the URL of an empty PostgreSQL database.
+        #[arg(long, value_name = "FILE|URL")]
+        db: String,
+        /// Devices, each with its 7 variables once a second.
+        #[arg(long, default_value_t = 2)]
+        devices: usize,
+        /// Seconds of data.
+        #[arg(long, default_value_t = 86_400)]
+        seconds: u64,
+        /// Query repetitions (the median is shown).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+    },
+}
+
+fn history(cmd: &HistoryCmd) -> Result<String, (String, u8)> {
+    use hart_history::{cli, Format};
+    let format = |json: bool, csv: bool| match (json, csv) {
+        (true, _) => Format::Json,
+        (_, true) => Format::Csv,
+        _ => Format::Text,
+    };
+    match cmd {
+        HistoryCmd::Query {
+            db,
+            device,
+            var,
+            from,
+            to,
+            every,
+            agg,
+            json,
+            csv,
+        } => cli::query_command(
+            &cli::QueryArgs {
+                db: db.clone(),
+                device: device.clone(),
+                var: var.clone(),
+                from: from.clone(),
+                to: to.clone(),
+                every: every.clone(),
+                agg: agg.clone(),
+                format: format(*json, *csv),
+            },
+            std::time::SystemTime::now(),
+        ),
+        HistoryCmd::Devices { db, json, csv } => cli::devices_command(db, format(*json, *csv)),
+        HistoryCmd::Bench {
+            db,
+            devices,
+            seconds,
+            repeat,
+        } => hart_history::bench::run(&hart_history::bench::BenchArgs {
+            db: db.clone(),
+            devices: *devices,
+            seconds: *seconds,
+            repeat: *repeat,
+        })
+        .map(|r| r.to_string())
+        .map_err(|e| e.into()),
+    }
 }
 
 #[derive(Subcommand)]
@@ -1423,6 +1551,20 @@ fn main() -> ExitCode {
     {
         eprintln!("hartkit: error: {e}");
         return ExitCode::from(2);
+    }
+    if let Top::History(cmd) = &cli.command {
+        return match history(cmd) {
+            Ok(text) => {
+                // A closed pipe (e.g. `| head`) is not an error worth a message.
+                use std::io::Write as _;
+                let _ = writeln!(std::io::stdout(), "{text}");
+                ExitCode::SUCCESS
+            }
+            Err((e, code)) => {
+                eprintln!("hartkit: error: {e}");
+                ExitCode::from(code)
+            }
+        };
     }
     match self_description(&cli.command) {
         Some(Err((e, code))) => {

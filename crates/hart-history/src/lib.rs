@@ -1,0 +1,44 @@
+//! # hart-history
+//!
+//! The gateway's historian. The polling engine's image changes (every change, plus a
+//! sample of every device at a configurable period) become [`Sample`]s: one device
+//! (unique ID, tag, loop), one variable (PV, SV, TV, QV, loop current, percent of
+//! range, device status), a value, its units code, the image's quality and the time.
+//! A [`Writer`] thread stores them in batches (one transaction per batch, every
+//! second by default) in a [`Store`]: SQLite in WAL mode (embedded, the default) or
+//! PostgreSQL (a table partitioned by day). The same schema and the same queries serve
+//! both: [`Store::devices`] lists what is stored and [`Store::query`] reads one
+//! variable of one device over a time range, raw or aggregated in SQL into buckets.
+//!
+//! Faults of the database (locked, full disk, corrupt file, a server gone away) never
+//! stop the caller: the writer logs one line saying what failed and what to check,
+//! keeps the samples in a bounded backlog in memory and retries with backoff.
+//!
+//! See docs/history.md for the schema, crash safety, retention and the queries.
+
+mod config;
+mod error;
+mod feed;
+mod output;
+mod postgres_store;
+mod sample;
+mod sqlite_store;
+mod store;
+mod when;
+mod writer;
+
+pub mod bench;
+pub mod cli;
+#[doc(hidden)]
+pub mod pgtest;
+
+pub use config::{parse_size, HistoryConfig};
+pub use error::Error;
+pub use feed::{run, Handle, Recorder};
+pub use output::{format_devices, format_points, Format};
+pub use postgres_store::PgStore;
+pub use sample::{from_micros, micros, samples_of, DeviceKey, Sample, Var};
+pub use sqlite_store::SqliteStore;
+pub use store::{Agg, DeviceSummary, Point, Query, Store, StoreKind, SCHEMA_VERSION};
+pub use when::{bucket_start, parse_every, parse_time};
+pub use writer::{Stats, Writer, WriterConfig};
