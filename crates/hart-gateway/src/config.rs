@@ -63,6 +63,8 @@ pub struct GatewayConfig {
     pub modbus_rtu: Option<hart_modbus::RtuPort>,
     /// The OPC UA server, if any.
     pub opcua: Option<hart_opcua::Config>,
+    /// The historian, if any.
+    pub history: Option<hart_history::HistoryConfig>,
     /// The MQTT Sparkplug B publisher, if any.
     pub mqtt: Option<hart_sparkplug::MqttConfig>,
     /// The console view, when no front end is asked for.
@@ -136,17 +138,31 @@ impl GatewayConfig {
         let modbus_cfg = modbus_config(file, opts)?;
         let opcua = opcua_config(file, opts)?;
         let mqtt = mqtt_config(file, opts)?;
+        let history = match (&opts.history, &file.history) {
+            (Some(db), Some(section)) => Some(hart_history::HistoryConfig {
+                db: db.clone(),
+                ..section.clone()
+            }),
+            (Some(db), None) => Some(hart_history::HistoryConfig::with_db(db.clone())),
+            (None, section) => section.clone(),
+        };
+        if let Some(h) = &history {
+            h.validate()
+                .map_err(|e| Error::config(format!("--history: {e}")))?;
+        }
         // Polling serves the image's readers: Modbus, OPC UA, MQTT, the console view
         // (no front end at all); or when the configuration or --poll-period asks.
         let console = hart_ip.is_none()
             && modbus.is_none()
             && modbus_rtu.is_none()
             && opcua.is_none()
-            && mqtt.is_none();
+            && mqtt.is_none()
+            && history.is_none();
         let poll = modbus.is_some()
             || modbus_rtu.is_some()
             || opcua.is_some()
             || mqtt.is_some()
+            || history.is_some()
             || console
             || file.poll.is_some()
             || opts.poll_period.is_some();
@@ -185,6 +201,7 @@ impl GatewayConfig {
             modbus_rtu,
             opcua,
             mqtt,
+            history,
             allow_commands: opts.allow_commands.clone(),
             audit_file: opts.audit_file.clone(),
             console: console.then_some(ConsoleConfig {

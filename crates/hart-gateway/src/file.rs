@@ -30,6 +30,9 @@ pub struct GatewayFile {
     /// The OPC UA front end (`[opcua]`).
     #[serde(default)]
     pub opcua: Option<OpcUaSection>,
+    /// The historian (`[history]`).
+    #[serde(default)]
+    pub history: Option<hart_history::HistoryConfig>,
     /// The MQTT Sparkplug B publisher (`[mqtt]`).
     #[serde(default)]
     pub mqtt: Option<hart_sparkplug::MqttConfig>,

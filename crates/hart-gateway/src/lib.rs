@@ -100,6 +100,7 @@ pub struct Gateway {
     hart_ip: Vec<hart_ip_server::Server>,
     opcua: Option<hart_opcua::OpcUaServer>,
     mqtt: Option<hart_sparkplug::Handle>,
+    history: Option<hart_history::Handle>,
     modbus_tcp: Option<SocketAddr>,
 }
 
@@ -166,6 +167,7 @@ impl Gateway {
             hart_ip: vec![],
             opcua: None,
             mqtt: None,
+            history: None,
             modbus_tcp: None,
         };
         // A front end that cannot start stops what has started.
@@ -251,6 +253,24 @@ impl Gateway {
                 .push(format!("opcua: {} ({describe})", server.url));
             self.opcua = Some(server);
         }
+        if let Some(h) = config.history {
+            let what = format!(
+                "history: {} (every change, and every device each {})",
+                h.db,
+                humantime::format_duration(h.sample_period)
+            );
+            let db = h.db.clone();
+            let handle = hart_history::run(engine.clone(), h).await.map_err(|e| {
+                let message = format!("--history {db}: {e}");
+                if e.exit_code() == 2 {
+                    Error::config(message)
+                } else {
+                    Error::io(message)
+                }
+            })?;
+            self.started.push(what);
+            self.history = Some(handle);
+        }
         if let Some(m) = config.mqtt {
             let access = hart_sparkplug::Access {
                 audit: hart_access::Audit::new(config.audit_file.clone()),
@@ -298,6 +318,17 @@ impl Gateway {
         &self.started
     }
 
+    /// The historian's counters (samples written, batches, dropped, the last error), if
+    /// it runs.
+    pub fn history_stats(&self) -> Option<hart_history::Stats> {
+        self.history.as_ref().map(|h| h.stats())
+    }
+
+    /// The MQTT publisher's state (connected, births out, backlog), if it runs.
+    pub fn mqtt_status(&self) -> Option<hart_sparkplug::Status> {
+        self.mqtt.as_ref().map(|m| m.status())
+    }
+
     /// Where the Modbus TCP server listens, if it runs.
     pub fn modbus_tcp_addr(&self) -> Option<SocketAddr> {
         self.modbus_tcp
@@ -307,6 +338,10 @@ impl Gateway {
     pub async fn stop(self) {
         if let Some(m) = self.mqtt {
             m.shutdown().await;
+        }
+        // The last batch is written before the historian stops.
+        if let Some(h) = self.history {
+            h.stop().await;
         }
         for t in self.tasks {
             t.abort();

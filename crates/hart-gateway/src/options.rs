@@ -69,6 +69,9 @@ pub struct ServeOptions {
     pub opcua_pki: Option<PathBuf>,
     /// `--poll-period` seconds.
     pub poll_period: Option<f64>,
+    /// `--history DB`: keep every value's history in this SQLite file or
+    /// `postgres://` database.
+    pub history: Option<String>,
     /// `--mqtt URL`: publish to this MQTT broker as a Sparkplug B edge node.
     pub mqtt: Option<String>,
     /// `--group G`: the Sparkplug group (default `hartkit`).

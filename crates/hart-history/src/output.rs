@@ -44,6 +44,12 @@ fn value_text(v: Option<f64>) -> String {
     v.map_or_else(String::new, |v| v.to_string())
 }
 
+/// The name of a quality code (hart_poller::Quality::code), or the code.
+fn quality_name(code: u8) -> String {
+    hart_poller::Quality::from_code(u16::from(code))
+        .map_or_else(|| code.to_string(), |q| q.name().to_string())
+}
+
 fn units_text(u: Option<u8>) -> String {
     u.map_or_else(String::new, |u| u.to_string())
 }
@@ -82,17 +88,22 @@ pub fn format_points(points: &[Point], format: Format) -> String {
         }
         Format::Text => {
             let mut s = format!(
-                "{:<27} {:>14} {:>5} {:>7}",
+                "{:<27} {:>14} {:<8} {}",
                 "time", "value", "units", "quality"
             );
             for p in points {
                 s.push('\n');
+                // The units' symbol and the quality's name for a person; codes in
+                // --csv and --json.
+                let units = p.units.map_or(String::new(), |u| {
+                    hart_proto::tables::unit_symbol(u).map_or(u.to_string(), str::to_string)
+                });
                 s.push_str(&format!(
-                    "{:<27} {:>14} {:>5} {:>7}",
+                    "{:<27} {:>14} {:<8} {}",
                     rfc3339(p.time),
                     value_text(p.value),
-                    units_text(p.units),
-                    p.quality
+                    units,
+                    quality_name(p.quality)
                 ));
             }
             if points.is_empty() {

@@ -162,7 +162,9 @@ pub fn device_key(device: &DeviceImage) -> Option<DeviceKey> {
 }
 
 /// The samples of one device image at `at` with `quality`: each of PV, SV, TV, QV,
-/// loop current and percent of range the image holds, and the device status once the
+/// loop current and percent of range the image holds (each device value, an IEEE
+/// single, stored as the double nearest its shortest decimal: 80.545975, not
+/// 80.54597473144531), and the device status once the
 /// device has answered. A device not identified yet (no unique ID) gives none.
 pub fn samples_of(device: &DeviceImage, quality: Quality, at: SystemTime) -> Vec<Sample> {
     let Some(key) = device_key(device) else {
@@ -185,14 +187,14 @@ pub fn samples_of(device: &DeviceImage, quality: Quality, at: SystemTime) -> Vec
         .zip(device.variables.iter())
     {
         if let Some(v) = v {
-            push(var, f64::from(v.value), Some(v.units));
+            push(var, widen(v.value), Some(v.units));
         }
     }
     if let Some(c) = device.loop_current {
-        push(Var::LoopCurrent, f64::from(c), Some(UNITS_MILLIAMPERES));
+        push(Var::LoopCurrent, widen(c), Some(UNITS_MILLIAMPERES));
     }
     if let Some(p) = device.percent_range {
-        push(Var::PercentRange, f64::from(p), Some(UNITS_PERCENT));
+        push(Var::PercentRange, widen(p), Some(UNITS_PERCENT));
     }
     if device.updated.is_some() {
         push(Var::DeviceStatus, f64::from(device.device_status), None);
@@ -200,10 +202,30 @@ pub fn samples_of(device: &DeviceImage, quality: Quality, at: SystemTime) -> Vec
     out
 }
 
+/// A device's single-precision value as the double of its shortest decimal form, so
+/// what is stored and shown is the value the device sent, without the digits a plain
+/// widening adds.
+fn widen(v: f32) -> f64 {
+    if v.is_finite() {
+        v.to_string().parse().unwrap_or(f64::from(v))
+    } else {
+        f64::from(v)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use hart_poller::Variable;
+
+    #[test]
+    fn singles_are_stored_as_their_shortest_decimal() {
+        assert_eq!(widen(80.545_975), 80.545975);
+        assert_eq!(widen(0.1), 0.1);
+        assert!(widen(f32::NAN).is_nan());
+        assert_eq!(widen(f32::INFINITY), f64::INFINITY);
+        assert_eq!(widen(f32::MAX) as f32, f32::MAX);
+    }
 
     #[test]
     fn var_names_round_trip() {

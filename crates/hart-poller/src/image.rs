@@ -42,6 +42,22 @@ pub enum Quality {
 }
 
 impl Quality {
+    /// Every quality, in code order.
+    pub const ALL: [Quality; 7] = [
+        Quality::Good,
+        Quality::Stale,
+        Quality::NoReply,
+        Quality::DeviceMalfunction,
+        Quality::ConfigurationChanged,
+        Quality::WaitingForData,
+        Quality::LoopDisturbed,
+    ];
+
+    /// The quality of a published code ([`Quality::code`]).
+    pub fn from_code(code: u16) -> Option<Quality> {
+        Quality::ALL.into_iter().find(|q| q.code() == code)
+    }
+
     /// The number front ends publish (Modbus register 13): 0 good, 1 stale, 2 no
     /// reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data,
     /// 6 loop disturbed.
@@ -729,6 +745,15 @@ mod tests {
         assert_eq!(d.variables[0].unwrap().status, Some(0xC0));
         assert_eq!(d.percent_range, Some(50.0));
         assert_eq!(d.loop_current, Some(12.0));
+    }
+
+    #[test]
+    fn codes_round_trip() {
+        for (i, q) in Quality::ALL.into_iter().enumerate() {
+            assert_eq!(usize::from(q.code()), i);
+            assert_eq!(Quality::from_code(q.code()), Some(q));
+        }
+        assert_eq!(Quality::from_code(7), None);
     }
 
     #[test]

@@ -1624,7 +1624,8 @@ fn main() -> ExitCode {
 #[derive(Args)]
 struct ServeCli {
     /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
-    /// [modbus_rtu], [opcua], [mqtt], [[device_commands]]; see docs/gateway.md).
+    /// [modbus_rtu], [opcua], [history], [mqtt], [[device_commands]]; see
+    /// docs/gateway.md).
     /// Options given here add to it.
     #[arg(long, value_name = "FILE")]
     config: Option<std::path::PathBuf>,
@@ -1673,6 +1674,11 @@ struct ServeCli {
     /// trust list of client certificates (trusted/, rejected/).
     #[arg(long, value_name = "DIR")]
     opcua_pki: Option<std::path::PathBuf>,
+    /// Keep the history of every value (every change, and each device every 10 s) in
+    /// this SQLite file, or a postgres://USER@HOST/DB database (see docs/history.md;
+    /// query it with hartkit history query).
+    #[arg(long, value_name = "FILE.sqlite|URL")]
+    history: Option<String>,
     /// Publish every device to this MQTT broker as a Sparkplug B edge node:
     /// mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (see docs/mqtt.md).
     #[arg(long, value_name = "URL")]
@@ -1800,6 +1806,7 @@ impl ServeCli {
             opcua_users: self.opcua_users.clone(),
             opcua_pki: self.opcua_pki.clone(),
             poll_period: self.poll_period,
+            history: self.history.clone(),
             mqtt: self.mqtt.clone(),
             mqtt_group: self.group.clone(),
             mqtt_edge_node: self.edge_node.clone(),
