@@ -453,9 +453,10 @@ fn mqtt_config(
             if opts.mqtt_group.is_some()
                 || opts.mqtt_edge_node.is_some()
                 || opts.mqtt_primary_host.is_some()
+                || opts.mqtt_qos.is_some()
             {
                 return Err(Error::config(
-                    "--group, --edge-node and --primary-host are settings of the MQTT \
+                    "--group, --edge-node, --primary-host and --mqtt-qos are settings of the MQTT \
                      publisher: give --mqtt mqtt://HOST[:PORT] (or [mqtt] url in --config)",
                 ));
             }
@@ -470,6 +471,9 @@ fn mqtt_config(
     }
     if let Some(h) = &opts.mqtt_primary_host {
         config.primary_host = Some(h.clone());
+    }
+    if let Some(q) = opts.mqtt_qos {
+        config.data_qos = q;
     }
     config.read_only |= opts.read_only;
     config.check().map_err(|e| Error::config(e.to_string()))?;

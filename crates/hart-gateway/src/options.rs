@@ -81,6 +81,8 @@ pub struct ServeOptions {
     /// `--primary-host ID`: publish only while that primary host application is
     /// online.
     pub mqtt_primary_host: Option<String>,
+    /// `--mqtt-qos 0|1`: the QoS of births and data (`[mqtt] data_qos`).
+    pub mqtt_qos: Option<u8>,
     /// `--json`: the console view (no front end) prints JSON lines.
     pub json: bool,
 }

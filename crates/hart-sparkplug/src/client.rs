@@ -77,7 +77,7 @@ impl Handle {
 /// settings are checked and the files read; the connection is made (and made again)
 /// in the background, with a log line for each failure.
 pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<Handle, Error> {
-    let broker = config.check()?;
+    let brokers = config.check()?;
     let password = match &config.password_file {
         Some(p) => Some(
             std::fs::read_to_string(p)
@@ -89,7 +89,7 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         ),
         None => None,
     };
-    let tls = if broker.tls {
+    let tls = if brokers[0].tls {
         Some(tls_config(config.ca_file.as_deref())?)
     } else {
         if config.ca_file.is_some() {
@@ -108,22 +108,21 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         read_only: config.read_only || access.read_only,
         allow: access.allow.clone(),
     };
-    let mut core = EdgeNode::new(settings);
+    let mut core = EdgeNode::new(settings).with_data_qos(config.data_qos);
     let client_id = config
         .client_id
         .clone()
         .unwrap_or_else(|| format!("hartkit-{}-{}", config.group, config.edge_node));
-    let mut options = MqttOptions::new(client_id, broker.host.clone(), broker.port);
-    // Sparkplug 3.0 section 2.5: an edge node's session is never persistent.
-    options.set_clean_session(true);
-    options.set_keep_alive(Duration::from_secs(10));
-    options.set_max_packet_size(1 << 20, 1 << 20);
-    if let Some(u) = &config.username {
-        options.set_credentials(u.clone(), password.unwrap_or_default());
-    }
-    if let Some(t) = tls {
-        options.set_transport(Transport::Tls(t));
-    }
+    let template = Template {
+        client_id,
+        credentials: config
+            .username
+            .clone()
+            .map(|u| (u, password.unwrap_or_default())),
+        tls,
+    };
+    let broker = brokers[0].clone();
+    let mut options = template.options(&broker);
     options.set_last_will(last_will(core.will(SystemTime::now())));
     let (client, eventloop) = AsyncClient::new(options, 1024);
     let status = Arc::new(Mutex::new(Status::default()));
@@ -136,8 +135,12 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         eventloop,
         url: config.url.clone(),
         broker,
+        brokers,
+        next_broker: 0,
+        template,
         outbox: VecDeque::new(),
         inflight: VecDeque::new(),
+        unacked: VecDeque::new(),
         connected: false,
         failures: 0,
         status: status.clone(),
@@ -145,6 +148,31 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
     };
     let task = tokio::spawn(publisher.run(stop_rx));
     Ok(Handle { status, stop, task })
+}
+
+/// What every connection's options share; the broker differs (a cluster's nodes).
+struct Template {
+    client_id: String,
+    credentials: Option<(String, String)>,
+    tls: Option<TlsConfiguration>,
+}
+
+impl Template {
+    fn options(&self, broker: &Broker) -> MqttOptions {
+        let mut options =
+            MqttOptions::new(self.client_id.clone(), broker.host.clone(), broker.port);
+        // Sparkplug 3.0 section 2.5: an edge node's session is never persistent.
+        options.set_clean_session(true);
+        options.set_keep_alive(Duration::from_secs(10));
+        options.set_max_packet_size(1 << 20, 1 << 20);
+        if let Some((u, p)) = &self.credentials {
+            options.set_credentials(u.clone(), p.clone());
+        }
+        if let Some(t) = &self.tls {
+            options.set_transport(Transport::Tls(t.clone()));
+        }
+        options
+    }
 }
 
 /// A rustls configuration with the ring provider and the CA file's roots (or the
@@ -262,11 +290,22 @@ struct Publisher {
     client: AsyncClient,
     eventloop: EventLoop,
     url: String,
+    /// The broker of the current (or next) connection.
     broker: Broker,
+    /// Every broker of the URL (a cluster's nodes), tried in turn.
+    brokers: Vec<Broker>,
+    /// Index in `brokers` of `broker`.
+    next_broker: usize,
+    template: Template,
     /// What the edge node asked that the client's queue has not taken yet.
     outbox: VecDeque<Output>,
     /// The samples of each publish handed to the client and not yet written, in order.
     inflight: VecDeque<Vec<Sample>>,
+    /// QoS 1 publishes written and not yet acknowledged (packet ID, samples), oldest
+    /// first: rumqttc drops them when the next session is a clean one, so they are
+    /// given back to the edge node (sent again, historical) unless the broker
+    /// acknowledges them first.
+    unacked: VecDeque<(u16, Vec<Sample>)>,
     connected: bool,
     failures: u32,
     status: Arc<Mutex<Status>>,
@@ -410,8 +449,16 @@ impl Publisher {
                      will not arrive; check the broker's access rules for this user"
                 );
             }
-            Event::Outgoing(Outgoing::Publish(_)) => {
-                self.inflight.pop_front();
+            Event::Outgoing(Outgoing::Publish(pkid)) => {
+                let samples = self.inflight.pop_front().unwrap_or_default();
+                if pkid != 0 && !samples.is_empty() {
+                    self.unacked.push_back((pkid, samples));
+                }
+            }
+            Event::Incoming(Packet::PubAck(ack)) => {
+                if let Some(i) = self.unacked.iter().position(|(p, _)| *p == ack.pkid) {
+                    self.unacked.remove(i);
+                }
             }
             Event::Outgoing(Outgoing::Disconnect) => {
                 // Asked by the edge node (primary host offline): connect again at once
@@ -439,6 +486,25 @@ impl Publisher {
         }
         self.failures = self.failures.saturating_add(1);
         self.forget_session(Some(why));
+        if self.brokers.len() > 1 {
+            // A cluster: the next node at once, the backoff only after a full round.
+            self.next_broker = (self.next_broker + 1) % self.brokers.len();
+            self.broker = self.brokers[self.next_broker].clone();
+            let will = self.eventloop.mqtt_options.last_will();
+            let mut options = self.template.options(&self.broker);
+            if let Some(w) = will {
+                options.set_last_will(w);
+            }
+            self.eventloop.mqtt_options = options;
+            tracing::info!(
+                "mqtt: trying the next broker of the cluster, {}:{}",
+                self.broker.host,
+                self.broker.port
+            );
+            if self.next_broker != 0 {
+                return Duration::from_millis(100);
+            }
+        }
         Duration::from_millis(250u64 << self.failures.min(7)).min(Duration::from_secs(15))
     }
 
@@ -451,7 +517,8 @@ impl Publisher {
         // its queued requests after the next CONNACK.
         self.eventloop.pending.clear();
         self.eventloop.state.events.clear();
-        let mut unsent: Vec<Sample> = self.inflight.drain(..).flatten().collect();
+        let mut unsent: Vec<Sample> = self.unacked.drain(..).flat_map(|(_, s)| s).collect();
+        unsent.extend(self.inflight.drain(..).flatten());
         for o in self.outbox.drain(..) {
             if let Output::Publish(m) = o {
                 unsent.extend(m.keep);

@@ -8,7 +8,9 @@ use std::path::PathBuf;
 #[serde(deny_unknown_fields)]
 pub struct MqttConfig {
     /// The broker: `mqtt://HOST[:PORT]` (port 1883 by default) or
-    /// `mqtts://HOST[:PORT]` (TLS, port 8883 by default).
+    /// `mqtts://HOST[:PORT]` (TLS, port 8883 by default); the nodes of a broker
+    /// cluster separated by commas, `mqtt://h1:1883,h2:1883,h3:1883`, tried in turn
+    /// (the next one when the connection to one is lost).
     pub url: String,
     /// Sparkplug group ID (default [`DEFAULT_GROUP`]).
     #[serde(default = "default_group")]
@@ -41,6 +43,12 @@ pub struct MqttConfig {
     /// MQTT client ID (default `hartkit-GROUP-EDGE_NODE`).
     #[serde(default)]
     pub client_id: Option<String>,
+    /// QoS of births, data and device deaths: 0 (Sparkplug 3.0's rule, the default)
+    /// or 1 (at-least-once, for a clustered broker feeding a historian: a message
+    /// not acknowledged by the broker is kept and sent again, marked historical,
+    /// after reconnecting). `--mqtt-qos` on the command line.
+    #[serde(default)]
+    pub data_qos: u8,
 }
 
 /// The Sparkplug group of a gateway that names none.
@@ -96,11 +104,12 @@ impl MqttConfig {
             backlog: DEFAULT_BACKLOG,
             read_only: false,
             client_id: None,
+            data_qos: 0,
         }
     }
 
-    /// Checks the IDs and the URL.
-    pub fn check(&self) -> Result<Broker, crate::Error> {
+    /// Checks the IDs, the QoS and the URL; the brokers in the order to try them.
+    pub fn check(&self) -> Result<Vec<Broker>, crate::Error> {
         check_id("group", "--group", &self.group)?;
         check_id("edge node", "--edge-node", &self.edge_node)?;
         if let Some(h) = &self.primary_host {
@@ -111,7 +120,13 @@ impl MqttConfig {
                 "[mqtt] password_file is given without username".into(),
             ));
         }
-        Broker::parse(&self.url)
+        if self.data_qos > 1 {
+            return Err(crate::Error::Config(format!(
+                "[mqtt] data_qos {} (--mqtt-qos): give 0 (Sparkplug's default) or 1 (at least once, for a historian behind a broker cluster)",
+                self.data_qos
+            )));
+        }
+        Broker::parse_list(&self.url)
     }
 }
 
@@ -138,6 +153,38 @@ pub struct Broker {
 }
 
 impl Broker {
+    /// Parses one broker URL or several separated by commas
+    /// (`mqtt://h1:p1,h2:p2,h3:p3`: the nodes of a cluster): a scheme given once
+    /// applies to every host after it; each part may repeat it.
+    pub fn parse_list(url: &str) -> Result<Vec<Broker>, crate::Error> {
+        let scheme = if url.starts_with("mqtts://") {
+            "mqtts://"
+        } else {
+            "mqtt://"
+        };
+        let mut out = Vec::new();
+        for (i, part) in url.split(',').enumerate() {
+            let part = part.trim();
+            if part.is_empty() {
+                return Err(crate::Error::Config(format!(
+                    "--mqtt {url:?}: an empty broker in the list; give mqtt://HOST[:PORT],HOST[:PORT],..."
+                )));
+            }
+            let b = if i == 0 || part.contains("://") {
+                Broker::parse(part)?
+            } else {
+                Broker::parse(&format!("{scheme}{part}"))?
+            };
+            if out.first().is_some_and(|f: &Broker| f.tls != b.tls) {
+                return Err(crate::Error::Config(format!(
+                    "--mqtt {url:?}: mqtt:// and mqtts:// mixed; the nodes of one cluster take one scheme"
+                )));
+            }
+            out.push(b);
+        }
+        Ok(out)
+    }
+
     /// Parses `mqtt://HOST[:PORT]` or `mqtts://HOST[:PORT]` (IPv6 in brackets).
     pub fn parse(url: &str) -> Result<Broker, crate::Error> {
         let bad = |why: &str| {
@@ -211,6 +258,29 @@ mod tests {
         ] {
             assert!(Broker::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn broker_lists() {
+        let l = Broker::parse_list("mqtt://a:1,b:2, mqtt://c").unwrap();
+        let hp: Vec<_> = l.iter().map(|b| (b.host.as_str(), b.port)).collect();
+        assert_eq!(hp, [("a", 1), ("b", 2), ("c", 1883)]);
+        assert!(Broker::parse_list("mqtts://a,b")
+            .unwrap()
+            .iter()
+            .all(|b| b.tls && b.port == 8883));
+        for bad in [
+            "mqtt://a,",
+            "mqtt://a,,b",
+            "mqtt://a,mqtts://b",
+            "mqtt://a,b:x",
+        ] {
+            assert!(Broker::parse_list(bad).is_err(), "{bad}");
+        }
+        let mut c = MqttConfig::new("mqtt://a,b", "g", "e");
+        assert_eq!(c.check().unwrap().len(), 2);
+        c.data_qos = 2;
+        assert!(c.check().unwrap_err().to_string().contains("data_qos"));
     }
 
     #[test]

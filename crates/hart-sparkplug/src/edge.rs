@@ -8,7 +8,8 @@
 //!   no `seq`; `bdSeq` starts at 0 and goes up by one for every CONNECT (mod 256);
 //! - NBIRTH has `seq` 0, `bdSeq` equal to the will's, `Node Control/Rebirth` false;
 //!   every later message of the session (DBIRTH, DDATA, DDEATH) the next `seq`, 0
-//!   after 255; births, data and deaths are QoS 0, not retained;
+//!   after 255; births, data and deaths are QoS 0 (1 with [`EdgeNode::with_data_qos`],
+//!   a deliberate, configurable departure for clustered brokers), not retained;
 //! - births carry every metric with name, alias, data type and value (or `is_null`);
 //!   DDATA carries only the metrics that changed, by alias, with their time stamps;
 //! - a device that stops answering gets DDEATH, and DBIRTH when it answers again;
@@ -168,6 +169,7 @@ pub struct EdgeNode {
     host_online: bool,
     last_state: Option<u64>,
     counters: Counters,
+    data_qos: u8,
 }
 
 impl EdgeNode {
@@ -185,7 +187,15 @@ impl EdgeNode {
             host_online: false,
             last_state: None,
             counters: Counters::default(),
+            data_qos: 0,
         }
+    }
+
+    /// Births, data and device deaths at QoS `qos` (0, Sparkplug's rule, by default;
+    /// 1 for a clustered broker feeding a historian). Values above 1 count as 1.
+    pub fn with_data_qos(mut self, qos: u8) -> Self {
+        self.data_qos = qos.min(1);
+        self
     }
 
     /// The settings.
@@ -505,7 +515,7 @@ impl EdgeNode {
         out.push(Output::Publish(Message {
             topic: self.topic("NBIRTH", None),
             payload: payload.encode_to_vec(),
-            qos: 0,
+            qos: self.data_qos,
             retain: false,
             keep: vec![],
         }));
@@ -574,7 +584,7 @@ impl EdgeNode {
         out.push(Output::Publish(Message {
             topic,
             payload: payload.encode_to_vec(),
-            qos: 0,
+            qos: self.data_qos,
             retain: false,
             keep,
         }));
@@ -632,7 +642,7 @@ impl EdgeNode {
         Message {
             topic: self.topic("DDATA", Some(&id)),
             payload: payload.encode_to_vec(),
-            qos: 0,
+            qos: self.data_qos,
             retain: false,
             keep: vec![sample],
         }
@@ -653,7 +663,7 @@ impl EdgeNode {
         out.push(Output::Publish(Message {
             topic: self.topic("DDEATH", Some(&id)),
             payload: payload.encode_to_vec(),
-            qos: 0,
+            qos: self.data_qos,
             retain: false,
             keep: vec![],
         }));

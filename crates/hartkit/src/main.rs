@@ -1693,6 +1693,11 @@ struct ServeCli {
     /// (spBv1.0/STATE/ID); data are kept meanwhile.
     #[arg(long, value_name = "ID")]
     primary_host: Option<String>,
+    /// QoS of the births and data of --mqtt: 0 (Sparkplug's rule, the default) or 1
+    /// (at least once, for a broker cluster feeding `hartkit history ingest`; see
+    /// docs/mqtt.md).
+    #[arg(long, value_name = "0|1", value_parser = clap::value_parser!(u8).range(0..=1))]
+    mqtt_qos: Option<u8>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit.
     #[arg(long)]
     print_map: bool,
@@ -1811,6 +1816,7 @@ impl ServeCli {
             mqtt_group: self.group.clone(),
             mqtt_edge_node: self.edge_node.clone(),
             mqtt_primary_host: self.primary_host.clone(),
+            mqtt_qos: self.mqtt_qos,
             json: self.json,
         }
     }
