@@ -204,8 +204,9 @@ pub fn samples_of(device: &DeviceImage, quality: Quality, at: SystemTime) -> Vec
 
 /// A device's single-precision value as the double of its shortest decimal form, so
 /// what is stored and shown is the value the device sent, without the digits a plain
-/// widening adds.
-fn widen(v: f32) -> f64 {
+/// widening adds (also used by `hartkit history ingest` for Sparkplug Float metrics,
+/// so both paths store the same number).
+pub fn widen(v: f32) -> f64 {
     if v.is_finite() {
         v.to_string().parse().unwrap_or(f64::from(v))
     } else {

@@ -177,7 +177,7 @@ impl Template {
 
 /// A rustls configuration with the ring provider and the CA file's roots (or the
 /// system's).
-fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
+pub fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
     use rustls::pki_types::{pem::PemObject, CertificateDer};
     let mut roots = rustls::RootCertStore::empty();
     match ca_file {

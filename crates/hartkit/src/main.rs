@@ -235,6 +235,25 @@ enum HistoryCmd {
         #[arg(long)]
         csv: bool,
     },
+    /// Subscribe to a Sparkplug group's topics (QoS 1, persistent session) and store
+    /// every gateway's data in one historian, until Ctrl-C: many `hartkit serve
+    /// --mqtt` gateways, one shared history (docs/history.md, docs/mqtt.md).
+    Ingest {
+        /// The broker, mqtt://HOST[:PORT], or a cluster's nodes,
+        /// mqtt://H1:P1,H2:P2,H3:P3 (the next one when the connection is lost).
+        #[arg(long, value_name = "URL")]
+        mqtt: String,
+        /// The Sparkplug group ID the gateways publish in.
+        #[arg(long, value_name = "G", default_value = "hartkit")]
+        group: String,
+        /// The history database: an SQLite file or a postgres:// URL.
+        #[arg(long, value_name = "FILE|URL")]
+        history: String,
+        /// The MQTT client ID; keep it stable, the broker keeps the session's
+        /// messages under it while the ingest is away (default hartkit-ingest-G).
+        #[arg(long, value_name = "ID")]
+        client_id: Option<String>,
+    },
     /// Inserts samples as the gateway's writer does and times a one-day query
     /// (scripts/bench-history).
     #[command(hide = true)]
@@ -286,6 +305,17 @@ fn history(cmd: &HistoryCmd) -> Result<String, (String, u8)> {
             std::time::SystemTime::now(),
         ),
         HistoryCmd::Devices { db, json, csv } => cli::devices_command(db, format(*json, *csv)),
+        HistoryCmd::Ingest {
+            mqtt,
+            group,
+            history,
+            client_id,
+        } => hart_ingest::cli::ingest_command(&hart_ingest::cli::IngestArgs {
+            mqtt: mqtt.clone(),
+            group: group.clone(),
+            history: history.clone(),
+            client_id: client_id.clone(),
+        }),
         HistoryCmd::Bench {
             db,
             devices,
@@ -1536,7 +1566,9 @@ fn role(top: &Top) -> hartkit::logging::Role {
     use hartkit::logging::Role;
     use hartkit::wells::WellsCmd;
     match top {
-        Top::Serve(_) | Top::Sim(SimCmd::Serve(_)) => Role::Server,
+        Top::Serve(_) | Top::Sim(SimCmd::Serve(_)) | Top::History(HistoryCmd::Ingest { .. }) => {
+            Role::Server
+        }
         Top::Wells(WellsCmd::Sensor(_) | WellsCmd::Concentrator(_) | WellsCmd::Handheld(_)) => {
             Role::Server
         }

@@ -1,0 +1,286 @@
+//! The MQTT side: a persistent QoS 1 subscription (clean session off, a stable
+//! client ID) through `rumqttc`, the broker cluster's nodes tried in turn, messages
+//! fed to the [`Decoder`], samples to the historian's [`Writer`], and each message
+//! acknowledged only once the samples it gave are committed: a message the ingest
+//! has not stored is delivered again by the broker after a crash or a lost
+//! connection, and the historian's key (device, variable, time) stores it once.
+
+use std::time::{Duration, SystemTime};
+
+use hart_history::{Writer, WriterConfig};
+use hart_sparkplug::Broker;
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, MqttOptions, Outgoing, Packet, Publish, QoS,
+    Transport,
+};
+
+use crate::decoder::{Counters, Decoder};
+use crate::Error;
+
+/// How often the samples taken are committed and their messages acknowledged.
+pub const COMMIT_EVERY: Duration = Duration::from_millis(250);
+/// Messages at most waiting for their commit before one is made at once.
+pub const MAX_UNCOMMITTED: usize = 1000;
+
+/// The ingest's settings.
+#[derive(Debug, Clone)]
+pub struct IngestConfig {
+    /// The broker: `mqtt://HOST[:PORT]`, or a cluster's nodes,
+    /// `mqtt://h1:p1,h2:p2,h3:p3` (`mqtts://` for TLS with the system's roots).
+    pub url: String,
+    /// The Sparkplug group to take in.
+    pub group: String,
+    /// The historian: an SQLite file or a `postgres://` URL.
+    pub db: String,
+    /// The MQTT client ID: stable, so that the broker keeps the session and queues
+    /// messages while the ingest is away (default `hartkit-ingest-GROUP`).
+    pub client_id: Option<String>,
+    /// The writer's settings (batches, backlog).
+    pub writer: WriterConfig,
+}
+
+impl IngestConfig {
+    /// The client ID used.
+    pub fn client_id(&self) -> String {
+        self.client_id
+            .clone()
+            .unwrap_or_else(|| format!("hartkit-ingest-{}", self.group))
+    }
+}
+
+/// What the ingest did, when it stops.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Summary {
+    /// The decoder's counters.
+    pub counters: Counters,
+    /// The historian's counters.
+    pub history: hart_history::Stats,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.counters;
+        write!(
+            f,
+            "ingest: {} messages, {} samples ({} written), {} births, {} data before a birth, {} unknown aliases, {} seq gaps, {} rebirths asked, {} messages refused",
+            c.messages,
+            c.samples,
+            self.history.written,
+            c.births,
+            c.before_birth,
+            c.unknown_alias,
+            c.seq_gaps,
+            c.rebirths,
+            c.rejected
+        )?;
+        if self.history.dropped > 0 {
+            write!(f, "; {} samples dropped by the historian", self.history.dropped)?;
+        }
+        Ok(())
+    }
+}
+
+fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error> {
+    let mut o = MqttOptions::new(config.client_id(), broker.host.clone(), broker.port);
+    // A persistent session: what arrives while the ingest is away is queued for it.
+    o.set_clean_session(false);
+    o.set_manual_acks(true);
+    o.set_keep_alive(Duration::from_secs(10));
+    o.set_max_packet_size(1 << 20, 1 << 20);
+    if broker.tls {
+        o.set_transport(Transport::Tls(
+            hart_sparkplug::client::tls_config(None).map_err(|e| Error::Config(e.to_string()))?,
+        ));
+    }
+    Ok(o)
+}
+
+fn check_group(group: &str) -> Result<(), Error> {
+    if group.is_empty() || group.contains(['+', '/', '#']) || group.chars().any(char::is_control)
+    {
+        return Err(Error::Config(format!(
+            "--group {group:?}: a Sparkplug group ID must be non-empty, without '+', '/', '#' or control characters"
+        )));
+    }
+    Ok(())
+}
+
+/// Takes in the group's messages until `stop` says so: opens the historian (an
+/// error if that fails), then connects (again and again, with backoff, moving to the
+/// next broker of the URL) and stores every sample. Returns the counters.
+pub async fn run(
+    config: IngestConfig,
+    mut stop: tokio::sync::watch::Receiver<bool>,
+) -> Result<Summary, Error> {
+    check_group(&config.group)?;
+    let brokers = Broker::parse_list(&config.url).map_err(|e| Error::Config(e.to_string()))?;
+    let db = config.db.clone();
+    let wc = config.writer.clone();
+    let writer = tokio::task::spawn_blocking(move || Writer::start(&db, wc))
+        .await
+        .map_err(|e| Error::Config(format!("the historian's writer could not start: {e}")))?
+        .map_err(Error::History)?;
+    let mut decoder = Decoder::new(&config.group);
+    let mut current = 0;
+    let (client, mut eventloop) = AsyncClient::new(options(&config, &brokers[0])?, 256);
+    let mut uncommitted: Vec<Publish> = Vec::new();
+    let mut failures: u32 = 0;
+    let mut connected = false;
+    let mut commit = tokio::time::interval(COMMIT_EVERY);
+    commit.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut retry_at: Option<tokio::time::Instant> = None;
+    let mut commit_failing = false;
+    loop {
+        let wait_retry = async {
+            match retry_at {
+                Some(t) => tokio::time::sleep_until(t).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            ev = eventloop.poll(), if retry_at.is_none() => match ev {
+                Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+                    connected = true;
+                    failures = 0;
+                    let b = &brokers[current];
+                    tracing::info!(
+                        "ingest: connected to {}:{} as {} ({} session); subscribing to {} at QoS 1",
+                        b.host, b.port, config.client_id(),
+                        if ack.session_present { "resumed" } else { "new" },
+                        decoder.filter()
+                    );
+                    if let Err(e) = client.try_subscribe(decoder.filter(), QoS::AtLeastOnce) {
+                        tracing::warn!("ingest: cannot subscribe: {e}");
+                    }
+                }
+                Ok(Event::Incoming(Packet::SubAck(s))) => {
+                    if s.return_codes.iter().any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) {
+                        tracing::warn!(
+                            "ingest: the broker refused the subscription to {}: nothing will arrive; check its access rules",
+                            decoder.filter()
+                        );
+                    } else {
+                        tracing::info!("ingest: subscribed to {}", decoder.filter());
+                    }
+                }
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    match decoder.received(&p.topic, &p.payload, SystemTime::now()) {
+                        Ok(out) => {
+                            writer.submit_wait(out.samples);
+                            for m in out.publish {
+                                tracing::info!("ingest: asking for a rebirth on {}", m.topic);
+                                let _ = client.try_publish(m.topic, QoS::AtMostOnce, false, m.payload);
+                            }
+                        }
+                        Err(e) => tracing::warn!("ingest: message ignored: {e}"),
+                    }
+                    if p.qos == QoS::AtMostOnce {
+                        // Nothing to acknowledge.
+                    } else {
+                        uncommitted.push(p);
+                    }
+                    if uncommitted.len() >= MAX_UNCOMMITTED {
+                        commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    let why = explain(&e, &brokers[current]);
+                    if connected {
+                        tracing::warn!("ingest: connection lost: {why}; connecting again (the broker keeps the session's messages)");
+                    } else if failures == 0 || failures.is_power_of_two() {
+                        tracing::warn!("ingest: cannot connect: {why} (attempt {})", failures + 1);
+                    }
+                    connected = false;
+                    failures = failures.saturating_add(1);
+                    // Acknowledgements of the lost connection mean nothing in the next:
+                    // the broker sends those messages again.
+                    uncommitted.clear();
+                    let mut delay = Duration::from_millis(250u64 << failures.min(7)).min(Duration::from_secs(15));
+                    if brokers.len() > 1 {
+                        current = (current + 1) % brokers.len();
+                        eventloop.mqtt_options = options(&config, &brokers[current])?;
+                        tracing::info!("ingest: trying the next broker, {}:{}", brokers[current].host, brokers[current].port);
+                        if current != 0 {
+                            delay = Duration::from_millis(100);
+                        }
+                    }
+                    retry_at = Some(tokio::time::Instant::now() + delay);
+                }
+            },
+            _ = wait_retry => retry_at = None,
+            _ = commit.tick() => {
+                if !uncommitted.is_empty() {
+                    commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
+                }
+            }
+            _ = stop.changed() => break,
+        }
+    }
+    // Stop: commit, acknowledge, disconnect (the session stays at the broker).
+    if connected {
+        commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
+        let _ = client.try_disconnect();
+        let _ = tokio::time::timeout(Duration::from_secs(3), async {
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_) => break,
+                    Ok(_) => {}
+                }
+            }
+        })
+        .await;
+    }
+    let history = tokio::task::spawn_blocking(move || writer.close())
+        .await
+        .unwrap_or_default();
+    Ok(Summary {
+        counters: decoder.counters(),
+        history,
+    })
+}
+
+/// Commits what the writer holds; once committed, acknowledges the messages.
+/// Returns whether the commit failed (logged once until it works again).
+fn commit_and_ack(
+    writer: &Writer,
+    client: &AsyncClient,
+    uncommitted: &mut Vec<Publish>,
+    was_failing: bool,
+) -> bool {
+    match writer.flush() {
+        Ok(()) => {
+            for p in uncommitted.drain(..) {
+                let _ = client.try_ack(&p);
+            }
+            if was_failing {
+                tracing::info!("ingest: the historian takes samples again");
+            }
+            false
+        }
+        Err(e) => {
+            if !was_failing {
+                tracing::warn!(
+                    "ingest: the historian cannot commit ({e}); messages are not acknowledged until it can, so the broker keeps them"
+                );
+            }
+            true
+        }
+    }
+}
+
+fn explain(e: &ConnectionError, broker: &Broker) -> String {
+    let at = format!("{}:{}", broker.host, broker.port);
+    match e {
+        ConnectionError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused => format!(
+            "nothing accepts connections at {at} ({io}); check that the broker runs and the host and port of --mqtt"
+        ),
+        ConnectionError::ConnectionRefused(c) => format!(
+            "the broker at {at} refused the connection ({c:?}); check its configuration, that it keeps persistent sessions, and the client ID"
+        ),
+        ConnectionError::NetworkTimeout => {
+            format!("no answer from {at} in time; check the network and the address of --mqtt")
+        }
+        other => format!("connection to {at}: {other}"),
+    }
+}
