@@ -38,7 +38,8 @@ pub use feed::{run, Handle, Recorder};
 pub use output::{format_devices, format_points, Format};
 pub use postgres_store::PgStore;
 pub use sample::{
-    from_micros, micros, samples_of, widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT,
+    from_micros, micros, samples_of, widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES,
+    UNITS_PERCENT,
 };
 pub use sqlite_store::SqliteStore;
 pub use store::{Agg, DeviceSummary, Point, Query, Store, StoreKind, SCHEMA_VERSION};

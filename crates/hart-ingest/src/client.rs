@@ -10,8 +10,7 @@ use std::time::{Duration, SystemTime};
 use hart_history::{Writer, WriterConfig};
 use hart_sparkplug::Broker;
 use rumqttc::{
-    AsyncClient, ConnectionError, Event, MqttOptions, Outgoing, Packet, Publish, QoS,
-    Transport,
+    AsyncClient, ConnectionError, Event, MqttOptions, Outgoing, Packet, Publish, QoS, Transport,
 };
 
 use crate::decoder::{Counters, Decoder};
@@ -74,7 +73,11 @@ impl std::fmt::Display for Summary {
             c.rejected
         )?;
         if self.history.dropped > 0 {
-            write!(f, "; {} samples dropped by the historian", self.history.dropped)?;
+            write!(
+                f,
+                "; {} samples dropped by the historian",
+                self.history.dropped
+            )?;
         }
         Ok(())
     }
@@ -96,8 +99,7 @@ fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error>
 }
 
 fn check_group(group: &str) -> Result<(), Error> {
-    if group.is_empty() || group.contains(['+', '/', '#']) || group.chars().any(char::is_control)
-    {
+    if group.is_empty() || group.contains(['+', '/', '#']) || group.chars().any(char::is_control) {
         return Err(Error::Config(format!(
             "--group {group:?}: a Sparkplug group ID must be non-empty, without '+', '/', '#' or control characters"
         )));

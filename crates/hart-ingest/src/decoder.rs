@@ -193,8 +193,12 @@ fn unit_code(m: &Metric) -> Option<u8> {
     }
 }
 
+/// The time `ms` after the epoch (a time beyond what the system can hold is taken as
+/// the epoch: the sample is still stored, where it can be seen to be wrong).
 fn time_of(ms: u64) -> SystemTime {
-    UNIX_EPOCH + Duration::from_millis(ms)
+    UNIX_EPOCH
+        .checked_add(Duration::from_millis(ms))
+        .unwrap_or(UNIX_EPOCH)
 }
 
 impl Decoder {
@@ -355,7 +359,15 @@ impl Decoder {
             }
             Kind::NData => {
                 if !node.born {
-                    Self::before_birth(&mut self.counters, node, topic, edge, &self.group, now, &mut out);
+                    Self::before_birth(
+                        &mut self.counters,
+                        node,
+                        topic,
+                        edge,
+                        &self.group,
+                        now,
+                        &mut out,
+                    );
                 }
             }
             Kind::DBirth => {
@@ -363,7 +375,15 @@ impl Decoder {
                 if !node.born {
                     // The values and names are all here: stored, but the node's
                     // session is unknown, so ask for a full rebirth.
-                    Self::before_birth(&mut self.counters, node, topic, edge, &self.group, now, &mut out);
+                    Self::before_birth(
+                        &mut self.counters,
+                        node,
+                        topic,
+                        edge,
+                        &self.group,
+                        now,
+                        &mut out,
+                    );
                 }
                 self.counters.births += 1;
                 let mut d = Device::default();
@@ -390,7 +410,15 @@ impl Decoder {
             Kind::DData => {
                 let id = device.unwrap_or_default();
                 let Some(d) = node.devices.get_mut(id) else {
-                    Self::before_birth(&mut self.counters, node, topic, edge, &self.group, now, &mut out);
+                    Self::before_birth(
+                        &mut self.counters,
+                        node,
+                        topic,
+                        edge,
+                        &self.group,
+                        now,
+                        &mut out,
+                    );
                     return Ok(out);
                 };
                 let mut named = Vec::with_capacity(p.metrics.len());
@@ -478,7 +506,13 @@ impl Decoder {
                 .long_tag
                 .clone()
                 .or_else(|| d.tag.clone())
-                .unwrap_or_else(|| if d.unique_id.is_none() { id.to_string() } else { String::new() }),
+                .unwrap_or_else(|| {
+                    if d.unique_id.is_none() {
+                        id.to_string()
+                    } else {
+                        String::new()
+                    }
+                }),
             loop_name: d.loop_name.clone().unwrap_or_default(),
         };
         for (name, m) in metrics {

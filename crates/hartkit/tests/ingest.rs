@@ -1,0 +1,415 @@
+//! Many gateways, one historian: `hartkit serve --sim --instant --mqtt ... --history
+//! OWN.sqlite` gateways publish to a broker (Debian's mosquitto) or to a 3-node
+//! nats-server cluster (its MQTT listener on JetStream, one node killed with SIGKILL
+//! mid-run), and `hartkit history ingest` stores what they publish in one SQLite
+//! historian. Each gateway's own `--history` file records every change it made, an
+//! independent reference: every value change a gateway recorded while it published
+//! must be in the shared historian, at the same millisecond, with the same value, and
+//! nothing else.
+//!
+//! Skipped with a printed reason when mosquitto (or the nats-server binary that
+//! `.ci/run` builds into target/nats-server/) is missing, unless
+//! HARTKIT_REQUIRE_INTEROP=1.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use hart_history::{Agg, Query, Store, Var};
+
+mod common;
+use common::{workspace, Kill};
+
+fn required() -> bool {
+    std::env::var("HARTKIT_REQUIRE_INTEROP").is_ok_and(|v| v == "1")
+}
+
+fn skip(why: &str) {
+    if required() {
+        panic!("HARTKIT_REQUIRE_INTEROP=1 but {why}");
+    }
+    eprintln!("skipped: {why}");
+}
+
+fn mosquitto() -> Option<PathBuf> {
+    let found = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
+        .iter()
+        .map(PathBuf::from)
+        .find(|p| p.exists());
+    if found.is_none() {
+        skip("mosquitto is not installed (apt-get install mosquitto)");
+    }
+    found
+}
+
+fn nats_server() -> Option<PathBuf> {
+    let p = std::env::var_os("HARTKIT_NATS_SERVER")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join("target/nats-server/nats-server"));
+    if p.exists() {
+        Some(p)
+    } else {
+        skip(&format!(
+            "no nats-server at {} (.ci/run builds it: GOBIN=target/nats-server go install github.com/nats-io/nats-server/v2@v2.15.2)",
+            p.display()
+        ));
+        None
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn wait_port(port: u16, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(Instant::now() < deadline, "{what} did not listen on {port}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn log_file(dir: &Path, name: &str) -> std::fs::File {
+    std::fs::File::create(dir.join(format!("{name}.log"))).unwrap()
+}
+
+fn read_log(dir: &Path, name: &str) -> String {
+    std::fs::read_to_string(dir.join(format!("{name}.log"))).unwrap_or_default()
+}
+
+/// `hartkit serve --sim PROFILES --instant` publishing as edge node `edge` of group
+/// Plant, with its own history in DIR/EDGE.sqlite, for `secs` seconds.
+fn gateway(dir: &Path, url: &str, edge: &str, sim: &[&str], qos: &str, secs: u32) -> Kill {
+    let child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["serve", "--instant", "--poll-period", "0.2", "--sim"])
+        .args(sim)
+        .args(["--mqtt", url, "--group", "Plant", "--edge-node", edge])
+        .args(["--mqtt-qos", qos, "--run-for", &secs.to_string()])
+        .arg("--history")
+        .arg(dir.join(format!("{edge}.sqlite")))
+        .args(["--log-level", "info"])
+        .stdout(Stdio::null())
+        .stderr(log_file(dir, edge))
+        .spawn()
+        .unwrap();
+    Kill(child)
+}
+
+/// `hartkit history ingest` into DIR/shared.sqlite; returns once it has subscribed.
+fn ingest(dir: &Path, url: &str) -> Kill {
+    let child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["history", "ingest", "--mqtt", url, "--group", "Plant"])
+        .arg("--history")
+        .arg(dir.join("shared.sqlite"))
+        .args(["--client-id", "hartkit-test-ingest", "--log-level", "info"])
+        .stdout(log_file(dir, "ingest-out"))
+        .stderr(log_file(dir, "ingest"))
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !read_log(dir, "ingest").contains("subscribed to spBv1.0/Plant/#") {
+        assert!(
+            Instant::now() < deadline,
+            "the ingest did not subscribe:\n{}",
+            read_log(dir, "ingest")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    Kill(child)
+}
+
+/// Waits for a gateway's --run-for to end.
+fn finish(mut g: Kill, dir: &Path, edge: &str) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        if let Some(status) = g.0.try_wait().unwrap() {
+            assert!(
+                status.success(),
+                "{edge}: {status}\n{}",
+                read_log(dir, edge)
+            );
+            return;
+        }
+        assert!(Instant::now() < deadline, "{edge} did not stop");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// SIGINT (Ctrl-C): the ingest commits, disconnects and prints its summary.
+fn stop_ingest(mut i: Kill, dir: &Path) -> String {
+    let pid = i.0.id().to_string();
+    assert!(Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .unwrap()
+        .success());
+    let status = i.0.wait().unwrap();
+    let out = read_log(dir, "ingest-out");
+    assert!(
+        status.success(),
+        "ingest: {status}\n{out}\n{}",
+        read_log(dir, "ingest")
+    );
+    out
+}
+
+/// (time in ms, value) of every stored sample of each (device, variable).
+type Series = BTreeMap<(String, Var), Vec<(i64, Option<u64>)>>;
+
+fn series(db: &Path) -> Series {
+    let mut store = Store::open(db.to_str().unwrap(), false).unwrap();
+    let mut out = Series::new();
+    for d in store.devices().unwrap() {
+        for var in Var::ALL {
+            let points = store
+                .query(&Query {
+                    device: d.unique_id.clone(),
+                    var,
+                    from: UNIX_EPOCH + Duration::from_secs(1),
+                    to: SystemTime::now() + Duration::from_secs(3600),
+                    every: None,
+                    agg: Agg::Mean,
+                })
+                .unwrap();
+            if points.is_empty() {
+                continue;
+            }
+            let v = points
+                .iter()
+                .map(|p| {
+                    let us = hart_history::micros(p.time);
+                    (us.div_euclid(1000), p.value.map(f64::to_bits))
+                })
+                .collect();
+            out.insert((d.unique_id.clone(), var), v);
+        }
+    }
+    out
+}
+
+/// Checks the shared historian against one gateway's own history: every sample of
+/// the gateway's devices in the shared one is one the gateway recorded (same
+/// millisecond, same value) and, between the first and the last the shared one
+/// holds, every value change the gateway recorded is there. Returns how many changes
+/// were checked.
+fn compare(edge: &str, own: &Series, shared: &Series) -> usize {
+    let mut checked = 0;
+    assert!(!own.is_empty(), "{edge} recorded nothing");
+    for (key, rows) in own {
+        let got = shared
+            .get(key)
+            .unwrap_or_else(|| panic!("{edge}: {key:?} is not in the shared historian"));
+        let recorded: BTreeSet<(i64, Option<u64>)> = rows.iter().copied().collect();
+        let times: BTreeSet<i64> = got.iter().map(|r| r.0).collect();
+        assert_eq!(times.len(), got.len(), "{edge} {key:?}: a time twice");
+        for r in got {
+            assert!(
+                recorded.contains(r),
+                "{edge} {key:?}: ({}, {:?}) in the shared historian was never recorded by the gateway",
+                r.0,
+                r.1.map(f64::from_bits)
+            );
+        }
+        let (first, last) = (got[0].0, got[got.len() - 1].0);
+        let stored: BTreeSet<&(i64, Option<u64>)> = got.iter().collect();
+        let mut previous = None;
+        for r in rows {
+            let change = previous != Some(r.1);
+            previous = Some(r.1);
+            if change && r.0 >= first && r.0 <= last {
+                checked += 1;
+                assert!(
+                    stored.contains(r),
+                    "{edge} {key:?}: the change to {:?} at {} ms is missing from the shared historian",
+                    r.1.map(f64::from_bits),
+                    r.0
+                );
+            }
+        }
+    }
+    checked
+}
+
+#[test]
+fn two_gateways_one_broker_one_historian() {
+    let Some(mosquitto) = mosquitto() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let port = free_port();
+    std::fs::write(
+        dir.join("mosquitto.conf"),
+        format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
+    )
+    .unwrap();
+    let _broker = Kill(
+        Command::new(&mosquitto)
+            .arg("-c")
+            .arg(dir.join("mosquitto.conf"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_port(port, "mosquitto");
+    let url = format!("mqtt://127.0.0.1:{port}");
+    // gwA starts before the ingest: the ingest sees its data before any birth and
+    // asks it for a rebirth (NCMD), which a real edge node answers.
+    let a = gateway(dir, &url, "gwA", &["pressure", "pressure"], "0", 8);
+    std::thread::sleep(Duration::from_secs(2));
+    let i = ingest(dir, &url);
+    let b = gateway(dir, &url, "gwB", &["temperature", "valve"], "1", 6);
+    finish(a, dir, "gwA");
+    finish(b, dir, "gwB");
+    std::thread::sleep(Duration::from_millis(1500));
+    let summary = stop_ingest(i, dir);
+    eprintln!("{summary}");
+    assert!(
+        read_log(dir, "gwA").contains("rebirth asked by NCMD"),
+        "{summary}\n{}",
+        read_log(dir, "ingest")
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["history", "devices", "--json", "--db"])
+        .arg(dir.join("shared.sqlite"))
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let devices: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ids: BTreeSet<String> = devices
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["unique_id"].as_str().unwrap().to_string())
+        .collect();
+    let shared = series(&dir.join("shared.sqlite"));
+    let mut all = BTreeSet::new();
+    for edge in ["gwA", "gwB"] {
+        let own = series(&dir.join(format!("{edge}.sqlite")));
+        all.extend(own.keys().map(|k| k.0.clone()));
+        let n = compare(edge, &own, &shared);
+        eprintln!("{edge}: {n} changes checked");
+        assert!(n > 20, "{edge}: only {n} changes");
+    }
+    assert_eq!(
+        ids, all,
+        "hartkit history devices lists every device of both"
+    );
+    assert_eq!(ids.len(), 4);
+}
+
+/// A node of the nats cluster.
+struct Node {
+    child: Option<Child>,
+    mqtt: u16,
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+fn nats_cluster(bin: &Path, dir: &Path) -> Vec<Node> {
+    let routes: Vec<u16> = (0..3).map(|_| free_port()).collect();
+    let route_list = routes
+        .iter()
+        .map(|p| format!("nats-route://127.0.0.1:{p}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let mut nodes = vec![];
+    for (i, route) in routes.iter().enumerate() {
+        let (client, mqtt) = (free_port(), free_port());
+        let store = dir.join(format!("js{i}"));
+        let conf = dir.join(format!("n{i}.conf"));
+        std::fs::write(
+            &conf,
+            format!(
+                "server_name: n{i}\nlisten: 127.0.0.1:{client}\n\
+                 jetstream {{ store_dir: \"{}\" }}\n\
+                 cluster {{ name: hk, listen: 127.0.0.1:{route}, routes: [{route_list}] }}\n\
+                 mqtt {{ listen: 127.0.0.1:{mqtt} }}\n",
+                store.display()
+            ),
+        )
+        .unwrap();
+        let child = Command::new(bin)
+            .arg("-c")
+            .arg(&conf)
+            .stdout(Stdio::null())
+            .stderr(log_file(dir, &format!("n{i}")))
+            .spawn()
+            .unwrap();
+        nodes.push(Node {
+            child: Some(child),
+            mqtt,
+        });
+    }
+    for (i, n) in nodes.iter().enumerate() {
+        wait_port(n.mqtt, &format!("nats-server n{i}"));
+    }
+    nodes
+}
+
+#[test]
+fn a_broker_node_killed_loses_nothing_at_qos_1() {
+    let Some(bin) = nats_server() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let mut nodes = nats_cluster(&bin, dir);
+    let m: Vec<u16> = nodes.iter().map(|n| n.mqtt).collect();
+    let url = |order: [usize; 3]| {
+        format!(
+            "mqtt://127.0.0.1:{},127.0.0.1:{},127.0.0.1:{}",
+            m[order[0]], m[order[1]], m[order[2]]
+        )
+    };
+    // The ingest on node 3, the gateways on nodes 1 and 2.
+    let i = ingest(dir, &url([2, 0, 1]));
+    let a = gateway(
+        dir,
+        &url([0, 1, 2]),
+        "gwA",
+        &["pressure", "pressure"],
+        "1",
+        16,
+    );
+    let b = gateway(
+        dir,
+        &url([1, 2, 0]),
+        "gwB",
+        &["temperature", "valve"],
+        "1",
+        16,
+    );
+    std::thread::sleep(Duration::from_secs(6));
+    // kill -9 the node gwA is connected to.
+    if let Some(mut c) = nodes[0].child.take() {
+        c.kill().unwrap();
+        c.wait().unwrap();
+    }
+    finish(a, dir, "gwA");
+    finish(b, dir, "gwB");
+    std::thread::sleep(Duration::from_secs(2));
+    let summary = stop_ingest(i, dir);
+    eprintln!("{summary}");
+    let gwa = read_log(dir, "gwA");
+    assert!(
+        gwa.contains("connected to") && gwa.matches("connected to").count() >= 2,
+        "gwA did not move to another node:\n{gwa}"
+    );
+    let shared = series(&dir.join("shared.sqlite"));
+    for edge in ["gwA", "gwB"] {
+        let own = series(&dir.join(format!("{edge}.sqlite")));
+        let n = compare(edge, &own, &shared);
+        eprintln!("{edge}: {n} changes checked");
+        assert!(n > 20, "{edge}: only {n} changes");
+    }
+}
