@@ -5,7 +5,7 @@
 //! historian. Each gateway's own `--history` file records every change it made, an
 //! independent reference: every value change a gateway recorded while it published
 //! must be in the shared historian, at the same millisecond, with the same value, and
-//! nothing else.
+//! every sample there must be the value the gateway had at its time, stored once.
 //!
 //! Skipped with a printed reason when mosquitto (or the nats-server binary that
 //! `.ci/run` builds into target/nats-server/) is missing, unless
@@ -193,8 +193,8 @@ fn series(db: &Path) -> Series {
 }
 
 /// Checks the shared historian against one gateway's own history: every sample of
-/// the gateway's devices in the shared one is one the gateway recorded (same
-/// millisecond, same value) and, between the first and the last the shared one
+/// the gateway's devices in the shared one is the value the gateway recorded for that
+/// millisecond (a change then, or the value in effect) and, between the first and the last the shared one
 /// holds, every value change the gateway recorded is there. Returns how many changes
 /// were checked.
 fn compare(edge: &str, own: &Series, shared: &Series) -> usize {
@@ -204,15 +204,27 @@ fn compare(edge: &str, own: &Series, shared: &Series) -> usize {
         let got = shared
             .get(key)
             .unwrap_or_else(|| panic!("{edge}: {key:?} is not in the shared historian"));
-        let recorded: BTreeSet<(i64, Option<u64>)> = rows.iter().copied().collect();
+        let recorded: BTreeMap<i64, Option<u64>> = rows.iter().copied().collect();
         let times: BTreeSet<i64> = got.iter().map(|r| r.0).collect();
         assert_eq!(times.len(), got.len(), "{edge} {key:?}: a time twice");
         for r in got {
-            assert!(
-                recorded.contains(r),
-                "{edge} {key:?}: ({}, {:?}) in the shared historian was never recorded by the gateway",
+            // The value the gateway had at that time: a change recorded then, or the
+            // last one before (a birth states every current value again).
+            let Some(then) = recorded.range(..=r.0).next_back().map(|(_, v)| *v) else {
+                // Before the gateway's own history has its first row of it (its
+                // historian starts after the publisher's first look at the image).
+                continue;
+            };
+            assert_eq!(
+                then,
+                r.1,
+                "{edge} {key:?}: {:?} at {} ms in the shared historian is not what the gateway recorded ({:?} ...)",
+                r.1.map(f64::from_bits),
                 r.0,
-                r.1.map(f64::from_bits)
+                recorded
+                    .range(r.0 - 2000..r.0 + 2000)
+                    .map(|(t, v)| (t - r.0, v.map(f64::from_bits)))
+                    .collect::<Vec<_>>()
             );
         }
         let (first, last) = (got[0].0, got[got.len() - 1].0);
