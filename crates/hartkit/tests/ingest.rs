@@ -105,15 +105,26 @@ fn gateway(dir: &Path, url: &str, edge: &str, sim: &[&str], qos: &str, secs: u32
     Kill(child)
 }
 
-/// `hartkit history ingest` into DIR/shared.sqlite; returns once it has subscribed.
+/// `hartkit history ingest` into DIR/shared.sqlite, as client `hartkit-test-ingest`.
 fn ingest(dir: &Path, url: &str) -> Kill {
+    ingest_into(
+        dir,
+        url,
+        "ingest",
+        &dir.join("shared.sqlite").display().to_string(),
+    )
+}
+
+/// `hartkit history ingest` into `db`, as client `hartkit-test-NAME`, logging to
+/// DIR/NAME.log; returns once it has subscribed.
+fn ingest_into(dir: &Path, url: &str, name: &str, db: &str) -> Kill {
     let child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
         .args(["history", "ingest", "--mqtt", url, "--group", "Plant"])
-        .arg("--history")
-        .arg(dir.join("shared.sqlite"))
-        .args(["--client-id", "hartkit-test-ingest", "--log-level", "info"])
-        .stdout(log_file(dir, "ingest-out"))
-        .stderr(log_file(dir, "ingest"))
+        .args(["--history", db])
+        .args(["--client-id", &format!("hartkit-test-{name}")])
+        .args(["--log-level", "info"])
+        .stdout(log_file(dir, &format!("{name}-out")))
+        .stderr(log_file(dir, name))
         .spawn()
         .unwrap();
     // Subscribed, and still so 2 s later: a new cluster's JetStream may close the
@@ -122,7 +133,7 @@ fn ingest(dir: &Path, url: &str) -> Kill {
     let deadline = Instant::now() + Duration::from_secs(40);
     let mut settled_since: Option<(Instant, usize)> = None;
     loop {
-        let log = read_log(dir, "ingest");
+        let log = read_log(dir, name);
         let sub = log.rfind("subscribed to spBv1.0/Plant/#");
         let lost = log
             .rfind("connection lost")
@@ -166,7 +177,11 @@ fn finish(mut g: Kill, dir: &Path, edge: &str) {
 }
 
 /// SIGINT (Ctrl-C): the ingest commits, disconnects and prints its summary.
-fn stop_ingest(mut i: Kill, dir: &Path) -> String {
+fn stop_ingest(i: Kill, dir: &Path) -> String {
+    stop_ingest_named(i, dir, "ingest")
+}
+
+fn stop_ingest_named(mut i: Kill, dir: &Path, name: &str) -> String {
     let pid = i.0.id().to_string();
     assert!(Command::new("kill")
         .args(["-INT", &pid])
@@ -174,11 +189,11 @@ fn stop_ingest(mut i: Kill, dir: &Path) -> String {
         .unwrap()
         .success());
     let status = i.0.wait().unwrap();
-    let out = read_log(dir, "ingest-out");
+    let out = read_log(dir, &format!("{name}-out"));
     assert!(
         status.success(),
-        "ingest: {status}\n{out}\n{}",
-        read_log(dir, "ingest")
+        "{name}: {status}\n{out}\n{}",
+        read_log(dir, name)
     );
     out
 }
@@ -187,7 +202,11 @@ fn stop_ingest(mut i: Kill, dir: &Path) -> String {
 type Series = BTreeMap<(String, Var), Vec<(i64, Option<u64>)>>;
 
 fn series(db: &Path) -> Series {
-    let mut store = Store::open(db.to_str().unwrap(), false).unwrap();
+    series_of(db.to_str().unwrap())
+}
+
+fn series_of(db: &str) -> Series {
+    let mut store = Store::open(db, false).unwrap();
     let mut out = Series::new();
     for d in store.devices().unwrap() {
         for var in Var::ALL {
@@ -432,8 +451,13 @@ fn a_broker_node_killed_loses_nothing_at_qos_1() {
             m[order[0]], m[order[1]], m[order[2]]
         )
     };
-    // The ingest on node 3, the gateways on nodes 1 and 2.
+    // The ingest on node 3 into SQLite, and a second one (its own session) into
+    // PostgreSQL when the server is installed; the gateways on nodes 1 and 2.
+    let pg = hart_history::pgtest::for_test(false);
     let i = ingest(dir, &url([2, 0, 1]));
+    let ipg = pg
+        .as_ref()
+        .map(|pg| ingest_into(dir, &url([2, 0, 1]), "ingest-pg", &pg.url()));
     let a = gateway(
         dir,
         &url([0, 1, 2]),
@@ -465,6 +489,7 @@ fn a_broker_node_killed_loses_nothing_at_qos_1() {
     std::thread::sleep(Duration::from_secs(2));
     let summary = stop_ingest(i, dir);
     eprintln!("{summary}");
+    let pg_summary = ipg.map(|i| stop_ingest_named(i, dir, "ingest-pg"));
     let gwa = read_log(dir, "gwA");
     assert!(
         gwa.contains("connected to") && gwa.matches("connected to").count() >= 2,
@@ -476,5 +501,15 @@ fn a_broker_node_killed_loses_nothing_at_qos_1() {
         let n = compare(edge, &own, &shared);
         eprintln!("{edge}: {n} changes checked");
         assert!(n > 20, "{edge}: only {n} changes");
+    }
+    if let (Some(pg), Some(summary)) = (&pg, pg_summary) {
+        eprintln!("PostgreSQL {summary}");
+        let shared = series_of(&pg.url());
+        for edge in ["gwA", "gwB"] {
+            let own = series(&dir.join(format!("{edge}.sqlite")));
+            let n = compare(edge, &own, &shared);
+            eprintln!("{edge}: {n} changes checked in PostgreSQL");
+            assert!(n > 20, "{edge}: only {n} changes in PostgreSQL");
+        }
     }
 }
