@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Plots what the gateway's historian holds: for every stored device, its PV (in its
-units) and its loop current, over the whole stored time, one row of panels per
+units) and its percent of range, over the whole stored time, one row of panels per
 device, into a PNG. It reads the file as a user does, through `hartkit history
 devices --json` and `hartkit history query --json`.
 
@@ -49,7 +49,7 @@ fig, axes = plt.subplots(len(devices), 2, figsize=(11, 2.1 * len(devices)), sque
 for row, d in zip(axes, devices):
     end = (datetime.datetime.fromisoformat(d["last"].replace("Z", "+00:00"))
            + datetime.timedelta(seconds=1)).strftime("%Y-%m-%dT%H:%M:%SZ")
-    for ax, var, title in [(row[0], "pv", "PV"), (row[1], "loop_current", "loop current")]:
+    for ax, var, title in [(row[0], "pv", "PV"), (row[1], "percent_range", "percent of range")]:
         t, v, units = series(d["unique_id"], var, d["first"], end)
         ax.step(t, v, where="post", lw=1.2)
         ax.set_title(f"{d['tag']} ({d['unique_id']}): {title}", fontsize=9)
