@@ -426,10 +426,25 @@ fn opcua_config(
         pki_dir,
         read_only: opts.read_only,
         audit: hart_access::Audit::new(opts.audit_file.clone()),
+        limits: {
+            let d = hart_opcua::connections::Limits::default();
+            let max_message_size = section.max_message_size.unwrap_or(d.max_message_size);
+            hart_opcua::connections::Limits {
+                max_connections: section.max_connections.unwrap_or(d.max_connections),
+                max_per_address: section.max_per_address.unwrap_or(d.max_per_address),
+                priority: hart_access::NetList::parse(&section.priority)
+                    .map_err(|e| Error::config(format!("[opcua] priority: {e}")))?,
+                handshake: section.handshake_timeout.unwrap_or(d.handshake),
+                max_sessions: section.max_sessions.unwrap_or(d.max_sessions),
+                session_timeout: section.session_timeout.unwrap_or(d.session_timeout),
+                max_message_size,
+                max_chunk_count: hart_opcua::connections::chunks_for(max_message_size),
+            }
+        },
     };
     config
         .check()
-        .map_err(|e| Error::config(format!("--opcua: {e}")))?;
+        .map_err(|e| Error::config(format!("--opcua / [opcua]: {e}")))?;
     Ok(Some(config))
 }
 

@@ -60,6 +60,31 @@ pub struct OpcUaSection {
     /// Where the certificate and key are kept.
     #[serde(default)]
     pub pki_dir: Option<PathBuf>,
+    /// Most TCP connections at once (default 64); a full pool closes one still in its
+    /// handshake, else the one idle longest, to admit a new one.
+    #[serde(default)]
+    pub max_connections: Option<usize>,
+    /// Most TCP connections from one address (default 16; priority hosts aside).
+    #[serde(default)]
+    pub max_per_address: Option<usize>,
+    /// Hosts (addresses or networks) whose connections are never closed to admit
+    /// others nor limited per address: the SCADA hosts.
+    #[serde(default)]
+    pub priority: Vec<String>,
+    /// A new connection must open its secure channel (HEL/ACK, OPN) within this
+    /// (default 10 s).
+    #[serde(default, with = "humantime_serde")]
+    pub handshake_timeout: Option<Duration>,
+    /// Most sessions at once (default 100).
+    #[serde(default)]
+    pub max_sessions: Option<usize>,
+    /// The longest session time-out granted (default 30 s): a session without requests
+    /// for that long, one never activated among them, is closed.
+    #[serde(default, with = "humantime_serde")]
+    pub session_timeout: Option<Duration>,
+    /// The largest message in bytes either way (default 2 MiB).
+    #[serde(default)]
+    pub max_message_size: Option<usize>,
 }
 
 /// `[hart_ip]`.

@@ -26,7 +26,7 @@ CREATE TABLE IF NOT EXISTS samples (
     value   double precision,
     units   smallint,
     quality smallint NOT NULL,
-    PRIMARY KEY (device, var, time)
+    PRIMARY KEY (device, var, time) INCLUDE (value, units, quality)
 ) PARTITION BY RANGE (time);
 ";
 
@@ -287,8 +287,40 @@ impl PgStore {
             &[&dev_ids, &vars, &times, &values, &units, &quality],
         )?;
         tx.commit()?;
+        // A day that is over is read, not written: vacuumed once, its partition is
+        // all-visible and a query of it is an index-only scan of the primary key, which
+        // carries the values (15 ms for a day of one variable instead of 50).
+        for &day in &new_days {
+            if self.days.contains(&(day - 1)) {
+                let t0 = Instant::now();
+                match self
+                    .client
+                    .batch_execute(&format!("VACUUM (ANALYZE) samples_{}", day_name(day - 1)))
+                {
+                    Ok(()) => tracing::info!(
+                        "history: the day {} is closed: vacuumed in {} ms",
+                        day_name(day - 1),
+                        t0.elapsed().as_millis()
+                    ),
+                    Err(e) => tracing::warn!(
+                        "history: could not vacuum the day {} that is over ({e}); queries of it are slower until autovacuum does",
+                        day_name(day - 1)
+                    ),
+                }
+            }
+        }
         self.days.extend(new_days);
         Ok(())
+    }
+
+    /// What autovacuum does in the background, now: every partition vacuumed and
+    /// analysed, so queries of the data stored so far are index-only scans (the
+    /// benchmark's "a past day").
+    pub fn vacuum(&mut self) -> Result<(), Error> {
+        let shown = self.url_shown.clone();
+        self.client
+            .batch_execute("VACUUM (ANALYZE) samples")
+            .map_err(|e| pg_error(&shown, e))
     }
 
     /// Every device with its sample times and count.

@@ -34,6 +34,8 @@ use opcua::types::{
 };
 
 pub mod access;
+pub mod connections;
+mod front;
 mod nodes;
 pub mod trust;
 pub mod units;
@@ -89,6 +91,8 @@ pub struct Config {
     pub read_only: bool,
     /// Where method calls let through are recorded.
     pub audit: hart_access::Audit,
+    /// Connections, sessions and message sizes ([`connections`]).
+    pub limits: connections::Limits,
 }
 
 impl std::fmt::Debug for Config {
@@ -108,6 +112,7 @@ impl std::fmt::Debug for Config {
             .field("pki_dir", &self.pki_dir)
             .field("read_only", &self.read_only)
             .field("audit", &self.audit)
+            .field("limits", &self.limits)
             .finish()
     }
 }
@@ -124,8 +129,10 @@ impl Config {
 
     /// Refuses a configuration that would ignore or expose what it was given: users
     /// with security none (their passwords would travel in clear), an empty or
-    /// repeated user name, an empty password.
+    /// repeated user name, an empty password, limits that would refuse every client
+    /// ([`connections::Limits::check`]).
     pub fn check(&self) -> Result<(), String> {
+        self.limits.check()?;
         if !self.users.is_empty() && self.security == Security::None {
             return Err(
                 "users are configured but the only endpoint would be SecurityPolicy None, \
@@ -252,12 +259,18 @@ fn chrono_of(t: SystemTime) -> opcua::types::date_time::DateTimeUtc {
 pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
     config.check()?;
     let rules = config.rules();
+    let limits = Arc::new(config.limits.clone());
+    // The public address is the front's (which bounds connections); the library
+    // listens on a loopback port of its own, fed by the front ([`front`]).
     let std_listener =
         std::net::TcpListener::bind(config.bind).map_err(|e| format!("{}: {e}", config.bind))?;
     let addr = std_listener.local_addr().map_err(|e| e.to_string())?;
-    std_listener
-        .set_nonblocking(true)
-        .map_err(|e| e.to_string())?;
+    let std_backend = std::net::TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, 0))
+        .map_err(|e| format!("a loopback port for the OPC UA server: {e}"))?;
+    let backend = std_backend.local_addr().map_err(|e| e.to_string())?;
+    for l in [&std_listener, &std_backend] {
+        l.set_nonblocking(true).map_err(|e| e.to_string())?;
+    }
     let host = addr.ip().to_string();
     let url = format!("opc.tcp://{host}:{}/", addr.port());
     let mut builder = ServerBuilder::new()
@@ -273,6 +286,12 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
         // Client certificates only from the trust list: an unknown one is refused and
         // lands in <pki>/rejected for an operator to trust (`hartkit opcua trust`).
         .trust_client_certs(false)
+        // The library's own limits (connections are the front's).
+        .hello_timeout(limits.handshake.as_secs_f64().ceil().max(1.0) as u32)
+        .max_sessions(limits.max_sessions)
+        .max_session_timeout_ms(limits.session_timeout.as_millis() as u64)
+        .max_message_size(limits.max_message_size)
+        .max_chunk_count(limits.max_chunk_count)
         .discovery_urls(vec![url.clone()])
         .with_authenticator(Arc::new(access::GatewayAuth::new(
             rules,
@@ -321,10 +340,15 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
         .get_namespace_index(NAMESPACE)
         .ok_or("the OPC UA namespace is missing")?;
     let subscriptions = handle.subscriptions().clone();
+    let info = handle.info().clone();
     tracing::info!(
-        "opcua: {url} ({}); client certificates trusted from {}",
+        "opcua: {url} ({}); client certificates trusted from {}; at most {} connections ({} from one address{}), {} sessions",
         config.describe(),
-        trust::trusted_dir(&config.pki_dir).display()
+        trust::trusted_dir(&config.pki_dir).display(),
+        limits.max_connections,
+        limits.max_per_address,
+        if limits.priority.is_empty() { "" } else { ", priority hosts aside" },
+        limits.max_sessions,
     );
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<(), String>>();
     let thread = std::thread::Builder::new()
@@ -342,9 +366,12 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
                 }
             };
             rt.block_on(async move {
-                let listener = match tokio::net::TcpListener::from_std(std_listener) {
-                    Ok(l) => l,
-                    Err(e) => {
+                let (listener, backend_listener) = match (
+                    tokio::net::TcpListener::from_std(std_listener),
+                    tokio::net::TcpListener::from_std(std_backend),
+                ) {
+                    (Ok(l), Ok(b)) => (l, b),
+                    (Err(e), _) | (_, Err(e)) => {
                         let _ = ready_tx.send(Err(e.to_string()));
                         return;
                     }
@@ -359,9 +386,31 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
                 };
                 model.folder_root();
                 tokio::spawn(model.run());
+                let public_port = addr.port();
+                let server = tokio::spawn(server.run_with(backend_listener));
+                // run_with takes the port of the listener it is given for the endpoint
+                // URLs it gives clients: once it has, the public port again (before the
+                // front admits anyone).
+                let waited = Instant::now();
+                while info.port.load(std::sync::atomic::Ordering::Relaxed) != backend.port()
+                    && waited.elapsed() < std::time::Duration::from_secs(10)
+                    && !server.is_finished()
+                {
+                    tokio::time::sleep(std::time::Duration::from_millis(2)).await;
+                }
+                info.port
+                    .store(public_port, std::sync::atomic::Ordering::Relaxed);
+                tokio::spawn(front::run(
+                    listener,
+                    backend,
+                    limits,
+                    Arc::new(front::Shared::default()),
+                ));
                 let _ = ready_tx.send(Ok(()));
-                if let Err(e) = server.run_with(listener).await {
-                    tracing::error!("opcua: the server stopped: {e}");
+                match server.await {
+                    Ok(Err(e)) => tracing::error!("opcua: the server stopped: {e}"),
+                    Err(e) => tracing::error!("opcua: the server stopped: {e}"),
+                    Ok(Ok(())) => {}
                 }
             });
         })

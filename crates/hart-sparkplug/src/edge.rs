@@ -337,6 +337,12 @@ impl EdgeNode {
             // Not identified yet: no device ID to publish under.
             return vec![];
         };
+        if image.polls == 0 {
+            // Not polled yet: a burst message heard before the first poll carries only
+            // some of the device's values and units, and a birth then would be
+            // followed at once by another with the rest.
+            return vec![];
+        }
         let position = image.position;
         let values = metrics::values(image, quality);
         let units = metrics::units(image);

@@ -26,6 +26,23 @@ fn settings() -> Settings {
     }
 }
 
+/// A device heard only in a burst message before its first poll is not born yet;
+/// its first poll gives one birth with every value and unit.
+#[test]
+fn a_device_is_born_after_its_first_poll_not_its_first_burst() {
+    let mut node = EdgeNode::new(settings());
+    node.will(t(0));
+    let _ = node.connected(t(1));
+    let mut burst_only = device(0, 1, None, 50.0);
+    burst_only.polls = 0;
+    let out = node.device(&burst_only, Quality::Good, t(2), t(2));
+    assert!(publishes(&out).is_empty(), "no birth before the first poll");
+    let out = node.device(&device(0, 1, None, 50.5), Quality::Good, t(3), t(3));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 1);
+    assert!(msgs[0].topic.contains("/DBIRTH/"), "{}", msgs[0].topic);
+}
+
 /// An identified device at `position` (unique ID from `id`), PV `pv` kPa.
 fn device(position: usize, id: u8, long_tag: Option<&str>, pv: f32) -> DeviceImage {
     use hart_proto::wire::{Reader, Wire};
@@ -44,6 +61,8 @@ fn device(position: usize, id: u8, long_tag: Option<&str>, pv: f32) -> DeviceIma
         status: None,
     });
     d.loop_current = Some(12.0);
+    // Polled once: a device is born after its first poll.
+    d.polls = 1;
     d
 }
 
@@ -539,6 +558,7 @@ fn device_ids_are_valid_unique_and_stable() {
     assert_eq!(node.device_id(0), Some("Reactor feed"));
     // Not identified: not published.
     let mut anon = DeviceImage::new(4, 0, "loop1", Duration::from_secs(10));
+    anon.polls = 1;
     anon.position = 4;
     assert!(node
         .device(&anon, Quality::WaitingForData, t(2), t(2))

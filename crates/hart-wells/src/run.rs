@@ -162,7 +162,8 @@ pub type View<'a> = &'a (dyn Fn(&Concentrator) + Sync);
 /// Opens a line (again, after it failed).
 pub type Opener<'a, T> = &'a (dyn Fn() -> io::Result<T> + Sync);
 
-/// Time before a failed line is opened again.
+/// The longest wait before a failed line is opened again (the first is 1 s, each next
+/// one twice the last).
 pub const REOPEN_AFTER: Duration = Duration::from_secs(5);
 
 fn lock(c: &std::sync::Mutex<Concentrator>) -> std::sync::MutexGuard<'_, Concentrator> {
@@ -171,7 +172,8 @@ fn lock(c: &std::sync::Mutex<Concentrator>) -> std::sync::MutexGuard<'_, Concent
 
 /// The concentrator: polls its sensors on the bus and serves the uplink at the same
 /// time, each on its own thread (a long reply on the uplink does not hold up a poll).
-/// A line that fails is logged and opened again every [`REOPEN_AFTER`]: the
+/// A line that fails is logged and opened again (after 1 s, then up to every
+/// [`REOPEN_AFTER`]): the
 /// concentrator goes on polling whatever happens to its uplink. Returns only when
 /// both lines have been given up, which never happens; blocks the calling thread.
 pub fn run_concentrator<B: Transport, U: Transport + Send>(
@@ -216,8 +218,11 @@ pub fn run_concentrator<B: Transport, U: Transport + Send>(
 }
 
 /// Runs `run` on the line, and whenever it fails: logs why, closes the line (a USB
-/// adapter plugged back in gets its old name only if nobody holds it), waits
-/// [`REOPEN_AFTER`], opens it again and goes on. Never returns.
+/// adapter plugged back in gets its old name only if nobody holds it), waits, opens it
+/// again and goes on. Never returns. The waits are the project's one reconnect policy
+/// ([`hart_host::reconnect::Backoff`], as the gateway's loops and Modbus RTU slave):
+/// 1 s, doubling up to [`REOPEN_AFTER`], and 1 s again after a line that ran for a
+/// while.
 async fn keep_open<T, Fut>(
     what: &str,
     first: T,
@@ -227,6 +232,7 @@ async fn keep_open<T, Fut>(
 where
     Fut: std::future::Future<Output = io::Result<()>>,
 {
+    let mut backoff = hart_host::reconnect::Backoff::new(Duration::from_secs(1), REOPEN_AFTER);
     let mut line = Some(first);
     loop {
         let l = match line.take() {
@@ -234,19 +240,29 @@ where
             None => match open() {
                 Ok(l) => l,
                 Err(e) => {
-                    warn!("{what}: {e}; trying again in {REOPEN_AFTER:?}");
-                    tokio::time::sleep(REOPEN_AFTER).await;
+                    let wait = backoff.failed(std::time::Instant::now());
+                    warn!("{what}: {e}; trying again in {wait:?}");
+                    tokio::time::sleep(wait).await;
                     continue;
                 }
             },
         };
         // `run` owns the line: it is closed when `run` ends.
+        let started = std::time::Instant::now();
         if let Err(e) = run(l).await {
-            warn!("{what}: {e}; the concentrator goes on; opening it again in {REOPEN_AFTER:?}");
-            tokio::time::sleep(REOPEN_AFTER).await;
+            if started.elapsed() >= STEADY {
+                backoff.reset();
+            }
+            let wait = backoff.failed(std::time::Instant::now());
+            warn!("{what}: {e}; the concentrator goes on; opening it again in {wait:?}");
+            tokio::time::sleep(wait).await;
         }
     }
 }
+
+/// A line that ran this long before it failed was working: its next reopen waits the
+/// shortest time again.
+const STEADY: Duration = Duration::from_secs(30);
 
 /// Runs `f`; a panic in it ends the process (exit status 70) instead of leaving a
 /// concentrator that looks alive with one of its loops dead: a supervisor (systemd)

@@ -132,6 +132,17 @@ mod tests {
         let example = &body[..body.find("```").unwrap()];
         let file: GatewayFile = toml::from_str(example).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(file.loops.len(), 2);
+        let history = file.history.clone().unwrap();
+        assert_eq!(
+            history.retention,
+            Some(std::time::Duration::from_secs(90 * 86_400))
+        );
+        let mqtt = file.mqtt.clone().unwrap();
+        assert_eq!(
+            (mqtt.group.as_str(), mqtt.edge_node.as_str()),
+            ("Plant", "hart-gw1")
+        );
+        mqtt.check().unwrap();
         assert_eq!(
             file.hart_ip.unwrap().plain_rights,
             Some(hart_access::Rights::ReadOnly)

@@ -91,9 +91,14 @@ pub fn init(level: Option<&str>, format: LogFormat, role: Role) -> Result<(), St
 
 /// A bare level for hartkit's crates (`hart...`), `warn` for every other library.
 fn own_crates(level: &str) -> String {
+    // async-opcua logs an error for every connection that ends before its secure
+    // channel opens, unbounded: a flood would fill the disk. The gateway's front logs
+    // each refused or closed connection itself, with the peer and the reason, at most
+    // 20 lines a second (hart_opcua::connections); RUST_LOG can still ask for them.
+    const QUIET: &str = "opcua_server::session::controller=off";
     match level {
-        "error" | "warn" => level.to_string(),
-        l => format!("warn,hart={l}"),
+        "error" | "warn" => format!("{level},{QUIET}"),
+        l => format!("warn,hart={l},{QUIET}"),
     }
 }
 
@@ -120,8 +125,14 @@ mod tests {
 
     #[test]
     fn levels_and_filters() {
-        assert_eq!(own_crates("debug"), "warn,hart=debug");
-        assert_eq!(own_crates("error"), "error");
+        assert_eq!(
+            own_crates("debug"),
+            "warn,hart=debug,opcua_server::session::controller=off"
+        );
+        assert_eq!(
+            own_crates("error"),
+            "error,opcua_server::session::controller=off"
+        );
         assert!(directive_enables("warn,hart=debug", "debug"));
         assert!(!directive_enables("warn,hart=debug", "trace"));
         assert!(directive_enables("hart_host=trace", "debug"));
