@@ -132,6 +132,8 @@ pub async fn run(
     commit.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut retry_at: Option<tokio::time::Instant> = None;
     let mut commit_failing = false;
+    // After a refused subscription (a cluster electing leaders refuses for a while).
+    let mut resubscribe_at: Option<tokio::time::Instant> = None;
     loop {
         let wait_retry = async {
             match retry_at {
@@ -158,9 +160,10 @@ pub async fn run(
                 Ok(Event::Incoming(Packet::SubAck(s))) => {
                     if s.return_codes.iter().any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) {
                         tracing::warn!(
-                            "ingest: the broker refused the subscription to {}: nothing will arrive; check its access rules",
+                            "ingest: the broker refused the subscription to {}: nothing arrives meanwhile; asking again in 5 s; check its access rules",
                             decoder.filter()
                         );
+                        resubscribe_at = Some(tokio::time::Instant::now() + Duration::from_secs(5));
                     } else {
                         tracing::info!("ingest: subscribed to {}", decoder.filter());
                     }
@@ -194,6 +197,7 @@ pub async fn run(
                         tracing::warn!("ingest: cannot connect: {why} (attempt {})", failures + 1);
                     }
                     connected = false;
+                    resubscribe_at = None;
                     failures = failures.saturating_add(1);
                     // Acknowledgements of the lost connection mean nothing in the next:
                     // the broker sends those messages again.
@@ -212,6 +216,10 @@ pub async fn run(
             },
             _ = wait_retry => retry_at = None,
             _ = commit.tick() => {
+                if connected && resubscribe_at.is_some_and(|t| t <= tokio::time::Instant::now()) {
+                    resubscribe_at = None;
+                    let _ = client.try_subscribe(decoder.filter(), QoS::AtLeastOnce);
+                }
                 if !uncommitted.is_empty() {
                     commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
                 }

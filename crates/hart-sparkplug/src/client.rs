@@ -17,6 +17,9 @@ use crate::config::{Broker, MqttConfig};
 use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
 use crate::Error;
 
+/// How long to wait before subscribing again to a refused subscription.
+pub const RESUBSCRIBE_AFTER: Duration = Duration::from_secs(5);
+
 /// Image changes the publisher holds at most before the engine drops the oldest (and
 /// logs it): minutes of a busy gateway's polls.
 pub const CHANGE_QUEUE: usize = 65_536;
@@ -141,6 +144,8 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         outbox: VecDeque::new(),
         inflight: VecDeque::new(),
         unacked: VecDeque::new(),
+        subscriptions: Vec::new(),
+        resubscribe_at: None,
         connected: false,
         failures: 0,
         status: status.clone(),
@@ -306,6 +311,12 @@ struct Publisher {
     /// given back to the edge node (sent again, historical) unless the broker
     /// acknowledges them first.
     unacked: VecDeque<(u16, Vec<Sample>)>,
+    /// The subscriptions of this session (NCMD, DCMD, STATE), to ask again when the
+    /// broker refused one.
+    subscriptions: Vec<(String, u8)>,
+    /// When to subscribe again after a refusal (a cluster electing leaders refuses
+    /// for a while).
+    resubscribe_at: Option<tokio::time::Instant>,
     connected: bool,
     failures: u32,
     status: Arc<Mutex<Status>>,
@@ -351,6 +362,7 @@ impl Publisher {
                     }
                 },
                 _ = tick.tick() => {
+                    self.resubscribe_if_due();
                     // Qualities that change with time alone (stale): after the changes
                     // waiting, so that nothing older follows the current image.
                     while let Some(c) = changes.try_recv() {
@@ -364,6 +376,20 @@ impl Publisher {
                     return;
                 }
             }
+        }
+    }
+
+    /// Subscribes again to what the broker refused, once the wait is over.
+    fn resubscribe_if_due(&mut self) {
+        let due = self
+            .resubscribe_at
+            .is_some_and(|t| t <= tokio::time::Instant::now());
+        if !self.connected || !due {
+            return;
+        }
+        self.resubscribe_at = None;
+        for (topic, q) in &self.subscriptions {
+            let _ = self.client.try_subscribe(topic.clone(), qos(*q));
         }
     }
 
@@ -390,7 +416,11 @@ impl Publisher {
                     m.payload.clone(),
                 ),
                 Output::Subscribe { topic, qos: q } => {
-                    self.client.try_subscribe(topic.clone(), qos(*q))
+                    let r = self.client.try_subscribe(topic.clone(), qos(*q));
+                    if r.is_ok() && !self.subscriptions.iter().any(|(t, _)| t == topic) {
+                        self.subscriptions.push((topic.clone(), *q));
+                    }
+                    r
                 }
                 Output::Disconnect => self.client.try_disconnect(),
                 Output::Write(_) => Ok(()),
@@ -418,6 +448,8 @@ impl Publisher {
         match ev {
             Event::Incoming(Packet::ConnAck(_)) => {
                 self.connected = true;
+                self.subscriptions.clear();
+                self.resubscribe_at = None;
                 self.failures = 0;
                 self.last_error = None;
                 tracing::info!(
@@ -446,8 +478,11 @@ impl Publisher {
             {
                 tracing::warn!(
                     "mqtt: the broker refused a subscription (NCMD, DCMD or STATE): commands \
-                     will not arrive; check the broker's access rules for this user"
+                     will not arrive meanwhile; asking again in {} s; check the broker's access \
+                     rules for this user",
+                    RESUBSCRIBE_AFTER.as_secs()
                 );
+                self.resubscribe_at = Some(tokio::time::Instant::now() + RESUBSCRIBE_AFTER);
             }
             Event::Outgoing(Outgoing::Publish(pkid)) => {
                 let samples = self.inflight.pop_front().unwrap_or_default();
