@@ -75,6 +75,16 @@ fn round_trip(db: &str) {
     }
     // The same device, variable and time again replaces the value.
     s.insert(&[sample(&a, Var::Pv, T0 + 3599, 3599.0)]).unwrap();
+    // A sample that arrives twice (an MQTT QoS 1 message delivered again to `history
+    // ingest`), even within one batch, is stored once.
+    let again = sample(&b, Var::Pv, T0 + 7, 7.5);
+    s.insert(&[again.clone(), again.clone()]).unwrap();
+    s.insert(&[again]).unwrap();
+    let rows = s
+        .query(&q("TT-102", Var::Pv, T0, T0 + 3600, None, Agg::Mean))
+        .unwrap();
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].value, Some(7.5));
 
     // Raw rows: [from, to).
     let rows = s
@@ -133,7 +143,7 @@ fn round_trip(db: &str) {
     assert_eq!(d[0].samples, 3600);
     assert_eq!(d[0].first, Some(at(T0)));
     assert_eq!(d[0].last, Some(at(T0 + 3599)));
-    assert_eq!(d[1].samples, 2);
+    assert_eq!(d[1].samples, 3, "SV, device status, and the PV stored once");
     let st = s
         .query(&q(
             "TT-102",
