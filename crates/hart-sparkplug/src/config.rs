@@ -294,10 +294,12 @@ mod tests {
             username = "gw"
             password_file = "/etc/hartkit/mqtt-password"
             backlog = 500
+            data_qos = 1
             "#,
         )
         .unwrap();
         assert_eq!(c.backlog, 500);
+        assert_eq!(c.data_qos, 1);
         assert!(c.check().is_ok());
         assert!(toml::from_str::<MqttConfig>(
             "url = \"mqtt://h\"\ngroup = \"g\"\nedge_node = \"e\"\nqos = 1"
