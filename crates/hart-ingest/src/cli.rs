@@ -14,6 +14,12 @@ pub struct IngestArgs {
     pub history: String,
     /// `--client-id ID`.
     pub client_id: Option<String>,
+    /// `--username NAME`.
+    pub username: Option<String>,
+    /// `--password-file FILE`.
+    pub password_file: Option<std::path::PathBuf>,
+    /// `--ca-file FILE`.
+    pub ca_file: Option<std::path::PathBuf>,
 }
 
 /// Runs the ingest until Ctrl-C (SIGINT) or SIGTERM; the summary line, or the error
@@ -29,6 +35,9 @@ pub fn ingest_command(a: &IngestArgs) -> Result<String, (String, u8)> {
         db: a.history.clone(),
         client_id: a.client_id.clone(),
         writer: hart_history::WriterConfig::default(),
+        username: a.username.clone(),
+        password_file: a.password_file.clone(),
+        ca_file: a.ca_file.clone(),
     };
     let summary: Summary = rt
         .block_on(async move {

@@ -36,6 +36,13 @@ pub struct IngestConfig {
     pub client_id: Option<String>,
     /// The writer's settings (batches, backlog).
     pub writer: WriterConfig,
+    /// User name for the broker.
+    pub username: Option<String>,
+    /// A file whose first line is the broker password.
+    pub password_file: Option<std::path::PathBuf>,
+    /// PEM file of the certificate authorities of the broker's certificate
+    /// (`mqtts://`); without it, the system's roots.
+    pub ca_file: Option<std::path::PathBuf>,
 }
 
 impl IngestConfig {
@@ -83,6 +90,24 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// The password of `password_file` (its first line).
+fn password(config: &IngestConfig) -> Result<Option<String>, Error> {
+    match (&config.password_file, &config.username) {
+        (Some(_), None) => Err(Error::Config(
+            "--password-file is given without --username".into(),
+        )),
+        (Some(p), Some(_)) => std::fs::read_to_string(p)
+            .map(|s| Some(s.lines().next().unwrap_or_default().to_string()))
+            .map_err(|e| {
+                Error::Config(format!(
+                    "--password-file {}: {e}; check the path and that this user may read it",
+                    p.display()
+                ))
+            }),
+        (None, _) => Ok(None),
+    }
+}
+
 fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error> {
     let mut o = MqttOptions::new(config.client_id(), broker.host.clone(), broker.port);
     // A persistent session: what arrives while the ingest is away is queued for it.
@@ -90,10 +115,19 @@ fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error>
     o.set_manual_acks(true);
     o.set_keep_alive(Duration::from_secs(10));
     o.set_max_packet_size(1 << 20, 1 << 20);
+    if let Some(u) = &config.username {
+        o.set_credentials(u.clone(), password(config)?.unwrap_or_default());
+    }
     if broker.tls {
         o.set_transport(Transport::Tls(
-            hart_sparkplug::client::tls_config(None).map_err(|e| Error::Config(e.to_string()))?,
+            hart_sparkplug::client::tls_config(config.ca_file.as_deref())
+                .map_err(|e| Error::Config(e.to_string()))?,
         ));
+    } else if config.ca_file.is_some() {
+        return Err(Error::Config(format!(
+            "--ca-file is given but {} is not mqtts://",
+            config.url
+        )));
     }
     Ok(o)
 }
@@ -116,6 +150,8 @@ pub async fn run(
 ) -> Result<Summary, Error> {
     check_group(&config.group)?;
     let brokers = Broker::parse_list(&config.url).map_err(|e| Error::Config(e.to_string()))?;
+    // Settings and files checked before the database is opened.
+    options(&config, &brokers[0])?;
     let db = config.db.clone();
     let wc = config.writer.clone();
     let writer = tokio::task::spawn_blocking(move || Writer::start(&db, wc))

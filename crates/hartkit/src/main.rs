@@ -253,6 +253,16 @@ enum HistoryCmd {
         /// messages under it while the ingest is away (default hartkit-ingest-G).
         #[arg(long, value_name = "ID")]
         client_id: Option<String>,
+        /// User name for the broker.
+        #[arg(long, value_name = "NAME")]
+        username: Option<String>,
+        /// A file whose first line is the broker password (never on the command line).
+        #[arg(long, value_name = "FILE", requires = "username")]
+        password_file: Option<std::path::PathBuf>,
+        /// mqtts://: PEM file of the certificate authorities of the broker's
+        /// certificate (default: the system's).
+        #[arg(long, value_name = "FILE")]
+        ca_file: Option<std::path::PathBuf>,
     },
     /// Inserts samples as the gateway's writer does and times a one-day query
     /// (scripts/bench-history).
@@ -310,11 +320,17 @@ fn history(cmd: &HistoryCmd) -> Result<String, (String, u8)> {
             group,
             history,
             client_id,
+            username,
+            password_file,
+            ca_file,
         } => hart_ingest::cli::ingest_command(&hart_ingest::cli::IngestArgs {
             mqtt: mqtt.clone(),
             group: group.clone(),
             history: history.clone(),
             client_id: client_id.clone(),
+            username: username.clone(),
+            password_file: password_file.clone(),
+            ca_file: ca_file.clone(),
         }),
         HistoryCmd::Bench {
             db,

@@ -513,3 +513,45 @@ fn a_broker_node_killed_loses_nothing_at_qos_1() {
         }
     }
 }
+
+/// Bad settings are refused with exit code 2 and a message saying what to check,
+/// before the database is made.
+#[test]
+fn ingest_refuses_bad_settings_before_opening_the_database() {
+    let tmp = tempfile::tempdir().unwrap();
+    let db = tmp.path().join("h.sqlite");
+    let db = db.to_str().unwrap();
+    for (args, says) in [
+        (vec!["--mqtt", "tcp://x"], "unknown scheme"),
+        (vec!["--mqtt", "mqtt://a,,b"], "an empty broker"),
+        (
+            vec!["--mqtt", "mqtt://a", "--group", "a/b"],
+            "Sparkplug group ID",
+        ),
+        (
+            vec![
+                "--mqtt",
+                "mqtt://a",
+                "--username",
+                "u",
+                "--password-file",
+                "/nonexistent",
+            ],
+            "check the path",
+        ),
+        (
+            vec!["--mqtt", "mqtt://a", "--ca-file", "/etc/hosts"],
+            "not mqtts://",
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+            .args(["history", "ingest", "--history", db])
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+    assert!(!Path::new(db).exists());
+}
