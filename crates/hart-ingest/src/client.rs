@@ -160,26 +160,25 @@ pub async fn run(
         .map_err(Error::History)?;
     let mut decoder = Decoder::new(&config.group);
     let mut current = 0;
-    let (client, mut eventloop) = AsyncClient::new(options(&config, &brokers[0])?, 256);
+    let (client, eventloop) = AsyncClient::new(options(&config, &brokers[0])?, 256);
+    // Polled on a task of its own: a select! below must never cancel it mid-connect.
+    let mut driver = hart_sparkplug::driver::Driver::spawn(eventloop);
     let mut uncommitted: Vec<Publish> = Vec::new();
     let mut failures: u32 = 0;
     let mut connected = false;
     let mut commit = tokio::time::interval(COMMIT_EVERY);
     commit.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut retry_at: Option<tokio::time::Instant> = None;
     let mut commit_failing = false;
     // After a refused subscription (a cluster electing leaders refuses for a while).
     let mut resubscribe_at: Option<tokio::time::Instant> = None;
     loop {
-        let wait_retry = async {
-            match retry_at {
-                Some(t) => tokio::time::sleep_until(t).await,
-                None => std::future::pending().await,
-            }
-        };
         tokio::select! {
-            ev = eventloop.poll(), if retry_at.is_none() => match ev {
-                Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+            ev = driver.recv() => match ev {
+                None => {
+                    tracing::error!("ingest: the MQTT client's task ended");
+                    break;
+                }
+                Some(Ok(Event::Incoming(Packet::ConnAck(ack)))) => {
                     connected = true;
                     failures = 0;
                     let b = &brokers[current];
@@ -193,7 +192,7 @@ pub async fn run(
                         tracing::warn!("ingest: cannot subscribe: {e}");
                     }
                 }
-                Ok(Event::Incoming(Packet::SubAck(s))) => {
+                Some(Ok(Event::Incoming(Packet::SubAck(s)))) => {
                     if s.return_codes.iter().any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) {
                         tracing::warn!(
                             "ingest: the broker refused the subscription to {}: nothing arrives meanwhile; asking again in 5 s; check its access rules",
@@ -204,7 +203,7 @@ pub async fn run(
                         tracing::info!("ingest: subscribed to {}", decoder.filter());
                     }
                 }
-                Ok(Event::Incoming(Packet::Publish(p))) => {
+                Some(Ok(Event::Incoming(Packet::Publish(p)))) => {
                     match decoder.received(&p.topic, &p.payload, SystemTime::now()) {
                         Ok(out) => {
                             writer.submit_wait(out.samples);
@@ -224,8 +223,8 @@ pub async fn run(
                         commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
                     }
                 }
-                Ok(_) => {}
-                Err(e) => {
+                Some(Ok(_)) => {}
+                Some(Err(e)) => {
                     let why = explain(&e, &brokers[current]);
                     if connected {
                         tracing::warn!("ingest: connection lost: {why}; connecting again (the broker keeps the session's messages)");
@@ -239,18 +238,19 @@ pub async fn run(
                     // the broker sends those messages again.
                     uncommitted.clear();
                     let mut delay = Duration::from_millis(250u64 << failures.min(7)).min(Duration::from_secs(15));
+                    let mut next = None;
                     if brokers.len() > 1 {
                         current = (current + 1) % brokers.len();
-                        eventloop.mqtt_options = options(&config, &brokers[current])?;
+                        next = Some(options(&config, &brokers[current])?);
                         tracing::info!("ingest: trying the next broker, {}:{}", brokers[current].host, brokers[current].port);
                         if current != 0 {
                             delay = Duration::from_millis(100);
                         }
                     }
-                    retry_at = Some(tokio::time::Instant::now() + delay);
+                    // A persistent session: rumqttc keeps what it must send again.
+                    driver.resume(hart_sparkplug::driver::Resume { options: next, clear: false, after: delay });
                 }
             },
-            _ = wait_retry => retry_at = None,
             _ = commit.tick() => {
                 if connected && resubscribe_at.is_some_and(|t| t <= tokio::time::Instant::now()) {
                     resubscribe_at = None;
@@ -269,9 +269,9 @@ pub async fn run(
         let _ = client.try_disconnect();
         let _ = tokio::time::timeout(Duration::from_secs(3), async {
             loop {
-                match eventloop.poll().await {
-                    Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_) => break,
-                    Ok(_) => {}
+                match driver.recv().await {
+                    Some(Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_)) | None => break,
+                    Some(Ok(_)) => {}
                 }
             }
         })

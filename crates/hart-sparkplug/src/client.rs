@@ -9,11 +9,12 @@ use std::time::{Duration, SystemTime};
 
 use hart_poller::{Engine, Quality};
 use rumqttc::{
-    AsyncClient, ConnectReturnCode, ConnectionError, Event, EventLoop, LastWill, MqttOptions,
-    Outgoing, Packet, QoS, TlsConfiguration, Transport,
+    AsyncClient, ConnectReturnCode, ConnectionError, Event, LastWill, MqttOptions, Outgoing,
+    Packet, QoS, TlsConfiguration, Transport,
 };
 
 use crate::config::{Broker, MqttConfig};
+use crate::driver::{Driver, Resume};
 use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
 use crate::Error;
 
@@ -125,8 +126,9 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         tls,
     };
     let broker = brokers[0].clone();
+    let will = last_will(core.will(SystemTime::now()));
     let mut options = template.options(&broker);
-    options.set_last_will(last_will(core.will(SystemTime::now())));
+    options.set_last_will(will.clone());
     let (client, eventloop) = AsyncClient::new(options, 1024);
     let status = Arc::new(Mutex::new(Status::default()));
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
@@ -135,7 +137,8 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         access,
         core,
         client,
-        eventloop,
+        driver: Driver::spawn(eventloop),
+        will,
         url: config.url.clone(),
         broker,
         brokers,
@@ -293,7 +296,10 @@ struct Publisher {
     access: Access,
     core: EdgeNode,
     client: AsyncClient,
-    eventloop: EventLoop,
+    /// rumqttc's event loop, on a task of its own (never cancelled mid-connect).
+    driver: Driver,
+    /// The will of the next (or current) session: its NDEATH.
+    will: LastWill,
     url: String,
     /// The broker of the current (or next) connection.
     broker: Broker,
@@ -331,25 +337,21 @@ impl Publisher {
         let mut changes = self.engine.image().changes(CHANGE_QUEUE);
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        let mut retry_at: Option<tokio::time::Instant> = None;
         loop {
             self.hand_over();
             self.publish_status();
-            let wait_retry = async {
-                match retry_at {
-                    Some(t) => tokio::time::sleep_until(t).await,
-                    None => std::future::pending().await,
-                }
-            };
             tokio::select! {
-                ev = self.eventloop.poll(), if retry_at.is_none() => match ev {
-                    Ok(ev) => self.event(ev),
-                    Err(e) => {
-                        let delay = self.lost(&e);
-                        retry_at = Some(tokio::time::Instant::now() + delay);
+                ev = self.driver.recv() => match ev {
+                    Some(Ok(ev)) => self.event(ev),
+                    Some(Err(e)) => {
+                        let resume = self.lost(&e);
+                        self.driver.resume(resume);
+                    }
+                    None => {
+                        tracing::error!("mqtt: the MQTT client's task ended; nothing is published any more");
+                        return;
                     }
                 },
-                _ = wait_retry => retry_at = None,
                 c = changes.recv() => match c {
                     Some(c) => {
                         let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
@@ -498,16 +500,21 @@ impl Publisher {
             Event::Outgoing(Outgoing::Disconnect) => {
                 // Asked by the edge node (primary host offline): connect again at once
                 // and wait for the host there.
-                self.eventloop.network = None;
                 self.forget_session(None);
+                self.driver.resume(Resume {
+                    options: Some(self.options()),
+                    clear: true,
+                    after: Duration::ZERO,
+                });
             }
             _ => {}
         }
     }
 
-    /// The connection failed or ended: log why, keep what was not sent, prepare the
-    /// next CONNECT's will. Returns how long to wait before trying again.
-    fn lost(&mut self, e: &ConnectionError) -> Duration {
+    /// The connection failed or ended: log why, keep what was not sent; returns how the
+    /// event loop goes on (the next CONNECT's will, the next broker of a cluster, the
+    /// wait before trying).
+    fn lost(&mut self, e: &ConnectionError) -> Resume {
         let why = explain(e, &self.broker);
         if self.connected {
             tracing::warn!(
@@ -521,37 +528,44 @@ impl Publisher {
         }
         self.failures = self.failures.saturating_add(1);
         self.forget_session(Some(why));
+        let mut after =
+            Duration::from_millis(250u64 << self.failures.min(7)).min(Duration::from_secs(15));
         if self.brokers.len() > 1 {
             // A cluster: the next node at once, the backoff only after a full round.
             self.next_broker = (self.next_broker + 1) % self.brokers.len();
             self.broker = self.brokers[self.next_broker].clone();
-            let will = self.eventloop.mqtt_options.last_will();
-            let mut options = self.template.options(&self.broker);
-            if let Some(w) = will {
-                options.set_last_will(w);
-            }
-            self.eventloop.mqtt_options = options;
             tracing::info!(
                 "mqtt: trying the next broker of the cluster, {}:{}",
                 self.broker.host,
                 self.broker.port
             );
             if self.next_broker != 0 {
-                return Duration::from_millis(100);
+                after = Duration::from_millis(100);
             }
         }
-        Duration::from_millis(250u64 << self.failures.min(7)).min(Duration::from_secs(15))
+        Resume {
+            options: Some(self.options()),
+            clear: true,
+            after,
+        }
     }
 
+    /// The options of the next CONNECT: the broker tried next, with the will of the
+    /// session to come.
+    fn options(&self) -> rumqttc::MqttOptions {
+        let mut options = self.template.options(&self.broker);
+        options.set_last_will(self.will.clone());
+        options
+    }
+
+    /// The session is over: what it had not sent is kept, and the next session's will
+    /// (its bdSeq) is made. Nothing of the old session may go out in the new one (the
+    /// [`Resume`] that follows clears rumqttc's queue).
     fn forget_session(&mut self, why: Option<String>) {
         if why.is_some() {
             self.last_error = why;
         }
         self.connected = false;
-        // Nothing of the old session may go out in the new one: rumqttc would send
-        // its queued requests after the next CONNACK.
-        self.eventloop.pending.clear();
-        self.eventloop.state.events.clear();
         let mut unsent: Vec<Sample> = self.unacked.drain(..).flat_map(|(_, s)| s).collect();
         unsent.extend(self.inflight.drain(..).flatten());
         for o in self.outbox.drain(..) {
@@ -560,9 +574,7 @@ impl Publisher {
             }
         }
         self.core.disconnected(unsent);
-        self.eventloop
-            .mqtt_options
-            .set_last_will(last_will(self.core.will(SystemTime::now())));
+        self.will = last_will(self.core.will(SystemTime::now()));
     }
 
     fn feed(&mut self, position: usize) {
@@ -634,9 +646,9 @@ impl Publisher {
         let _ = self.client.try_disconnect();
         let _ = tokio::time::timeout(Duration::from_secs(3), async {
             loop {
-                match self.eventloop.poll().await {
-                    Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_) => break,
-                    Ok(_) => {}
+                match self.driver.recv().await {
+                    Some(Ok(Event::Outgoing(Outgoing::Disconnect)) | Err(_)) | None => break,
+                    Some(Ok(_)) => {}
                 }
             }
         })

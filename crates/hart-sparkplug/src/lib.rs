@@ -15,6 +15,7 @@
 pub mod client;
 pub mod command;
 pub mod config;
+pub mod driver;
 pub mod edge;
 pub mod metrics;
 pub mod proto;
