@@ -5,8 +5,7 @@
 //! the demo plant answered in memory by the polling engine.
 //!
 //! Skipped with a printed reason when mosquitto or the venv (scripts/interop/setup)
-//! is missing, unless HARTKIT_REQUIRE_INTEROP=1. The broker outage is 5 s here (the
-//! issue's 30 s changes nothing but the test's length).
+//! is missing, unless HARTKIT_REQUIRE_INTEROP=1. The broker is stopped for 30 s.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -567,6 +566,10 @@ fn check_order(d: &[(String, u64, u64, bool, String)]) {
     }
 }
 
+/// How long the broker is away: 30 s, as issue 27 asks (longer than the publisher's
+/// keep-alive, so the loss is seen from both sides, and several reconnect attempts).
+const OUTAGE: Duration = Duration::from_secs(30);
+
 #[tokio::test(flavor = "current_thread")]
 async fn broker_restart_every_sample_arrives_once_in_order() {
     let Some(t) = tools() else { return };
@@ -587,7 +590,7 @@ async fn broker_restart_every_sample_arrives_once_in_order() {
             sub.wait("data", |l| data(l, "gw-restart").len() >= 5).await;
             broker.stop();
             let stopped = Instant::now();
-            while stopped.elapsed() < Duration::from_secs(5) {
+            while stopped.elapsed() < OUTAGE {
                 tokio::time::sleep(Duration::from_millis(100)).await;
             }
             let stored = handle.status().counters.stored;
