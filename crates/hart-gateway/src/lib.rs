@@ -28,6 +28,7 @@ use std::time::Duration;
 
 use hart_poller::{Engine, Line, LoopSpec, StartOptions};
 
+pub mod backfill;
 pub mod config;
 pub mod console;
 pub mod file;
@@ -253,6 +254,9 @@ impl Gateway {
                 .push(format!("opcua: {} ({describe})", server.url));
             self.opcua = Some(server);
         }
+        // With a historian, the MQTT publisher's full backlog leaves the rest of an
+        // outage to it.
+        let history_db = config.history.as_ref().map(|h| h.db.clone());
         if let Some(h) = config.history {
             let what = format!(
                 "history: {} (every change, and every device each {})",
@@ -276,6 +280,10 @@ impl Gateway {
                 audit: hart_access::Audit::new(config.audit_file.clone()),
                 allow: config.allow_commands.clone(),
                 read_only,
+                backfill: history_db.map(|db| {
+                    std::sync::Arc::new(backfill::HistoryBackfill::new(db, engine.clone()))
+                        as std::sync::Arc<dyn hart_sparkplug::Backfill>
+                }),
             };
             let what = format!(
                 "mqtt: {} as spBv1.0/{}/+/{}{}{}",

@@ -149,3 +149,59 @@ fn an_address_in_use_is_an_io_error() {
         assert!(e.message.starts_with("--modbus 127.0.0.1:"), "{e}");
     });
 }
+
+/// The MQTT publisher's store-and-forward reads an outage back from the historian: the
+/// samples the gateway stored are found by device and time, each variable as its
+/// metric (PV with its quality), in time order.
+#[test]
+fn an_outage_is_read_back_from_the_historian() {
+    use hart_sparkplug::Backfill as _;
+    let dir = std::env::temp_dir().join(format!("hart-gateway-backfill-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("plant.sqlite").to_string_lossy().into_owned();
+    local(async {
+        let config = GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            instant: true,
+            history: Some(db.clone()),
+            poll_period: Some(0.2),
+            ..ServeOptions::default()
+        })
+        .unwrap();
+        let start = std::time::SystemTime::now();
+        let gateway = Gateway::start(config).await.unwrap();
+        // A few batches (one a second).
+        tokio::time::sleep(Duration::from_millis(3500)).await;
+        let engine = gateway.engine().clone();
+        gateway.stop().await;
+        let ms = |t: std::time::SystemTime| {
+            t.duration_since(std::time::UNIX_EPOCH).unwrap().as_millis() as u64
+        };
+        let source = hart_gateway::backfill::HistoryBackfill::new(db.clone(), engine.clone());
+        let samples = source
+            .samples(ms(start), ms(std::time::SystemTime::now()) + 1)
+            .unwrap();
+        let pv = hart_sparkplug::metrics::DEVICE_METRICS
+            .iter()
+            .position(|m| m.name == "PV")
+            .unwrap();
+        let positions: std::collections::BTreeSet<usize> =
+            samples.iter().map(|s| s.position).collect();
+        assert!(
+            positions.len() >= 3,
+            "the demo plant's devices: {positions:?}"
+        );
+        for p in positions {
+            let mine: Vec<_> = samples.iter().filter(|s| s.position == p).collect();
+            assert!(mine.windows(2).all(|w| w[0].at < w[1].at), "in time order");
+            assert!(
+                mine.iter().any(|s| s.metrics.iter().any(|(i, _)| *i == pv)),
+                "device {p} has PV samples"
+            );
+        }
+        // Nothing before the range.
+        assert!(source.samples(0, ms(start)).unwrap().is_empty());
+    });
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -25,6 +25,15 @@ pub const RESUBSCRIBE_AFTER: Duration = Duration::from_secs(5);
 /// logs it): minutes of a busy gateway's polls.
 pub const CHANGE_QUEUE: usize = 65_536;
 
+/// Where the samples of a long outage are read back from: the gateway's historian,
+/// which keeps every value whatever happens to the broker ([`EdgeNode::with_spill`]).
+pub trait Backfill: Send + Sync + std::fmt::Debug + 'static {
+    /// The engine's devices' samples from `from` to `to` (ms since the Unix epoch, `to`
+    /// excluded), as the edge node's samples; or why they cannot be read. Blocking: it
+    /// is called on a blocking thread.
+    fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String>;
+}
+
 /// The gateway's access rules that DCMD writes follow, like the other front ends'.
 #[derive(Debug, Clone, Default)]
 pub struct Access {
@@ -34,6 +43,9 @@ pub struct Access {
     pub allow: Option<hart_access::CommandAllowList>,
     /// The whole gateway is read-only (`--read-only`).
     pub read_only: bool,
+    /// The gateway's historian, when it has one: a full store-and-forward backlog
+    /// leaves the rest of an outage to it, read back afterwards.
+    pub backfill: Option<Arc<dyn Backfill>>,
 }
 
 /// What the publisher is doing, for status pages and tests.
@@ -112,7 +124,9 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         read_only: config.read_only || access.read_only,
         allow: access.allow.clone(),
     };
-    let mut core = EdgeNode::new(settings).with_data_qos(config.data_qos);
+    let mut core = EdgeNode::new(settings)
+        .with_data_qos(config.data_qos)
+        .with_spill(access.backfill.is_some());
     let client_id = config
         .client_id
         .clone()
@@ -130,6 +144,7 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
     let mut options = template.options(&broker);
     options.set_last_will(will.clone());
     let (client, eventloop) = AsyncClient::new(options, 1024);
+    let (backfilled_tx, backfilled_rx) = tokio::sync::mpsc::unbounded_channel();
     let status = Arc::new(Mutex::new(Status::default()));
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
     let publisher = Publisher {
@@ -139,6 +154,8 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         client,
         driver: Driver::spawn(eventloop),
         will,
+        backfilled_tx,
+        backfilled_rx,
         url: config.url.clone(),
         broker,
         brokers,
@@ -300,6 +317,9 @@ struct Publisher {
     driver: Driver,
     /// The will of the next (or current) session: its NDEATH.
     will: LastWill,
+    /// Samples read back from the historian ([`Publisher::backfill`]).
+    backfilled_tx: tokio::sync::mpsc::UnboundedSender<Vec<Sample>>,
+    backfilled_rx: tokio::sync::mpsc::UnboundedReceiver<Vec<Sample>>,
     url: String,
     /// The broker of the current (or next) connection.
     broker: Broker,
@@ -352,6 +372,10 @@ impl Publisher {
                         return;
                     }
                 },
+                Some(samples) = self.backfilled_rx.recv() => {
+                    let out = self.core.backfilled(samples, SystemTime::now());
+                    self.apply(out);
+                }
                 c = changes.recv() => match c {
                     Some(c) => {
                         let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
@@ -425,7 +449,7 @@ impl Publisher {
                     r
                 }
                 Output::Disconnect => self.client.try_disconnect(),
-                Output::Write(_) => Ok(()),
+                Output::Write(_) | Output::Backfill { .. } => Ok(()),
             };
             if r.is_err() {
                 // The client's queue is full: the rest waits for the next turn.
@@ -441,6 +465,7 @@ impl Publisher {
         for o in outputs {
             match o {
                 Output::Write(w) => self.write(w),
+                Output::Backfill { from, to } => self.backfill(from, to),
                 o => self.outbox.push_back(o),
             }
         }
@@ -601,6 +626,28 @@ impl Publisher {
         for p in 0..self.engine.image().len() {
             self.feed(p);
         }
+    }
+
+    /// Reads what the historian kept from `from` to `to` on a blocking thread; the
+    /// samples come back through `backfilled` to the run loop.
+    fn backfill(&mut self, from: u64, to: u64) {
+        let Some(source) = self.access.backfill.clone() else {
+            return;
+        };
+        let tx = self.backfilled_tx.clone();
+        tokio::spawn(async move {
+            let read = tokio::task::spawn_blocking(move || source.samples(from, to)).await;
+            match read {
+                Ok(Ok(samples)) => {
+                    let _ = tx.send(samples);
+                }
+                Ok(Err(e)) => tracing::error!(
+                    "mqtt: the samples of the outage kept in the historian could not be read \
+                     back ({e}); they are in the historian, not sent"
+                ),
+                Err(e) => tracing::error!("mqtt: reading back from the historian failed: {e}"),
+            }
+        });
     }
 
     fn write(&mut self, w: WriteRequest) {

@@ -116,6 +116,15 @@ pub enum Output {
     Disconnect,
     /// Carry out a write.
     Write(WriteRequest),
+    /// Read back from the historian what it kept while the backlog was full, from
+    /// `from` to `to` (ms since the Unix epoch, `to` excluded), and hand it to
+    /// [`EdgeNode::backfilled`] ([`EdgeNode::with_spill`]).
+    Backfill {
+        /// From (ms, included).
+        from: u64,
+        /// To (ms, excluded).
+        to: u64,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -170,6 +179,10 @@ pub struct EdgeNode {
     last_state: Option<u64>,
     counters: Counters,
     data_qos: u8,
+    /// A historian keeps what the full backlog cannot ([`EdgeNode::with_spill`]).
+    spill: bool,
+    /// The times (ms, first and last) of the samples left to the historian.
+    spilled: Option<(u64, u64)>,
 }
 
 impl EdgeNode {
@@ -188,6 +201,8 @@ impl EdgeNode {
             last_state: None,
             counters: Counters::default(),
             data_qos: 0,
+            spill: false,
+            spilled: None,
         }
     }
 
@@ -403,6 +418,38 @@ impl EdgeNode {
         out
     }
 
+    /// With `on`, a full backlog does not drop samples: the gateway's historian keeps
+    /// every value anyway, so the edge node remembers the time range it left to it and,
+    /// after the births and the samples memory held, asks for it back
+    /// ([`Output::Backfill`]).
+    pub fn with_spill(mut self, on: bool) -> Self {
+        self.spill = on;
+        self
+    }
+
+    /// The samples read back from the historian for an [`Output::Backfill`]: sent as
+    /// historical DDATA in time order (kept again if the session has ended meanwhile).
+    pub fn backfilled(&mut self, mut samples: Vec<Sample>, now: SystemTime) -> Vec<Output> {
+        samples.sort_by_key(|s| s.at);
+        let mut out = vec![];
+        if self.link != Link::Live {
+            for s in samples {
+                self.store(s);
+            }
+            return out;
+        }
+        if !samples.is_empty() {
+            tracing::info!(
+                "mqtt: sent {} samples read back from the historian as historical data",
+                samples.len()
+            );
+        }
+        for s in samples {
+            self.historical(s, now, &mut out);
+        }
+        out
+    }
+
     /// A message arrived on a subscribed topic.
     pub fn received(&mut self, topic: &str, payload: &[u8], now: SystemTime) -> Vec<Output> {
         let mut out = vec![];
@@ -452,6 +499,23 @@ impl EdgeNode {
     }
 
     fn store(&mut self, sample: Sample) {
+        let limit = self.settings.backlog.max(1);
+        if self.spill && self.backlog.len() >= limit {
+            // The historian has it: the time range is enough to read it back.
+            self.spilled = Some(self.spilled.map_or((sample.at, sample.at), |(from, to)| {
+                (from.min(sample.at), to.max(sample.at))
+            }));
+            self.counters.stored += 1;
+            if !self.backlog_full_logged {
+                self.backlog_full_logged = true;
+                tracing::warn!(
+                    "mqtt: the store-and-forward backlog is full ({limit} samples in memory): \
+                     the rest of the outage is read back from the historian and sent, \
+                     historical, when the broker is back"
+                );
+            }
+            return;
+        }
         self.counters.stored += 1;
         self.backlog.push_back(sample);
         self.trim_backlog();
@@ -532,6 +596,13 @@ impl EdgeNode {
         let stored = self.backlog.len();
         while let Some(sample) = self.backlog.pop_front() {
             self.historical(sample, now, out);
+        }
+        if let Some((from, to)) = self.spilled.take() {
+            // After what memory held: the rest of the outage, from the historian.
+            out.push(Output::Backfill {
+                from,
+                to: to.saturating_add(1),
+            });
         }
         if stored > 0 {
             tracing::info!(

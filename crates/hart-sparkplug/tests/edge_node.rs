@@ -5,7 +5,7 @@
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use hart_poller::{DeviceImage, Quality, Variable, WriteOp};
-use hart_sparkplug::edge::{millis, EdgeNode, Message, Output, Settings};
+use hart_sparkplug::edge::{millis, EdgeNode, Message, Output, Sample, Settings};
 use hart_sparkplug::metrics::{device_alias, index_of};
 use hart_sparkplug::proto::payload::{metric::Value as V, Metric};
 use hart_sparkplug::proto::Payload;
@@ -564,4 +564,70 @@ fn device_ids_are_valid_unique_and_stable() {
         .device(&anon, Quality::WaitingForData, t(2), t(2))
         .is_empty());
     assert_eq!(node.device_id(4), None);
+}
+
+/// With a historian beside it, a full backlog keeps the oldest samples in memory and
+/// leaves the rest of the outage to the historian: after the births and the samples
+/// memory held, the edge node asks for that time range back, and what the historian
+/// gives is sent historical, in time order.
+#[test]
+fn a_full_backlog_spills_to_the_historian_and_is_read_back() {
+    let mut node = EdgeNode::new(Settings {
+        backlog: 3,
+        ..settings()
+    })
+    .with_spill(true);
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    node.disconnected(vec![]);
+    for i in 1..=10u64 {
+        node.device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i));
+    }
+    assert_eq!(node.backlog_len(), 3, "memory holds its bound");
+    assert_eq!(
+        node.counters().dropped,
+        0,
+        "nothing dropped: the historian has it"
+    );
+    node.will(t(20));
+    let out = node.connected(t(20));
+    let msgs = publishes(&out);
+    // NBIRTH, DBIRTH, the three samples memory held (values 1, 2, 3).
+    assert_eq!(msgs.len(), 2 + 3);
+    let backfill = out
+        .iter()
+        .find_map(|o| match o {
+            Output::Backfill { from, to } => Some((*from, *to)),
+            _ => None,
+        })
+        .expect("the rest is asked back");
+    assert_eq!(backfill, (millis(t(4)), millis(t(10)) + 1));
+    // What the historian gives (out of order here) goes out historical, in time order.
+    let pv = |i: u64| Sample {
+        position: 0,
+        at: millis(t(i)),
+        metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+    };
+    let out = node.backfilled(vec![pv(9), pv(4), pv(10), pv(5)], t(21));
+    let msgs = publishes(&out);
+    let got: Vec<(Option<u64>, Option<bool>)> = msgs
+        .iter()
+        .map(|m| {
+            let p = decode(m);
+            (p.metrics[0].timestamp, p.metrics[0].is_historical)
+        })
+        .collect();
+    assert_eq!(got, [4, 5, 9, 10].map(|i| (Some(millis(t(i))), Some(true))));
+    // Without a historian the oldest are dropped, counted.
+    let mut plain = EdgeNode::new(Settings {
+        backlog: 3,
+        ..settings()
+    });
+    connected(&mut plain, t(0));
+    plain.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    plain.disconnected(vec![]);
+    for i in 1..=10u64 {
+        plain.device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i));
+    }
+    assert_eq!(plain.counters().dropped, 7);
 }

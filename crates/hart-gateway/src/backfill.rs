@@ -1,0 +1,117 @@
+//! The MQTT publisher's store-and-forward, backed by the historian: when its backlog in
+//! memory is full, the rest of an outage is read back from the historian (which keeps
+//! every value whatever happens to the broker) and sent as historical data.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use hart_history::{Agg, Query, Store, Var};
+use hart_poller::{Engine, Quality};
+use hart_sparkplug::metrics::{Value, DEVICE_METRICS};
+use hart_sparkplug::Sample;
+
+/// The historian at `db` as the source of an outage's samples.
+pub struct HistoryBackfill {
+    db: String,
+    engine: Engine,
+}
+
+impl std::fmt::Debug for HistoryBackfill {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HistoryBackfill")
+            .field("db", &self.db)
+            .finish_non_exhaustive()
+    }
+}
+
+impl HistoryBackfill {
+    /// Reads from the historian `db` (the gateway's `--history`) for the devices of
+    /// `engine`.
+    pub fn new(db: String, engine: Engine) -> Self {
+        HistoryBackfill { db, engine }
+    }
+}
+
+/// The metric of each stored variable ([`DEVICE_METRICS`] by name).
+fn metric_of(var: Var) -> Option<usize> {
+    let name = match var {
+        Var::Pv => "PV",
+        Var::Sv => "SV",
+        Var::Tv => "TV",
+        Var::Qv => "QV",
+        Var::LoopCurrent => "LoopCurrent",
+        Var::PercentRange => "PercentRange",
+        Var::DeviceStatus => "Status/DeviceStatus",
+    };
+    DEVICE_METRICS.iter().position(|m| m.name == name)
+}
+
+fn millis(t: SystemTime) -> u64 {
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
+}
+
+impl hart_sparkplug::Backfill for HistoryBackfill {
+    fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String> {
+        let mut store = Store::open(&self.db, false).map_err(|e| e.to_string())?;
+        let (from_t, to_t) = (
+            UNIX_EPOCH + Duration::from_millis(from),
+            UNIX_EPOCH + Duration::from_millis(to),
+        );
+        let quality = DEVICE_METRICS
+            .iter()
+            .position(|m| m.name == "Status/Quality");
+        let quality_code = DEVICE_METRICS
+            .iter()
+            .position(|m| m.name == "Status/QualityCode");
+        let mut out = vec![];
+        for d in self.engine.image().snapshot() {
+            let Some(id) = d.unique_id() else { continue };
+            // One sample per stored time, with every variable stored at that time.
+            let mut by_time: BTreeMap<u64, Vec<(usize, Value)>> = BTreeMap::new();
+            for var in Var::ALL {
+                let Some(metric) = metric_of(var) else {
+                    continue;
+                };
+                let q = Query {
+                    device: id.to_string(),
+                    var,
+                    from: from_t,
+                    to: to_t,
+                    every: None,
+                    agg: Agg::Last,
+                };
+                let points = match store.query(&q) {
+                    Ok(p) => p,
+                    // A device the historian has not stored (yet): nothing to send.
+                    Err(hart_history::Error::NoSuchDevice(_)) => break,
+                    Err(e) => return Err(e.to_string()),
+                };
+                for p in points {
+                    let value = match (var, p.value) {
+                        (_, None) => Value::Null,
+                        (Var::DeviceStatus, Some(v)) => Value::UInt(v as u32),
+                        (_, Some(v)) => Value::Float(v as f32),
+                    };
+                    let metrics = by_time.entry(millis(p.time)).or_default();
+                    metrics.push((metric, value));
+                    if var == Var::Pv {
+                        let q = Quality::from_code(u16::from(p.quality));
+                        if let (Some(i), Some(q)) = (quality, q) {
+                            metrics.push((i, Value::Text(q.name().to_string())));
+                        }
+                        if let Some(i) = quality_code {
+                            metrics.push((i, Value::UInt(u32::from(p.quality))));
+                        }
+                    }
+                }
+            }
+            out.extend(by_time.into_iter().map(|(at, metrics)| Sample {
+                position: d.position,
+                at,
+                metrics,
+            }));
+        }
+        Ok(out)
+    }
+}
