@@ -800,3 +800,150 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
         })
         .await;
 }
+
+/// A certificate authority and a server certificate for 127.0.0.1, made by the
+/// `openssl` command in `dir`: (ca.pem, server.pem, server.key). `None` without it.
+fn certificates(dir: &Path) -> Option<(PathBuf, PathBuf, PathBuf)> {
+    let run = |args: &[&str]| {
+        Command::new("openssl")
+            .args(args)
+            .current_dir(dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    std::fs::write(
+        dir.join("server.ext"),
+        "subjectAltName=IP:127.0.0.1\nbasicConstraints=CA:FALSE\nkeyUsage=digitalSignature,keyEncipherment\nextendedKeyUsage=serverAuth\n",
+    )
+    .ok()?;
+    let ok = run(&[
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-subj",
+        "/CN=hartkit test CA",
+        "-days",
+        "2",
+    ]) && run(&[
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-keyout",
+        "server.key",
+        "-out",
+        "server.csr",
+        "-subj",
+        "/CN=127.0.0.1",
+    ]) && run(&[
+        "x509",
+        "-req",
+        "-in",
+        "server.csr",
+        "-CA",
+        "ca.pem",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-out",
+        "server.pem",
+        "-days",
+        "2",
+        "-extfile",
+        "server.ext",
+    ]);
+    if !ok {
+        return None;
+    }
+    // mosquitto started as root reads them as its own user: readable by all (test
+    // files in a throw-away directory).
+    use std::os::unix::fs::PermissionsExt;
+    let readable = std::fs::Permissions::from_mode;
+    std::fs::set_permissions(dir, readable(0o755)).ok()?;
+    for f in ["ca.pem", "server.pem", "server.key"] {
+        std::fs::set_permissions(dir.join(f), readable(0o644)).ok()?;
+    }
+    Some((
+        dir.join("ca.pem"),
+        dir.join("server.pem"),
+        dir.join("server.key"),
+    ))
+}
+
+/// mqtts:// with a CA file: the publisher's births reach a subscriber through
+/// mosquitto's TLS listener (the subscriber on the same broker's plain listener); a
+/// CA file that did not sign the broker's certificate is refused, logged, and the
+/// gateway goes on.
+#[tokio::test(flavor = "current_thread")]
+async fn births_over_tls_with_a_ca_file() {
+    let Some(t) = tools() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let Some((ca, cert, key)) = certificates(dir.path()) else {
+        assert!(
+            std::env::var_os("HARTKIT_REQUIRE_INTEROP").is_none(),
+            "the openssl command is needed to make the test certificates"
+        );
+        eprintln!("skipped: no openssl command to make the test certificates");
+        return;
+    };
+    let tls_port = free_port();
+    let broker = Broker::start(
+        &t,
+        dir.path(),
+        &format!(
+            "listener {tls_port} 127.0.0.1\ncafile {}\ncertfile {}\nkeyfile {}\n",
+            ca.display(),
+            cert.display(),
+            key.display()
+        ),
+    );
+    let sub = Sub::start(&t, broker.port).await;
+    let local = tokio::task::LocalSet::new();
+    local
+        .run_until(async {
+            let engine = engine().await;
+            let mut trusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls");
+            trusted.ca_file = Some(ca.clone());
+            let handle = hart_sparkplug::run(engine.clone(), trusted, Access::default())
+                .await
+                .unwrap();
+            sub.wait("NBIRTH and DBIRTHs over TLS", |l| {
+                let n = of_node(l, "gw-tls");
+                n.iter().any(|v| kind(v) == "NBIRTH")
+                    && n.iter().filter(|v| kind(v) == "DBIRTH").count() >= 3
+            })
+            .await;
+            assert!(handle.status().connected);
+            handle.shutdown().await;
+
+            // Another CA: the broker's certificate is not trusted.
+            let other = tempfile::tempdir().unwrap();
+            let (other_ca, _, _) = certificates(other.path()).unwrap();
+            let mut untrusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls2");
+            untrusted.ca_file = Some(other_ca);
+            let handle = hart_sparkplug::run(engine.clone(), untrusted, Access::default())
+                .await
+                .unwrap();
+            tokio::time::sleep(Duration::from_secs(2)).await;
+            let s = handle.status();
+            assert!(!s.connected, "{s:?}");
+            let why = s.last_error.unwrap_or_default();
+            assert!(why.contains("TLS"), "{why}");
+            assert!(
+                !of_node(&sub.lines(), "gw-tls2")
+                    .iter()
+                    .any(|v| kind(v) == "NBIRTH"),
+                "nothing published without trust"
+            );
+            handle.shutdown().await;
+        })
+        .await;
+}
