@@ -33,6 +33,7 @@ fn gateway() -> (SocketAddr, SocketAddr) {
                     pki_dir: pki,
                     read_only: false,
                     audit: Default::default(),
+                    limits: Default::default(),
                 },
             )
             .unwrap();

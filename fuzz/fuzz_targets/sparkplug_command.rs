@@ -35,6 +35,8 @@ fn node() -> EdgeNode {
         units: 12,
         status: None,
     });
+    // Polled once: a device is born after its first poll.
+    d.polls = 1;
     node.device(&d, Quality::Good, now, now);
     node.will(now);
     node.connected(now);
