@@ -85,6 +85,12 @@ struct Broker {
 
 impl Broker {
     fn start(t: &Tools, dir: &Path, extra: &str) -> Broker {
+        // mosquitto started as root runs as its own user: it must be able to write its
+        // persistence file (the subscriber's session and queued messages) here, or a
+        // restart forgets them and a subscriber that reconnects after the publisher
+        // misses what was published in between.
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o777));
         let port = free_port();
         let conf = dir.join("mosquitto.conf");
         std::fs::write(
