@@ -162,9 +162,13 @@ pub type View<'a> = &'a (dyn Fn(&Concentrator) + Sync);
 /// Opens a line (again, after it failed).
 pub type Opener<'a, T> = &'a (dyn Fn() -> io::Result<T> + Sync);
 
-/// The longest wait before a failed line is opened again (the first is 1 s, each next
-/// one twice the last).
+/// The first wait before a failed line is opened again (each next one twice the last,
+/// up to [`REOPEN_MAX`]). Not shorter: a pseudo-terminal or USB adapter that went away
+/// leaves its path behind for a moment, and a path opened too soon may be a stale one.
 pub const REOPEN_AFTER: Duration = Duration::from_secs(5);
+
+/// The longest wait before a failed line is opened again.
+pub const REOPEN_MAX: Duration = Duration::from_secs(30);
 
 fn lock(c: &std::sync::Mutex<Concentrator>) -> std::sync::MutexGuard<'_, Concentrator> {
     c.lock().unwrap_or_else(|p| p.into_inner())
@@ -172,8 +176,8 @@ fn lock(c: &std::sync::Mutex<Concentrator>) -> std::sync::MutexGuard<'_, Concent
 
 /// The concentrator: polls its sensors on the bus and serves the uplink at the same
 /// time, each on its own thread (a long reply on the uplink does not hold up a poll).
-/// A line that fails is logged and opened again (after 1 s, then up to every
-/// [`REOPEN_AFTER`]): the
+/// A line that fails is logged and opened again (after [`REOPEN_AFTER`], then up to
+/// every [`REOPEN_MAX`]): the
 /// concentrator goes on polling whatever happens to its uplink. Returns only when
 /// both lines have been given up, which never happens; blocks the calling thread.
 pub fn run_concentrator<B: Transport, U: Transport + Send>(
@@ -221,8 +225,8 @@ pub fn run_concentrator<B: Transport, U: Transport + Send>(
 /// adapter plugged back in gets its old name only if nobody holds it), waits, opens it
 /// again and goes on. Never returns. The waits are the project's one reconnect policy
 /// ([`hart_host::reconnect::Backoff`], as the gateway's loops and Modbus RTU slave):
-/// 1 s, doubling up to [`REOPEN_AFTER`], and 1 s again after a line that ran for a
-/// while.
+/// [`REOPEN_AFTER`], doubling up to [`REOPEN_MAX`], and the first again after a line
+/// that ran for a while.
 async fn keep_open<T, Fut>(
     what: &str,
     first: T,
@@ -232,7 +236,7 @@ async fn keep_open<T, Fut>(
 where
     Fut: std::future::Future<Output = io::Result<()>>,
 {
-    let mut backoff = hart_host::reconnect::Backoff::new(Duration::from_secs(1), REOPEN_AFTER);
+    let mut backoff = hart_host::reconnect::Backoff::new(REOPEN_AFTER, REOPEN_MAX);
     let mut line = Some(first);
     loop {
         let l = match line.take() {
