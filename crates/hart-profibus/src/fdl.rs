@@ -477,7 +477,10 @@ mod tests {
             decode(&[SD2, 5, 6, SD2]),
             Err(DecodeError::LengthMismatch { le: 5, ler: 6 })
         );
-        assert_eq!(decode(&[SD2, 3, 3, SD2]), Err(DecodeError::LengthOutOfRange(3)));
+        assert_eq!(
+            decode(&[SD2, 3, 3, SD2]),
+            Err(DecodeError::LengthOutOfRange(3))
+        );
         assert_eq!(decode(&[0x00]), Err(DecodeError::StartDelimiter(0)));
         // DA says a DSAP follows, but there is no data unit.
         let mut t = vec![SD1, 0x85, 0x02, 0x6D];

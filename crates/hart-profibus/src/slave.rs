@@ -573,6 +573,7 @@ impl Slave {
     /// freeze ended.
     fn leave(&mut self, state: DpState) {
         self.state = state;
+        self.last_reply = None;
         self.synced = false;
         self.frozen = None;
         self.held_outputs = None;
@@ -620,7 +621,7 @@ impl Slave {
                 }
             }
         }
-        let reply = self.serve(sa, request, dsap, ssap, &data);
+        let reply = self.serve(now, sa, request, dsap, ssap, &data);
         if let (true, Some(reply)) = (wants_reply, reply) {
             let mut bytes = Vec::new();
             match reply {
@@ -677,6 +678,7 @@ impl Slave {
 
     fn serve(
         &mut self,
+        now: Duration,
         sa: u8,
         request: Request,
         dsap: Option<u8>,
@@ -706,7 +708,7 @@ impl Slave {
                 Some(Reply::Data(Status::DataLow, self.diagnosis(Some(sa))))
             }
             Some(SAP_SET_PRM) => {
-                self.set_prm(sa, data);
+                self.set_prm(now, sa, data);
                 Some(Reply::ShortAck)
             }
             Some(SAP_CHK_CFG) => {
@@ -763,7 +765,7 @@ impl Slave {
         Reply::Data(status, self.current_inputs().to_vec())
     }
 
-    fn set_prm(&mut self, sa: u8, d: &[u8]) {
+    fn set_prm(&mut self, now: Duration, sa: u8, d: &[u8]) {
         if self.state != DpState::WaitPrm && self.master.is_some_and(|m| m != sa) {
             // Locked by another master: refused without changing anything; that
             // master's diagnosis shows Master_Lock.
@@ -780,10 +782,7 @@ impl Slave {
             s.diag_pending = true;
         };
         if d.len() < 7 {
-            fault(
-                self,
-                format!("{} bytes, Set_Prm has at least 7", d.len()),
-            );
+            fault(self, format!("{} bytes, Set_Prm has at least 7", d.len()));
             return;
         }
         let status = d[0];
@@ -830,7 +829,10 @@ impl Slave {
         let watchdog = if status & 0x08 != 0 {
             let (f1, f2) = (u64::from(d[1]), u64::from(d[2]));
             if f1 == 0 || f2 == 0 {
-                fault(self, format!("watchdog factors {f1} × {f2}: both must be 1..=255"));
+                fault(
+                    self,
+                    format!("watchdog factors {f1} × {f2}: both must be 1..=255"),
+                );
                 return;
             }
             Some(Duration::from_millis(10 * f1 * f2))
@@ -841,6 +843,7 @@ impl Slave {
             self.leave(DpState::WaitPrm);
         }
         self.master = Some(sa);
+        self.master_seen = now;
         self.watchdog = watchdog;
         if d[3] != 0 {
             self.min_tsdr_bits = d[3];
