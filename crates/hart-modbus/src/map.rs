@@ -438,17 +438,21 @@ impl RegisterMap {
     }
 }
 
-/// The registers of entry `e` for device `d`.
-fn encode(e: &Entry, d: &DeviceImage, now: Instant, order: FloatOrder) -> Vec<u16> {
+/// The number `value` has for device `d` at `now`, as every front end that publishes
+/// the image's values as numbers gives it (Modbus registers, PROFIBUS input modules):
+/// NaN for a float the device has not given, 250 ("not used") for unknown units, the
+/// quality's code, `u32::MAX` for the age before the first good reply; `None` for an
+/// identity not known yet.
+pub fn number(value: Value, d: &DeviceImage, now: Instant) -> Option<f64> {
     use Value::*;
     let var = |i: usize| d.variables[i];
     let f = |x: Option<f32>| x.unwrap_or(f32::NAN);
     let id = d.info.as_ref().map(|i| i.identity);
-    let number: Option<f64> = match e.value {
+    match value {
         Pv | Sv | Tv | Qv => {
             let i = [Pv, Sv, Tv, Qv]
                 .iter()
-                .position(|v| *v == e.value)
+                .position(|v| *v == value)
                 .unwrap_or(0);
             Some(f64::from(f(var(i).map(|v| v.value))))
         }
@@ -457,7 +461,7 @@ fn encode(e: &Entry, d: &DeviceImage, now: Instant, order: FloatOrder) -> Vec<u1
         PvUnits | SvUnits | TvUnits | QvUnits => {
             let i = [PvUnits, SvUnits, TvUnits, QvUnits]
                 .iter()
-                .position(|v| *v == e.value)
+                .position(|v| *v == value)
                 .unwrap_or(0);
             // 250: "not used" in Common Table 2.
             Some(f64::from(var(i).map_or(250, |v| v.units)))
@@ -478,7 +482,12 @@ fn encode(e: &Entry, d: &DeviceImage, now: Instant, order: FloatOrder) -> Vec<u1
         RangeUnits => Some(f64::from(d.range.map_or(250, |r| r.units))),
         Damping => Some(f64::from(f(d.range.map(|r| r.damping)))),
         FixedCurrent => Some(f64::from(d.fixed_current.unwrap_or(0.0))),
-    };
+    }
+}
+
+/// The registers of entry `e` for device `d`.
+fn encode(e: &Entry, d: &DeviceImage, now: Instant, order: FloatOrder) -> Vec<u16> {
+    let number = number(e.value, d, now);
     match e.format() {
         Format::Float => order
             .split(number.map_or(f32::NAN, |x| x as f32).to_bits())
