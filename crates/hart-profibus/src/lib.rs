@@ -21,6 +21,8 @@
 
 pub mod cfg;
 pub mod fdl;
+#[cfg(feature = "gateway")]
+pub mod map;
 pub mod slave;
 
 pub use cfg::IoLengths;
