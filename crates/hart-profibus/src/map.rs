@@ -511,7 +511,7 @@ mod tests {
         assert_eq!(OUTPUT_LEN, 6);
         assert_eq!(DEVICES_PER_STATION, 8);
         assert_eq!(module_cfg(), [0xDD, 0xA5]);
-        assert!(DEVICES_PER_STATION * INPUT_LEN <= 244);
+        const { assert!(DEVICES_PER_STATION * INPUT_LEN <= 244) };
         assert_eq!(
             cfg::io_lengths(&station_cfg(3)).unwrap(),
             cfg::IoLengths {
