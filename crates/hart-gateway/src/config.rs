@@ -61,6 +61,9 @@ pub struct GatewayConfig {
     pub modbus: hart_modbus::Config,
     /// The Modbus RTU slave's port, if any.
     pub modbus_rtu: Option<hart_modbus::RtuPort>,
+    /// The PROFIBUS DP slave's port and station, if any (an empty path: `--profibus`
+    /// without a port, which only `--print-map` takes).
+    pub profibus: Option<hart_profibus::serve::ProfibusPort>,
     /// The OPC UA server, if any.
     pub opcua: Option<hart_opcua::Config>,
     /// The historian, if any.
@@ -135,6 +138,7 @@ impl GatewayConfig {
             .clone()
             .or(file.modbus.as_ref().and_then(|m| m.bind.clone()));
         let modbus_rtu = rtu_port(file, opts);
+        let profibus = profibus_port(file, opts)?;
         let modbus_cfg = modbus_config(file, opts)?;
         let opcua = opcua_config(file, opts)?;
         let mqtt = mqtt_config(file, opts)?;
@@ -155,11 +159,13 @@ impl GatewayConfig {
         let console = hart_ip.is_none()
             && modbus.is_none()
             && modbus_rtu.is_none()
+            && profibus.is_none()
             && opcua.is_none()
             && mqtt.is_none()
             && history.is_none();
         let poll = modbus.is_some()
             || modbus_rtu.is_some()
+            || profibus.is_some()
             || opcua.is_some()
             || mqtt.is_some()
             || history.is_some()
@@ -199,6 +205,7 @@ impl GatewayConfig {
             modbus_tcp,
             modbus: modbus_cfg,
             modbus_rtu,
+            profibus,
             opcua,
             mqtt,
             history,
@@ -359,6 +366,45 @@ fn rtu_port(file: &GatewayFile, opts: &ServeOptions) -> Option<hart_modbus::RtuP
             .unwrap_or('E'),
         stop_bits: section.and_then(|s| s.stop_bits).unwrap_or(1),
     })
+}
+
+/// The PROFIBUS DP port and station from `--profibus` and `[profibus]`.
+fn profibus_port(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<Option<hart_profibus::serve::ProfibusPort>, Error> {
+    let section = file.profibus.as_ref();
+    let path = match (&opts.profibus, section) {
+        (Some(p), Some(s)) if p.is_empty() => s.port.clone(),
+        (Some(p), _) => p.clone(),
+        (None, Some(s)) => s.port.clone(),
+        (None, None) => {
+            if opts.profibus_address.is_some() || opts.profibus_baud.is_some() {
+                return Err(Error::config(
+                    "--profibus-address and --profibus-baud set up --profibus PORT: give the port too",
+                ));
+            }
+            return Ok(None);
+        }
+    };
+    let port = hart_profibus::serve::ProfibusPort {
+        path,
+        address: opts
+            .profibus_address
+            .or(section.and_then(|s| s.address))
+            .unwrap_or(5),
+        baud: opts
+            .profibus_baud
+            .or(section.and_then(|s| s.baud))
+            .unwrap_or(19_200),
+        ident_number: section
+            .and_then(|s| s.ident_number)
+            .unwrap_or(hart_profibus::serve::DEFAULT_IDENT_NUMBER),
+    };
+    // The number of devices is known only once the loops are up; one station's worth
+    // is checked here, all of them when the front end starts.
+    port.check(1).map_err(Error::config)?;
+    Ok(Some(port))
 }
 
 /// The OPC UA settings from the file's `[opcua]` and the options; `None`: no OPC UA.

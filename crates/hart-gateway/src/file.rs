@@ -27,6 +27,9 @@ pub struct GatewayFile {
     /// The Modbus RTU front end (`[modbus_rtu]`).
     #[serde(default)]
     pub modbus_rtu: Option<RtuSection>,
+    /// The PROFIBUS DP front end (`[profibus]`).
+    #[serde(default)]
+    pub profibus: Option<ProfibusSection>,
     /// The OPC UA front end (`[opcua]`).
     #[serde(default)]
     pub opcua: Option<OpcUaSection>,
@@ -151,6 +154,24 @@ pub struct RtuSection {
     /// Stop bits (default 1; 2 with no parity).
     #[serde(default)]
     pub stop_bits: Option<u8>,
+}
+
+/// `[profibus]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfibusSection {
+    /// Serial port (an RS-485 adapter, or a pseudo-terminal).
+    pub port: String,
+    /// Station address of the first 8 devices (default 5); further devices take the
+    /// next addresses.
+    #[serde(default)]
+    pub address: Option<u8>,
+    /// Bit rate: 9600, 19200 (default), 45450 or 93750.
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// Ident number (default 0x4854, as in the GSD file `--print-gsd` writes).
+    #[serde(default)]
+    pub ident_number: Option<u16>,
 }
 
 impl GatewayFile {

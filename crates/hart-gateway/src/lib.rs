@@ -245,6 +245,44 @@ impl Gateway {
             self.tasks
                 .push(tokio::spawn(hart_modbus::serve_rtu_forever(modbus, port)));
         }
+        if let Some(port) = config.profibus {
+            if port.path.is_empty() {
+                return Err(Error::config(
+                    "--profibus needs a serial port (--profibus /dev/ttyUSB0, or a pseudo-terminal); \
+                     without one it only goes with --print-map",
+                ));
+            }
+            let devices = engine.image().len();
+            port.check(devices).map_err(Error::config)?;
+            let stations = devices
+                .div_ceil(hart_profibus::map::DEVICES_PER_STATION)
+                .max(1);
+            self.started.push(format!(
+                "profibus: {} {} 8E1, DP slave station{} {}{} (ident 0x{:04X}){}",
+                port.path,
+                port.baud,
+                if stations > 1 { "s" } else { "" },
+                port.address,
+                if stations > 1 {
+                    format!("-{}", usize::from(port.address) + stations - 1)
+                } else {
+                    String::new()
+                },
+                port.ident_number,
+                if read_only { " (read only)" } else { "" }
+            ));
+            let access = hart_profibus::serve::Access {
+                read_only,
+                allow: config.allow_commands.clone(),
+                audit: hart_access::Audit::new(config.audit_file.clone()),
+            };
+            self.tasks
+                .push(tokio::spawn(hart_profibus::serve::serve_forever(
+                    engine.clone(),
+                    port,
+                    access,
+                )));
+        }
         if let Some(cfg) = config.opcua {
             let bind = cfg.bind;
             let describe = cfg.describe();
@@ -372,6 +410,17 @@ impl Gateway {
 pub async fn print_map(config: GatewayConfig, json: bool) -> Result<String, Error> {
     let (engine, tasks) = start_engine(&config).await?;
     engine.ready().await;
+    if let Some(port) = &config.profibus {
+        // `--print-map --profibus`: the PROFIBUS modules instead of the Modbus units.
+        for t in tasks {
+            t.abort();
+        }
+        return Ok(
+            hart_profibus::serve::map_text(port.address, &engine.image().snapshot())
+                .trim_end()
+                .to_string(),
+        );
+    }
     let gw = hart_modbus::Gateway::new(engine, config.modbus);
     for t in tasks {
         t.abort();
@@ -382,6 +431,24 @@ pub async fn print_map(config: GatewayConfig, json: bool) -> Result<String, Erro
     } else {
         hart_modbus::map_text(&gw).trim_end().to_string()
     })
+}
+
+/// The GSD file of the gateway's PROFIBUS station (`hartkit serve --print-gsd`), with
+/// the ident number of the configuration file's `[profibus]` (or the default). Needs
+/// no loop: the module is the same for every device.
+pub fn print_gsd(opts: &ServeOptions) -> Result<String, Error> {
+    let file = match &opts.config {
+        Some(p) => GatewayFile::load(p)?,
+        None => GatewayFile::default(),
+    };
+    Ok(hart_profibus::map::gsd(&hart_profibus::map::GsdInfo {
+        ident_number: file
+            .profibus
+            .as_ref()
+            .and_then(|p| p.ident_number)
+            .unwrap_or(hart_profibus::serve::DEFAULT_IDENT_NUMBER),
+        version: env!("CARGO_PKG_VERSION").to_string(),
+    }))
 }
 
 /// Runs the gateway of `config` on a runtime of its own until `until` ends (Ctrl-C,

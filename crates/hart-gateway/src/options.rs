@@ -57,6 +57,13 @@ pub struct ServeOptions {
     pub modbus_baud: Option<u32>,
     /// `--modbus-parity`.
     pub modbus_parity: Option<char>,
+    /// `--profibus [PORT]`: be a PROFIBUS DP slave on this serial port (an empty
+    /// string: the flag without a port, for `--print-map --profibus`).
+    pub profibus: Option<String>,
+    /// `--profibus-address N`: the first station address.
+    pub profibus_address: Option<u8>,
+    /// `--profibus-baud`.
+    pub profibus_baud: Option<u32>,
     /// `--float-order`.
     pub float_order: Option<FloatOrder>,
     /// `--opcua ADDR[:PORT]`.

@@ -872,12 +872,12 @@ impl RtuPort {
     }
 }
 
-/// What the RTU port's reader hands over: bytes and when they were read, or the
-/// port's failure.
-type Read = std::io::Result<(Vec<u8>, Instant)>;
+/// What a serial port's reader ([`read_port`]) hands over: bytes and when they were
+/// read, or the port's failure.
+pub type Read = std::io::Result<(Vec<u8>, Instant)>;
 
-/// Aborts a task when dropped.
-struct AbortOnDrop(tokio::task::AbortHandle);
+/// Aborts a task when dropped (a port's reader, when its serving loop ends).
+pub struct AbortOnDrop(pub tokio::task::AbortHandle);
 
 impl Drop for AbortOnDrop {
     fn drop(&mut self) {
@@ -978,8 +978,9 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
 }
 
 /// Reads `port` as bytes come, each read with the time it returned, until the port
-/// fails or hangs up (sent as an error) or the receiver is gone.
-async fn read_port(port: hart_serial::Port, tx: tokio::sync::mpsc::UnboundedSender<Read>) {
+/// fails or hangs up (sent as an error) or the receiver is gone. Shared by the serial
+/// front ends (Modbus RTU, PROFIBUS DP).
+pub async fn read_port(port: hart_serial::Port, tx: tokio::sync::mpsc::UnboundedSender<Read>) {
     use std::io::{Error, ErrorKind};
     let path = port.path().display().to_string();
     // SAFETY: the port owns its descriptor; it stays open and refers to the same port
@@ -1029,7 +1030,7 @@ async fn read_port(port: hart_serial::Port, tx: tokio::sync::mpsc::UnboundedSend
 }
 
 /// Writes `bytes` to `port`, waiting while its buffer is full (at most a second).
-async fn write_port(port: &hart_serial::Port, bytes: &[u8]) -> std::io::Result<()> {
+pub async fn write_port(port: &hart_serial::Port, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::ErrorKind;
     let give_up = Instant::now() + std::time::Duration::from_secs(1);
     let mut rest = bytes;

@@ -23,6 +23,8 @@ pub mod cfg;
 pub mod fdl;
 #[cfg(feature = "gateway")]
 pub mod map;
+#[cfg(feature = "gateway")]
+pub mod serve;
 pub mod slave;
 
 pub use cfg::IoLengths;

@@ -34,12 +34,19 @@ pub(crate) fn init_log() {
 pub struct RunMode {
     /// `--print-map`: print the Modbus map (JSON with `--json`) and exit.
     pub print_map: bool,
+    /// `--print-gsd`: print the PROFIBUS station's GSD file and exit.
+    pub print_gsd: bool,
     /// `--run-for` seconds; until Ctrl-C when `None`.
     pub run_for: Option<f64>,
 }
 
 /// Runs `hartkit serve` until interrupted (or `--run-for`).
 pub fn run(opts: ServeOptions, mode: RunMode) -> Result<String, Failure> {
+    if mode.print_gsd {
+        return hart_gateway::print_gsd(&opts)
+            .map(|g| g.trim_end().to_string())
+            .map_err(failure);
+    }
     let config = hart_gateway::GatewayConfig::from_options(&opts).map_err(failure)?;
     if mode.print_map {
         let rt = tokio::runtime::Builder::new_current_thread()

@@ -1248,6 +1248,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
             a.options(),
             hartkit::gateway::RunMode {
                 print_map: a.print_map,
+                print_gsd: a.print_gsd,
                 run_for: a.run_for,
             },
         ),
@@ -1672,7 +1673,7 @@ fn main() -> ExitCode {
 #[derive(Args)]
 struct ServeCli {
     /// Gateway configuration file (TOML: [poll], [[loop]], [hart_ip], [modbus],
-    /// [modbus_rtu], [opcua], [history], [mqtt], [[device_commands]]; see
+    /// [modbus_rtu], [profibus], [opcua], [history], [mqtt], [[device_commands]]; see
     /// docs/gateway.md).
     /// Options given here add to it.
     #[arg(long, value_name = "FILE")]
@@ -1699,6 +1700,18 @@ struct ServeCli {
     /// Parity of --modbus-rtu: N, E (default) or O.
     #[arg(long, value_name = "N|E|O")]
     modbus_parity: Option<char>,
+    /// Be a PROFIBUS DP slave on this serial port (8E1): each device is a module of
+    /// 28 input and 6 output bytes, 8 devices per station (docs/profibus.md). Without a
+    /// port, only with --print-map (the PROFIBUS map instead of the Modbus one).
+    #[arg(long, value_name = "PORT", num_args = 0..=1, default_missing_value = "")]
+    profibus: Option<String>,
+    /// Station address of --profibus (default 5); devices beyond the 8th take the next
+    /// addresses.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(0..=125))]
+    profibus_address: Option<u8>,
+    /// Bit rate of --profibus: 9600, 19200 (default), 45450 or 93750.
+    #[arg(long, value_name = "BAUD")]
+    profibus_baud: Option<u32>,
     /// Order of the bytes of Modbus floats and 32-bit integers: abcd (high word first,
     /// the default), cdab (low word first), badc, dcba.
     #[arg(long, value_name = "ORDER")]
@@ -1746,9 +1759,14 @@ struct ServeCli {
     /// docs/mqtt.md).
     #[arg(long, value_name = "0|1", value_parser = clap::value_parser!(u8).range(0..=1))]
     mqtt_qos: Option<u8>,
-    /// Print the Modbus map (units and registers) once the devices are found, and exit.
+    /// Print the Modbus map (units and registers) once the devices are found, and exit
+    /// (with --profibus: the PROFIBUS stations and modules).
     #[arg(long)]
     print_map: bool,
+    /// Print the GSD file of the PROFIBUS station (for the PLC's engineering tool) and
+    /// exit.
+    #[arg(long)]
+    print_gsd: bool,
     /// JSON output (--print-map, and the terminal view).
     #[arg(long)]
     json: bool,
@@ -1853,6 +1871,9 @@ impl ServeCli {
             modbus_rtu: self.modbus_rtu.clone(),
             modbus_baud: self.modbus_baud,
             modbus_parity: self.modbus_parity,
+            profibus: self.profibus.clone(),
+            profibus_address: self.profibus_address,
+            profibus_baud: self.profibus_baud,
             float_order: self.float_order,
             opcua: self.opcua.clone(),
             opcua_security: self.opcua_security.clone(),

@@ -1,0 +1,433 @@
+//! The gateway's PROFIBUS DP front end: the polling engine's devices as modules of one
+//! or more DP slave stations on a serial line (RS-485 adapter or pseudo-terminal),
+//! 8E1 at the line's bit rate, set up by `hart-serial`.
+//!
+//! [`Front`] is the part without I/O: stations, their inputs from the image, their
+//! outputs turned into writes. [`serve`] reads and writes the port around it.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use hart_poller::{Engine, WriteFailure, WriteOp};
+
+use crate::map::{self, Outputs, WriteResult, WriteState, DEVICES_PER_STATION, OUTPUT_LEN};
+use crate::{Event, Slave, SlaveConfig};
+
+/// The default ident number of the gateway's stations (not assigned by PROFIBUS
+/// International: "HT").
+pub const DEFAULT_IDENT_NUMBER: u16 = 0x4854;
+
+/// Serial settings and station of the PROFIBUS front end.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ProfibusPort {
+    /// Device path (`/dev/ttyUSB0`, a pseudo-terminal).
+    pub path: String,
+    /// Station address of the first 8 devices; further devices take the next
+    /// addresses.
+    pub address: u8,
+    /// Bit rate: 9600, 19200, 45450 or 93750.
+    pub baud: u32,
+    /// Ident number (the GSD's).
+    pub ident_number: u16,
+}
+
+impl ProfibusPort {
+    /// Checks the settings: a rate the slave supports, addresses in 0..=125 for
+    /// `devices` devices.
+    pub fn check(&self, devices: usize) -> Result<(), String> {
+        if crate::max_tsdr_bits(self.baud).is_none() {
+            return Err(format!(
+                "--profibus-baud {}: give 9600, 19200, 45450 or 93750",
+                self.baud
+            ));
+        }
+        let stations = devices.div_ceil(DEVICES_PER_STATION).max(1);
+        let last = usize::from(self.address) + stations - 1;
+        if last > 125 {
+            return Err(format!(
+                "--profibus-address {}: {devices} devices need {stations} stations, up to address {last}, but DP slaves end at 125",
+                self.address
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Who may write through the output modules.
+#[derive(Debug, Clone, Default)]
+pub struct Access {
+    /// Refuse every write (`--read-only`).
+    pub read_only: bool,
+    /// Only these HART commands (`--allow-commands`).
+    pub allow: Option<hart_access::CommandAllowList>,
+    /// Where writes let through are recorded.
+    pub audit: hart_access::Audit,
+}
+
+/// A write an output module asks for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriteRequest {
+    /// The device's position in the image.
+    pub position: usize,
+    /// The write counter that asked.
+    pub counter: u8,
+    /// What to write.
+    pub op: WriteOp,
+    /// The master that wrote the output image.
+    pub master: Option<u8>,
+}
+
+struct Station {
+    slave: Slave,
+    first: usize,
+    count: usize,
+}
+
+/// The stations of the front end, without I/O: feed it the line's bytes, the image,
+/// and the results of writes.
+pub struct Front {
+    stations: Vec<Station>,
+    start: Instant,
+    /// Per device: the write counter last seen (`None` before the first output image).
+    counters: Vec<Option<u8>>,
+    writes: Arc<Mutex<Vec<WriteState>>>,
+}
+
+impl Front {
+    /// Stations for `devices` devices from `port.address` on; `start` is time zero.
+    pub fn new(port: &ProfibusPort, devices: usize, start: Instant) -> Result<Front, String> {
+        port.check(devices)?;
+        let max_tsdr = crate::max_tsdr_bits(port.baud).unwrap_or(60);
+        let stations = devices.div_ceil(DEVICES_PER_STATION).max(1);
+        let mut out = vec![];
+        for s in 0..stations {
+            let first = s * DEVICES_PER_STATION;
+            let count = devices.saturating_sub(first).min(DEVICES_PER_STATION);
+            let slave = Slave::new(SlaveConfig {
+                address: port.address + s as u8,
+                ident_number: port.ident_number,
+                cfg: map::station_cfg(count),
+                baud: port.baud,
+                max_tsdr_bits: max_tsdr,
+                user_prm_len: 0,
+            })
+            .map_err(|e| e.to_string())?;
+            out.push(Station {
+                slave,
+                first,
+                count,
+            });
+        }
+        Ok(Front {
+            stations: out,
+            start,
+            counters: vec![None; devices],
+            writes: Arc::new(Mutex::new(vec![WriteState::default(); devices])),
+        })
+    }
+
+    /// The write states, shared with the tasks that carry writes out.
+    pub fn write_states(&self) -> Arc<Mutex<Vec<WriteState>>> {
+        self.writes.clone()
+    }
+
+    /// The slaves, first station first.
+    pub fn slaves(&self) -> impl Iterator<Item = &Slave> {
+        self.stations.iter().map(|s| &s.slave)
+    }
+
+    fn t(&self, at: Instant) -> Duration {
+        at.saturating_duration_since(self.start)
+    }
+
+    /// Takes bytes read at `at`.
+    pub fn receive(&mut self, at: Instant, bytes: &[u8]) {
+        let t = self.t(at);
+        for s in &mut self.stations {
+            s.slave.receive(t, bytes);
+        }
+    }
+
+    /// When a station next needs [`Front::poll`].
+    pub fn deadline(&self) -> Option<Instant> {
+        self.stations
+            .iter()
+            .filter_map(|s| s.slave.deadline())
+            .min()
+            .map(|d| self.start + d)
+    }
+
+    /// Runs the stations' timers at `now`: the bytes to send now (at most one reply
+    /// is due at a time on a bus), the writes the outputs ask for, and what to log.
+    pub fn poll(&mut self, now: Instant) -> (Option<Vec<u8>>, Vec<WriteRequest>, Vec<String>) {
+        let t = self.t(now);
+        let mut reply = None;
+        let mut writes = vec![];
+        let mut log = vec![];
+        for i in 0..self.stations.len() {
+            if let Some(r) = self.stations[i].slave.poll_transmit(t) {
+                reply = Some(r);
+            }
+            let events = self.stations[i].slave.take_events();
+            let address = self.stations[i].slave.config().address;
+            for e in events {
+                if e == Event::Outputs {
+                    writes.extend(self.outputs(i));
+                } else {
+                    log.push(format!("station {address}: {e}"));
+                }
+            }
+        }
+        (reply, writes, log)
+    }
+
+    /// The writes station `i`'s new outputs ask for: a module whose counter changed
+    /// to a value other than 0. The first output image after the start only sets what
+    /// "changed" means.
+    fn outputs(&mut self, i: usize) -> Vec<WriteRequest> {
+        let s = &self.stations[i];
+        let master = s.slave.master();
+        let bytes = s.slave.outputs().to_vec();
+        let mut out = vec![];
+        for slot in 0..s.count {
+            let position = s.first + slot;
+            let Some(module) = bytes.get(slot * OUTPUT_LEN..(slot + 1) * OUTPUT_LEN) else {
+                continue;
+            };
+            let Outputs {
+                counter,
+                fixed_current,
+            } = map::decode_outputs(module);
+            let last = self.counters[position].replace(counter);
+            if counter == 0 || last.is_none_or(|l| l == counter) {
+                continue;
+            }
+            out.push(WriteRequest {
+                position,
+                counter,
+                op: WriteOp::FixedCurrent(fixed_current),
+                master,
+            });
+        }
+        out
+    }
+
+    /// Sets every station's inputs and device diagnosis from the image at `now`.
+    pub fn refresh(&mut self, image: &[hart_poller::DeviceImage], now: Instant) {
+        let writes = self.writes.lock().map(|w| w.clone()).unwrap_or_default();
+        for s in &mut self.stations {
+            let mut inputs = Vec::with_capacity(s.count * map::INPUT_LEN);
+            let mut diag = vec![0u8; s.count.div_ceil(8)];
+            for slot in 0..s.count {
+                let position = s.first + slot;
+                let module = match image.get(position) {
+                    Some(d) => {
+                        if d.quality(now) == hart_poller::Quality::NoReply {
+                            diag[slot / 8] |= 1 << (slot % 8);
+                        }
+                        map::encode_inputs(
+                            d,
+                            now,
+                            writes.get(position).copied().unwrap_or_default(),
+                        )
+                    }
+                    None => {
+                        diag[slot / 8] |= 1 << (slot % 8);
+                        map::absent_inputs()
+                    }
+                };
+                inputs.extend_from_slice(&module);
+            }
+            s.slave.set_inputs(&inputs);
+            s.slave.set_unit_diag(&diag);
+        }
+    }
+}
+
+/// The result code a write's outcome shows in the input module.
+pub fn result_of(r: &Result<(), WriteFailure>) -> WriteResult {
+    match r {
+        Ok(()) => WriteResult::Done,
+        Err(WriteFailure::Invalid(_)) => WriteResult::Invalid,
+        Err(WriteFailure::NotReadYet(_)) | Err(WriteFailure::Link(_)) => WriteResult::NoReply,
+        Err(WriteFailure::Refused { .. }) => WriteResult::DeviceRefused,
+    }
+}
+
+/// Carries out `w` through the engine's write path (allow-list, read only, audit) and
+/// records its result for the input module.
+pub async fn carry_out(
+    engine: Engine,
+    access: Arc<Access>,
+    states: Arc<Mutex<Vec<WriteState>>>,
+    path: String,
+    w: WriteRequest,
+) {
+    let set = |result| {
+        if let Ok(mut s) = states.lock() {
+            if let Some(x) = s.get_mut(w.position) {
+                *x = WriteState {
+                    counter: w.counter,
+                    result,
+                };
+            }
+        }
+    };
+    let refused = if access.read_only {
+        Some("the gateway is read only (--read-only)".to_string())
+    } else if access
+        .allow
+        .as_ref()
+        .is_some_and(|a| !a.allows(w.op.command()))
+    {
+        Some(format!(
+            "command {} is not on the gateway's allow-list (--allow-commands)",
+            w.op.command()
+        ))
+    } else {
+        None
+    };
+    if let Some(why) = refused {
+        tracing::warn!(
+            "profibus: refused a write to device {} ({}): {why}",
+            w.position,
+            w.op.describe()
+        );
+        set(WriteResult::Refused);
+        return;
+    }
+    set(WriteResult::Busy);
+    let origin = hart_poller::Origin {
+        audit: &access.audit,
+        record: hart_access::WriteRecord {
+            front_end: "profibus",
+            peer: match w.master {
+                Some(m) => format!("master {m} on {path}"),
+                None => format!("serial {path}"),
+            },
+            via: format!(
+                "output module {} (write counter {})",
+                w.position % DEVICES_PER_STATION + 1,
+                w.counter
+            ),
+            ..Default::default()
+        },
+    };
+    let r = engine.apply(w.position, &w.op, &origin).await.map(|_| ());
+    if let Err(e) = &r {
+        tracing::warn!(
+            "profibus: write to device {} ({}) not done: {e}",
+            w.position,
+            w.op.describe()
+        );
+    }
+    set(result_of(&r));
+}
+
+/// How often the inputs are refreshed from the image.
+pub const REFRESH: Duration = Duration::from_millis(100);
+
+/// Serves PROFIBUS DP on `port` for as long as the gateway runs, opening the port
+/// again (after 2 s, doubling to 30 s) when it fails.
+pub async fn serve_forever(engine: Engine, port: ProfibusPort, access: Access) {
+    let mut backoff =
+        hart_host::reconnect::Backoff::new(Duration::from_secs(2), Duration::from_secs(30));
+    let access = Arc::new(access);
+    loop {
+        let started = Instant::now();
+        let task = tokio::spawn(serve(engine.clone(), port.clone(), access.clone()));
+        let outcome = task.await;
+        if started.elapsed() > Duration::from_secs(60) {
+            backoff.reset();
+        }
+        match outcome {
+            Ok(Ok(())) => tracing::warn!("profibus: {} closed", port.path),
+            Ok(Err(e)) => tracing::error!("profibus: {e}"),
+            Err(e) if e.is_panic() => {
+                tracing::error!("profibus: {}: the slave failed (a bug)", port.path)
+            }
+            Err(_) => return,
+        }
+        let wait = backoff.failed(Instant::now());
+        tracing::info!(
+            "profibus: opening {} again in {} s",
+            port.path,
+            wait.as_secs()
+        );
+        tokio::time::sleep(wait).await;
+    }
+}
+
+/// The line of `port`: 8E1 at its rate.
+pub fn line(port: &ProfibusPort) -> hart_serial::Line {
+    hart_serial::Line::even(port.baud)
+}
+
+/// Opens `port` and serves until it fails (an error that says how).
+pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> std::io::Result<()> {
+    let devices = engine.image().len();
+    let mut front = Front::new(&port, devices, Instant::now()).map_err(std::io::Error::other)?;
+    let serial = hart_serial::Port::open(
+        std::path::Path::new(&port.path),
+        &line(&port),
+        hart_serial::OpenOptions {
+            exclusive: true,
+            mark_errors: false,
+        },
+    )
+    .map_err(|e| std::io::Error::new(e.kind(), format!("--profibus {}: {e}", port.path)))?;
+    let writer = serial.try_clone()?;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let _reader =
+        hart_modbus::AbortOnDrop(tokio::spawn(hart_modbus::read_port(serial, tx)).abort_handle());
+    let states = front.write_states();
+    let mut next_refresh = Instant::now();
+    loop {
+        let now = Instant::now();
+        if now >= next_refresh {
+            let clock_now = engine.clock().now();
+            front.refresh(&engine.image().snapshot(), clock_now);
+            next_refresh = now + REFRESH;
+        }
+        let (reply, writes, log) = front.poll(Instant::now());
+        if let Some(reply) = reply {
+            hart_modbus::write_port(&writer, &reply).await?;
+        }
+        for line in log {
+            tracing::info!("profibus: {line}");
+        }
+        for w in writes {
+            tokio::spawn(carry_out(
+                engine.clone(),
+                access.clone(),
+                states.clone(),
+                port.path.clone(),
+                w,
+            ));
+        }
+        let wake = front
+            .deadline()
+            .map_or(next_refresh, |d| d.min(next_refresh));
+        tokio::select! {
+            biased;
+            r = rx.recv() => {
+                let Some(r) = r else {
+                    return Err(std::io::Error::other("the port's reader stopped"));
+                };
+                let (bytes, at) = r?;
+                front.receive(at, &bytes);
+                while let Ok(r) = rx.try_recv() {
+                    let (bytes, at) = r?;
+                    front.receive(at, &bytes);
+                }
+            }
+            _ = tokio::time::sleep_until(tokio::time::Instant::from_std(wake)) => {}
+        }
+    }
+}
+
+/// The map as text for the devices of `image` from station `address` on.
+pub fn map_text(address: u8, image: &[hart_poller::DeviceImage]) -> String {
+    let names: Vec<String> = image.iter().map(|d| d.display_name()).collect();
+    map::map_text(address, &names)
+}
