@@ -252,22 +252,12 @@ impl Gateway {
                      without one it only goes with --print-map",
                 ));
             }
-            let devices = engine.image().len();
-            port.check(devices).map_err(Error::config)?;
-            let stations = devices
-                .div_ceil(hart_profibus::map::DEVICES_PER_STATION)
-                .max(1);
             self.started.push(format!(
-                "profibus: {} {} 8E1, DP slave station{} {}{} (ident 0x{:04X}){}",
+                "profibus: {} {} 8E1, DP slave station {} and on ({} devices each, ident 0x{:04X}){}",
                 port.path,
                 port.baud,
-                if stations > 1 { "s" } else { "" },
                 port.address,
-                if stations > 1 {
-                    format!("-{}", usize::from(port.address) + stations - 1)
-                } else {
-                    String::new()
-                },
+                hart_profibus::map::DEVICES_PER_STATION,
                 port.ident_number,
                 if read_only { " (read only)" } else { "" }
             ));

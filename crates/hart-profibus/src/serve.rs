@@ -81,6 +81,9 @@ struct Station {
     slave: Slave,
     first: usize,
     count: usize,
+    /// Set when data exchange begins: the Data_Exchange count then. The first output
+    /// image after it sets the write counters' baseline without writing.
+    baseline_after: Option<u64>,
 }
 
 /// The stations of the front end, without I/O: feed it the line's bytes, the image,
@@ -116,6 +119,7 @@ impl Front {
                 slave,
                 first,
                 count,
+                baseline_after: None,
             });
         }
         Ok(Front {
@@ -171,10 +175,30 @@ impl Front {
             let events = self.stations[i].slave.take_events();
             let address = self.stations[i].slave.config().address;
             for e in events {
-                if e == Event::Outputs {
-                    writes.extend(self.outputs(i));
-                } else {
-                    log.push(format!("station {address}: {e}"));
+                match e {
+                    Event::Outputs => writes.extend(self.outputs(i)),
+                    Event::Configured { .. } => {
+                        let s = &mut self.stations[i];
+                        s.baseline_after = Some(s.slave.stats().data_exchanges);
+                        log.push(format!("station {address}: {e}"));
+                    }
+                    e => log.push(format!("station {address}: {e}")),
+                }
+            }
+            // The first output image of a data exchange (the master's after it
+            // configured the station, or after a restart of either): what it holds is
+            // not a request, whatever its counters.
+            let s = &mut self.stations[i];
+            if s.baseline_after
+                .is_some_and(|n| s.slave.stats().data_exchanges > n)
+            {
+                s.baseline_after = None;
+                let (first, count) = (s.first, s.count);
+                let bytes = s.slave.outputs().to_vec();
+                for slot in 0..count {
+                    let module = bytes.get(slot * OUTPUT_LEN..(slot + 1) * OUTPUT_LEN);
+                    self.counters[first + slot] =
+                        Some(module.map_or(0, |m| map::decode_outputs(m).counter));
                 }
             }
         }
@@ -182,10 +206,13 @@ impl Front {
     }
 
     /// The writes station `i`'s new outputs ask for: a module whose counter changed
-    /// to a value other than 0. The first output image after the start only sets what
-    /// "changed" means.
+    /// to a value other than 0. The first output image of a data exchange only sets
+    /// what "changed" means.
     fn outputs(&mut self, i: usize) -> Vec<WriteRequest> {
         let s = &self.stations[i];
+        if s.baseline_after.is_some() {
+            return vec![];
+        }
         let master = s.slave.master();
         let bytes = s.slave.outputs().to_vec();
         let mut out = vec![];
@@ -365,6 +392,9 @@ pub fn line(port: &ProfibusPort) -> hart_serial::Line {
 
 /// Opens `port` and serves until it fails (an error that says how).
 pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> std::io::Result<()> {
+    // The stations' modules are the devices the loops list once they are ready (the
+    // configured ones and those the first scan found).
+    engine.ready().await;
     let devices = engine.image().len();
     let mut front = Front::new(&port, devices, Instant::now()).map_err(std::io::Error::other)?;
     let serial = hart_serial::Port::open(

@@ -226,6 +226,8 @@ pub struct Stats {
     pub superseded: u64,
     /// Watchdog expiries.
     pub watchdog: u64,
+    /// Data_Exchange requests taken (outputs in, inputs out; repeats not counted).
+    pub data_exchanges: u64,
 }
 
 #[derive(Debug, Clone)]
@@ -744,6 +746,7 @@ impl Slave {
         if data.len() != self.io.outputs {
             return Reply::Status(Status::SapNotActivated);
         }
+        self.stats.data_exchanges += 1;
         if self.synced {
             self.held_outputs = Some(data.to_vec());
         } else if data != self.outputs.as_slice() {
