@@ -571,6 +571,6 @@ mod tests {
         });
         assert!(g.contains("Ident_Number=0x4854"));
         assert!(g.contains("Module=\"HART device 28 in/6 out\" 0xDD,0xA5"));
-        assert!(g.contains("MaxTsdr_45.45=250"));
+        assert!(g.contains("MaxTsdr_45.45=450"));
     }
 }

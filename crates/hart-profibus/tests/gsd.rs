@@ -35,7 +35,7 @@ fn gsd_parser_reads_the_generated_gsd() {
             g.max_tsdr.b45450,
             g.max_tsdr.b93750
         ),
-        (60, 60, 250, 60)
+        (100, 200, 450, 1000)
     );
     assert_eq!(g.available_modules.len(), 1);
     assert_eq!(g.available_modules[0].config, module_cfg());

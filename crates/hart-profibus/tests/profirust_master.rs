@@ -53,7 +53,10 @@ impl SlaveOnBus {
             slave.receive(micros(now), buf);
             if !buf.is_empty() {
                 match log.last_mut() {
-                    Some((_, "rx", b)) => b.extend_from_slice(buf),
+                    Some((t, "rx", b)) => {
+                        b.extend_from_slice(buf);
+                        *t = now.total_micros();
+                    }
                     _ => log.push((now.total_micros(), "rx", buf.to_vec())),
                 }
             }
@@ -339,4 +342,64 @@ fn a_wrong_ident_number_is_a_parameter_fault() {
         .events
         .iter()
         .any(|e| matches!(e, Event::ParameterFault { reason, .. } if reason.contains("0x1234"))));
+}
+
+/// The DP cycle on the simulated bus with the demo plant's station (4 modules: 112
+/// input bytes, 24 output bytes) against the line's minimum for the same telegrams,
+/// and our station delay as profirust's master sees it. Printed for
+/// docs/benchmarks.md (`cargo test -p hart-profibus --test profirust_master cycle --
+/// --nocapture`).
+#[test]
+fn cycle_time_against_the_line_minimum() {
+    static DEMO: [u8; 8] = [0xDD, 0xA5, 0xDD, 0xA5, 0xDD, 0xA5, 0xDD, 0xA5];
+    for (baud, rate) in [
+        (profirust::Baudrate::B19200, 19_200u32),
+        (profirust::Baudrate::B93750, 93_750),
+    ] {
+        let mut rig = Rig::new(baud, rate, (&DEMO, IDENT));
+        rig.slave.slave = Slave::new(SlaveConfig {
+            address: SLAVE,
+            ident_number: IDENT,
+            cfg: DEMO.to_vec(),
+            baud: rate,
+            max_tsdr_bits: 60,
+            user_prm_len: 0,
+        })
+        .unwrap();
+        let handle = rig.handle;
+        assert!(rig.run_until(10_000, |r| r.dp.get_mut(handle).is_running()));
+        rig.run(2_000, true);
+        let before = rig.slave.slave.stats().data_exchanges;
+        let (t0, log0) = (rig.now, rig.slave.log.len());
+        rig.run(10_000, true);
+        let cycles = rig.slave.slave.stats().data_exchanges - before;
+        let cycle_ms = (rig.now - t0).total_micros() as f64 / 1000.0 / cycles as f64;
+        // Minimum: request SD2 with 24 output bytes (33 characters), reply SD2 with 112
+        // input bytes (121 characters), 11 bits each; min TSDR 11 bits; the master's
+        // idle TSYN of 33 bits before its request.
+        let bits = (33 + 121) * 11 + 11 + 33;
+        let min_ms = f64::from(bits) * 1000.0 / f64::from(rate);
+        // Station delay: from the end of a request to the first byte of our reply
+        // (time steps of 100 µs), as logged on the slave's side.
+        let mut tsdr = vec![];
+        for w in rig.slave.log[log0..].windows(2) {
+            if let [(t_rx, "rx", req), (t_tx, "tx", _)] = w {
+                // t_rx: the step in which the request was whole.
+                if req.len() > 6 {
+                    tsdr.push((t_tx - t_rx) as f64);
+                }
+            }
+        }
+        tsdr.sort_by(f64::total_cmp);
+        let bit_us = 1e6 / f64::from(rate);
+        println!(
+            "{rate} bit/s: {cycles} cycles, {cycle_ms:.2} ms per DP cycle (line minimum {min_ms:.2} ms, {:.0} %); \
+             TSDR median {:.0} µs = {:.1} bit times (min TSDR 11 = {:.0} µs)",
+            100.0 * cycle_ms / min_ms,
+            tsdr[tsdr.len() / 2],
+            tsdr[tsdr.len() / 2] / bit_us,
+            11.0 * bit_us
+        );
+        assert!(cycle_ms < 2.0 * min_ms, "{cycle_ms} ms against {min_ms} ms");
+    }
 }
