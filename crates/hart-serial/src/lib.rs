@@ -97,6 +97,16 @@ pub const BAUD_RATES: [u32; 10] = [
     300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
 ];
 
+/// Bit rates outside the termios table that a port is set to by its exact value
+/// (Linux's `termios2` with `BOTHER`): PROFIBUS's 45.45 and 93.75 kbit/s. The UART
+/// (or USB adapter) picks its nearest divisor; an FTDI chip makes 93 750 exactly and
+/// 45 455 (0.01 % off).
+#[cfg(target_os = "linux")]
+pub const CUSTOM_BAUD_RATES: [u32; 2] = [45_450, 93_750];
+/// Bit rates outside the termios table (none on this system).
+#[cfg(not(target_os = "linux"))]
+pub const CUSTOM_BAUD_RATES: [u32; 0] = [];
+
 fn baud_rate(baud: u32) -> io::Result<BaudRate> {
     Ok(match baud {
         300 => BaudRate::B300,
@@ -112,7 +122,9 @@ fn baud_rate(baud: u32) -> io::Result<BaudRate> {
         _ => {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
-                format!("baud rate {baud} not supported (give one of {BAUD_RATES:?})"),
+                format!(
+                    "baud rate {baud} not supported (give one of {BAUD_RATES:?} or {CUSTOM_BAUD_RATES:?})"
+                ),
             ))
         }
     })
@@ -232,8 +244,16 @@ impl Port {
         let what = |call: &str| format!("{call} on {}", self.path.display());
         let mut t = tcgetattr(&self.fd).map_err(|e| errno(what("tcgetattr"), e))?;
         cfmakeraw(&mut t);
+        let custom = line
+            .map(|l| l.baud)
+            .filter(|b| CUSTOM_BAUD_RATES.contains(b));
         if let Some(line) = line {
-            cfsetspeed(&mut t, baud_rate(line.baud)?).map_err(|e| errno(what("cfsetspeed"), e))?;
+            // A custom rate is set after the rest (below); 38400 until then.
+            let rate = match custom {
+                Some(_) => BaudRate::B38400,
+                None => baud_rate(line.baud)?,
+            };
+            cfsetspeed(&mut t, rate).map_err(|e| errno(what("cfsetspeed"), e))?;
             t.control_flags &= !(ControlFlags::CSIZE
                 | ControlFlags::CSTOPB
                 | ControlFlags::PARENB
@@ -266,21 +286,87 @@ impl Port {
             t.input_flags &= !InputFlags::INPCK;
             tcsetattr(&self.fd, SetArg::TCSANOW, &t).map_err(|e| errno(what("tcsetattr"), e))?;
         }
+        if let Some(baud) = custom {
+            self.set_custom_speed(baud)?;
+        }
         // tcsetattr succeeds when any of the settings took: see what the port has.
         let now = tcgetattr(&self.fd).map_err(|e| errno(what("tcgetattr"), e))?;
         Ok(now.input_flags.contains(InputFlags::PARMRK))
+    }
+
+    /// Sets a rate outside the termios table by its value (`termios2`, `BOTHER`).
+    #[cfg(target_os = "linux")]
+    fn set_custom_speed(&self, baud: u32) -> io::Result<()> {
+        let mut t = self.termios2()?;
+        t.c_cflag &= !libc::CBAUD;
+        t.c_cflag |= libc::BOTHER;
+        t.c_ispeed = baud;
+        t.c_ospeed = baud;
+        nix::ioctl_write_ptr_bad!(tcsets2, libc::TCSETS2, libc::termios2);
+        // SAFETY: TCSETS2 reads a termios2 from the pointer, which is valid.
+        unsafe { tcsets2(self.fd.as_raw_fd(), &t) }.map_err(|e| {
+            errno(
+                format!(
+                    "setting {baud} bit/s on {} (the driver may not take custom rates)",
+                    self.path.display()
+                ),
+                e,
+            )
+        })?;
+        let now = self.termios2()?.c_ospeed;
+        if now != baud {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!(
+                    "{} runs at {now} bit/s when asked for {baud}: its driver cannot make that rate",
+                    self.path.display()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    fn set_custom_speed(&self, baud: u32) -> io::Result<()> {
+        baud_rate(baud).map(|_| ())
+    }
+
+    #[cfg(target_os = "linux")]
+    fn termios2(&self) -> io::Result<libc::termios2> {
+        nix::ioctl_read_bad!(tcgets2, libc::TCGETS2, libc::termios2);
+        // SAFETY: all-zero bytes are a valid termios2 (integers and a byte array).
+        let mut t: libc::termios2 = unsafe { std::mem::zeroed() };
+        // SAFETY: TCGETS2 writes a termios2 to the pointer, which is valid.
+        unsafe { tcgets2(self.fd.as_raw_fd(), &mut t) }
+            .map_err(|e| errno(format!("TCGETS2 on {}", self.path.display()), e))?;
+        Ok(t)
     }
 
     /// The speed and framing the port has now (what the driver took).
     pub fn line(&self) -> io::Result<Line> {
         let t = tcgetattr(&self.fd)
             .map_err(|e| errno(format!("tcgetattr on {}", self.path.display()), e))?;
-        let speed = nix::sys::termios::cfgetospeed(&t);
-        let baud = BAUD_RATES
-            .iter()
-            .copied()
-            .find(|&b| baud_rate(b).is_ok_and(|r| r == speed))
-            .unwrap_or(0);
+        // A rate set by value (BOTHER) is none of nix's BaudRate values: read it from
+        // termios2 (nix's cfgetospeed would fail on it).
+        #[cfg(target_os = "linux")]
+        let custom = self
+            .termios2()
+            .ok()
+            .filter(|t2| t2.c_cflag & libc::CBAUD == libc::BOTHER)
+            .map(|t2| t2.c_ospeed);
+        #[cfg(not(target_os = "linux"))]
+        let custom: Option<u32> = None;
+        let baud = match custom {
+            Some(b) => b,
+            None => {
+                let speed = nix::sys::termios::cfgetospeed(&t);
+                BAUD_RATES
+                    .iter()
+                    .copied()
+                    .find(|&b| baud_rate(b).is_ok_and(|r| r == speed))
+                    .unwrap_or(0)
+            }
+        };
         let c = t.control_flags;
         let parity = match (
             c.contains(ControlFlags::PARENB),

@@ -111,3 +111,21 @@ fn pseudo_terminal_pairs_are_raw() {
         "no line editing or translation"
     );
 }
+
+/// PROFIBUS's rates outside the termios table (45.45 and 93.75 kbit/s) are set by
+/// value, 8E1, and read back as set; bytes pass.
+#[cfg(target_os = "linux")]
+#[test]
+fn profibus_rates_are_set_by_value() {
+    for baud in hart_serial::CUSTOM_BAUD_RATES {
+        let pty = hart_serial::pty::open().unwrap();
+        let far = Port::open(&pty.path, &Line::even(baud), OpenOptions::default()).unwrap();
+        assert_eq!(far.line().unwrap().baud, baud);
+        pty.ours
+            .write_all(&[0x10, 0x05, 0x02, 0x49, 0x50, 0x16])
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let mut buf = [0u8; 16];
+        assert_eq!(far.read(&mut buf).unwrap(), 6);
+    }
+}
