@@ -162,8 +162,12 @@ impl Front {
     }
 
     /// Runs the stations' timers at `now`: the bytes to send now (at most one reply
-    /// is due at a time on a bus), the writes the outputs ask for, and what to log.
-    pub fn poll(&mut self, now: Instant) -> (Option<Vec<u8>>, Vec<WriteRequest>, Vec<String>) {
+    /// is due at a time on a bus), the writes the outputs ask for, and what to log
+    /// (`true`: a fault, logged as a warning).
+    pub fn poll(
+        &mut self,
+        now: Instant,
+    ) -> (Option<Vec<u8>>, Vec<WriteRequest>, Vec<(bool, String)>) {
         let t = self.t(now);
         let mut reply = None;
         let mut writes = vec![];
@@ -180,9 +184,17 @@ impl Front {
                     Event::Configured { .. } => {
                         let s = &mut self.stations[i];
                         s.baseline_after = Some(s.slave.stats().data_exchanges);
-                        log.push(format!("station {address}: {e}"));
+                        log.push((false, format!("station {address}: {e}")));
                     }
-                    e => log.push(format!("station {address}: {e}")),
+                    e => {
+                        let fault = matches!(
+                            e,
+                            Event::ParameterFault { .. }
+                                | Event::ConfigurationFault { .. }
+                                | Event::WatchdogExpired { .. }
+                        );
+                        log.push((fault, format!("station {address}: {e}")));
+                    }
                 }
             }
             // The first output image of a data exchange (the master's after it
@@ -423,8 +435,12 @@ pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> s
         if let Some(reply) = reply {
             hart_modbus::write_port(&writer, &reply).await?;
         }
-        for line in log {
-            tracing::info!("profibus: {line}");
+        for (fault, line) in log {
+            if fault {
+                tracing::warn!("profibus: {line}");
+            } else {
+                tracing::info!("profibus: {line}");
+            }
         }
         for w in writes {
             tokio::spawn(carry_out(
