@@ -86,6 +86,17 @@ struct Station {
     baseline_after: Option<u64>,
 }
 
+/// What [`Front::poll`] gives.
+#[derive(Debug, Default)]
+pub struct Polled {
+    /// Bytes to send now.
+    pub reply: Option<Vec<u8>>,
+    /// Writes the new outputs ask for.
+    pub writes: Vec<WriteRequest>,
+    /// What to log: `true` for a fault (a warning).
+    pub log: Vec<(bool, String)>,
+}
+
 /// The stations of the front end, without I/O: feed it the line's bytes, the image,
 /// and the results of writes.
 pub struct Front {
@@ -162,12 +173,8 @@ impl Front {
     }
 
     /// Runs the stations' timers at `now`: the bytes to send now (at most one reply
-    /// is due at a time on a bus), the writes the outputs ask for, and what to log
-    /// (`true`: a fault, logged as a warning).
-    pub fn poll(
-        &mut self,
-        now: Instant,
-    ) -> (Option<Vec<u8>>, Vec<WriteRequest>, Vec<(bool, String)>) {
+    /// is due at a time on a bus), the writes the outputs ask for, and what to log.
+    pub fn poll(&mut self, now: Instant) -> Polled {
         let t = self.t(now);
         let mut reply = None;
         let mut writes = vec![];
@@ -214,7 +221,7 @@ impl Front {
                 }
             }
         }
-        (reply, writes, log)
+        Polled { reply, writes, log }
     }
 
     /// The writes station `i`'s new outputs ask for: a module whose counter changed
@@ -431,7 +438,7 @@ pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> s
             front.refresh(&engine.image().snapshot(), clock_now);
             next_refresh = now + REFRESH;
         }
-        let (reply, writes, log) = front.poll(Instant::now());
+        let Polled { reply, writes, log } = front.poll(Instant::now());
         if let Some(reply) = reply {
             hart_modbus::write_port(&writer, &reply).await?;
         }
