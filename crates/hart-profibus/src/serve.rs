@@ -484,3 +484,163 @@ pub fn map_text(address: u8, image: &[hart_poller::DeviceImage]) -> String {
     let names: Vec<String> = image.iter().map(|d| d.display_name()).collect();
     map::map_text(address, &names)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fdl::{encode, DataTelegram, FunctionCode, Request};
+
+    fn port() -> ProfibusPort {
+        ProfibusPort {
+            path: "/dev/null".into(),
+            address: 5,
+            baud: 19_200,
+            ident_number: DEFAULT_IDENT_NUMBER,
+        }
+    }
+
+    fn request(da: u8, sap: Option<u8>, fcb: bool, data: &[u8]) -> Vec<u8> {
+        let mut out = vec![];
+        encode(
+            &DataTelegram {
+                da,
+                sa: 2,
+                dsap: sap,
+                ssap: sap.map(|_| 62),
+                fc: FunctionCode::Request {
+                    request: Request::SrdHigh,
+                    fcb,
+                    fcv: true,
+                },
+                data,
+            },
+            &mut out,
+        )
+        .unwrap();
+        out
+    }
+
+    /// Sends `bytes` and returns what the front end does 1 ms later.
+    fn send(f: &mut Front, t: &mut Instant, bytes: &[u8]) -> Polled {
+        *t += Duration::from_millis(20);
+        f.receive(*t, bytes);
+        f.poll(*t + Duration::from_millis(1))
+    }
+
+    fn outputs(modules: &[(u8, f32)]) -> Vec<u8> {
+        modules
+            .iter()
+            .flat_map(|(c, current)| {
+                let mut m = vec![*c, 0];
+                m.extend_from_slice(&current.to_be_bytes());
+                m
+            })
+            .collect()
+    }
+
+    #[test]
+    fn ten_devices_are_two_stations_and_counters_write_once() {
+        let mut t = Instant::now();
+        let mut f = Front::new(&port(), 10, t).unwrap();
+        let cfg: Vec<_> = f.slaves().map(|s| s.config().cfg.len()).collect();
+        assert_eq!(cfg, [16, 4], "8 modules at 5, 2 at 6");
+        let prm = [0x80, 0, 0, 11, 0x48, 0x54, 0];
+        // Station 6: parameters, configuration, then data exchange.
+        assert_eq!(
+            send(&mut f, &mut t, &request(6, Some(61), true, &prm)).reply,
+            Some(vec![0xE5])
+        );
+        let chk = map::station_cfg(2);
+        let p = send(&mut f, &mut t, &request(6, Some(62), false, &chk));
+        assert!(
+            p.log
+                .iter()
+                .any(|(_, l)| l.contains("station 6: configuration")),
+            "{:?}",
+            p.log
+        );
+        // The first image sets the baseline: counter 3 is not a request.
+        let p = send(
+            &mut f,
+            &mut t,
+            &request(6, None, true, &outputs(&[(3, 12.0), (0, 0.0)])),
+        );
+        assert!(p.writes.is_empty());
+        assert_eq!(p.reply.unwrap().len(), 56 + 9);
+        // The same image again: nothing; counter 4: one write to device 8.
+        let p = send(
+            &mut f,
+            &mut t,
+            &request(6, None, false, &outputs(&[(3, 12.0), (0, 0.0)])),
+        );
+        assert!(p.writes.is_empty());
+        let p = send(
+            &mut f,
+            &mut t,
+            &request(6, None, true, &outputs(&[(4, 12.0), (0, 0.0)])),
+        );
+        assert_eq!(
+            p.writes,
+            [WriteRequest {
+                position: 8,
+                counter: 4,
+                op: WriteOp::FixedCurrent(12.0),
+                master: Some(2)
+            }]
+        );
+        // Repeated (same FCB): the reply again, no second write.
+        let p = send(
+            &mut f,
+            &mut t,
+            &request(6, None, true, &outputs(&[(4, 12.0), (0, 0.0)])),
+        );
+        assert!(p.writes.is_empty() && p.reply.is_some());
+        // Counter back to 0: nothing; device 9's counter: a write of 0 mA (release).
+        let p = send(
+            &mut f,
+            &mut t,
+            &request(6, None, false, &outputs(&[(0, 0.0), (1, 0.0)])),
+        );
+        assert_eq!(p.writes.len(), 1);
+        assert_eq!(p.writes[0].position, 9);
+        assert_eq!(p.writes[0].op, WriteOp::FixedCurrent(0.0));
+    }
+
+    #[test]
+    fn inputs_and_diagnosis_come_from_the_image() {
+        let t = Instant::now();
+        let mut f = Front::new(&port(), 2, t).unwrap();
+        let mut answered = hart_poller::DeviceImage::new(0, 0, "loop1", Duration::from_secs(10));
+        answered.apply_reply(
+            3,
+            0,
+            0,
+            &[0x41, 0x40, 0, 0, 12, 0x42, 0x48, 0, 0],
+            t,
+            std::time::SystemTime::now(),
+        );
+        let mut silent = hart_poller::DeviceImage::new(1, 0, "loop1", Duration::from_secs(10));
+        silent.no_reply();
+        f.write_states().lock().unwrap()[0] = WriteState {
+            counter: 9,
+            result: WriteResult::Done,
+        };
+        f.refresh(&[answered, silent], t);
+        let s = f.slaves().next().unwrap();
+        let i = s.inputs();
+        assert_eq!(&i[0..4], &50f32.to_be_bytes());
+        assert_eq!((i[26], i[27]), (9, 2));
+        assert_eq!(i[28 + 23], 2, "no reply");
+        let d = s.diagnosis(Some(2));
+        assert_eq!(&d[6..], &[0x02, 0b10], "device-related block: module 2");
+        assert!(Front::new(
+            &ProfibusPort {
+                address: 125,
+                ..port()
+            },
+            9,
+            t
+        )
+        .is_err());
+    }
+}
