@@ -126,6 +126,8 @@ impl Front {
                 user_prm_len: 0,
             })
             .map_err(|e| e.to_string())?;
+            let mut slave = slave;
+            slave.set_partial_timeout(PARTIAL_TIMEOUT);
             out.push(Station {
                 slave,
                 first,
@@ -369,6 +371,10 @@ pub async fn carry_out(
     }
     set(result_of(&r));
 }
+
+/// How long a telegram begun may wait for its next bytes on a host (USB adapters hand
+/// bytes over in bursts, every 16 ms for an FTDI chip by default).
+pub const PARTIAL_TIMEOUT: Duration = Duration::from_millis(50);
 
 /// How often the inputs are refreshed from the image.
 pub const REFRESH: Duration = Duration::from_millis(100);

@@ -276,6 +276,7 @@ pub struct Slave {
     user_prm: Vec<u8>,
     rx: Vec<u8>,
     last_rx: Option<Duration>,
+    partial_timeout: Option<Duration>,
     resync: bool,
     pending: Option<PendingReply>,
     last_reply: Option<LastReply>,
@@ -321,6 +322,7 @@ impl Slave {
             user_prm: Vec::new(),
             rx: Vec::new(),
             last_rx: None,
+            partial_timeout: None,
             resync: false,
             pending: None,
             last_reply: None,
@@ -491,11 +493,28 @@ impl Slave {
             consider(self.master_seen + w);
         }
         if let Some(last) = self.last_rx {
-            if self.resync || !self.rx.is_empty() {
+            if self.resync {
                 consider(last + self.bit_times(TSYN_BITS));
+            }
+            if !self.rx.is_empty() {
+                consider(last + self.partial_timeout());
             }
         }
         d
+    }
+
+    /// How long a telegram begun may wait for its next bytes before it is dropped as
+    /// cut short: by default TSYN (33 bit times), as on the line; a program behind a
+    /// USB adapter or a pseudo-terminal sees bytes in bursts, with gaps between reads
+    /// that are not on the line (an FTDI adapter hands over every 16 ms by default), and
+    /// sets a longer one. The check sum and end delimiter still judge the telegram.
+    pub fn set_partial_timeout(&mut self, timeout: Duration) {
+        self.partial_timeout = Some(timeout);
+    }
+
+    fn partial_timeout(&self) -> Duration {
+        self.partial_timeout
+            .unwrap_or_else(|| self.bit_times(TSYN_BITS))
     }
 
     /// Runs the timers and returns the bytes to send now, if a reply is due.
@@ -550,11 +569,11 @@ impl Slave {
     fn timers(&mut self, now: Duration) {
         if let Some(last) = self.last_rx {
             if now >= last + self.bit_times(TSYN_BITS) {
-                if !self.rx.is_empty() {
-                    self.stats.cut_short += 1;
-                    self.rx.clear();
-                }
                 self.resync = false;
+            }
+            if !self.rx.is_empty() && now >= last + self.partial_timeout() {
+                self.stats.cut_short += 1;
+                self.rx.clear();
             }
         }
         if let (Some(w), Some(m)) = (self.watchdog, self.master) {

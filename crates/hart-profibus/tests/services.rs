@@ -312,3 +312,19 @@ fn device_diagnosis_block_names_devices() {
         sd2(&[0x82, 0x85, 0x08, 0x3E, 0x3C, 0x08, 0x0C, 0x00, 0x02, 0x48, 0x54, 0x03, 0x01, 0x02])
     );
 }
+
+#[test]
+fn a_host_s_bursts_do_not_cut_a_request() {
+    // Behind a USB adapter a request may come in two reads 16 ms apart: with a partial
+    // timeout of 50 ms it is one request; with the line's TSYN it would be cut.
+    let mut s = Script::new();
+    s.slave.set_partial_timeout(Duration::from_millis(50));
+    s.now += Duration::from_millis(20);
+    s.slave.receive(s.now, &DIAG_REQ[..5]);
+    s.now += Duration::from_millis(16);
+    assert_eq!(s.slave.poll_transmit(s.now), None);
+    s.slave.receive(s.now, &DIAG_REQ[5..]);
+    s.now += Duration::from_millis(1);
+    assert!(s.slave.poll_transmit(s.now).is_some());
+    assert_eq!(s.slave.stats().cut_short, 0);
+}
