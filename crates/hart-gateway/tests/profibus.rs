@@ -3,7 +3,8 @@
 //! simulated loop (a pressure transmitter at polling address 0, which drives its loop
 //! current, and a temperature transmitter at 1, in multidrop mode) behind
 //! `--profibus`; the master parameterises and configures the station from the map's
-//! configuration identifiers, reads every device's PV in its units and changing, and
+//! configuration identifiers, reads every device's PV in its units and changing, sees a
+//! listed device that does not answer in its quality byte and in the diagnosis, and
 //! makes loop-test writes: one lands on the device, one the device refuses.
 
 use std::time::{Duration, Instant};
@@ -71,7 +72,10 @@ impl ProfibusPhy for PtyPhy {
     }
 }
 
-const DEVICES: usize = 2;
+/// The two devices of the plant and a third listed in the configuration that is not
+/// on the loop (polling address 5): it never answers.
+const DEVICES: usize = 3;
+const ANSWERING: usize = 2;
 
 #[test]
 fn profirust_exchanges_data_with_the_gateway_over_a_pty() {
@@ -89,7 +93,7 @@ fn profirust_exchanges_data_with_the_gateway_over_a_pty() {
     std::fs::write(
         &gateway_file,
         format!(
-            "[[loop]]\nport = \"sim:{}\"\nscan_to = 2\n",
+            "[[loop]]\nport = \"sim:{}\"\nscan_to = 2\n\n[[loop.device]]\npoll = 0\n\n[[loop.device]]\npoll = 1\n\n[[loop.device]]\npoll = 5\nname = \"missing\"\n",
             plant.display()
         ),
     )
@@ -192,25 +196,46 @@ fn profirust_exchanges_data_with_the_gateway_over_a_pty() {
     let pv = |b: &[u8]| f32::from_be_bytes([b[0], b[1], b[2], b[3]]);
 
     let ok = run(&mut fdl, &mut master, &mut phy, 30, &mut |m| {
-        m.get_mut(handle).is_running() && (0..DEVICES).all(|i| module(m, i)[23] == 0)
+        m.get_mut(handle).is_running() && (0..ANSWERING).all(|i| module(m, i)[23] == 0)
     });
     let state: Vec<Vec<u8>> = (0..DEVICES).map(|i| module(&mut master, i)).collect();
     assert!(ok, "no data exchange with good quality: {state:02X?}");
     let first: Vec<f32> = state.iter().map(|m| pv(m)).collect();
-    for (i, m) in state.iter().enumerate() {
+    for (i, m) in state.iter().enumerate().take(ANSWERING) {
         assert!(pv(m).is_finite(), "device {i}: PV {}", pv(m));
         assert_ne!(m[20], 250, "device {i}: PV units known");
     }
     // Values change over time.
     let changed = run(&mut fdl, &mut master, &mut phy, 20, &mut |m| {
-        (0..DEVICES).any(|i| pv(&module(m, i)) != first[i])
+        (0..ANSWERING).any(|i| pv(&module(m, i)) != first[i])
     });
     assert!(changed, "no PV changed in 20 s");
 
     // Loop test on the device at polling address 0: fixed current 12.5 mA with write
     // counter 1; the same on a multidrop device, which refuses it.
     let p0 = p0_rx.recv_timeout(Duration::from_secs(5)).unwrap();
-    let other = (p0 + 1) % DEVICES;
+    // The device that does not answer: quality 2 (no reply) in its module, and its bit
+    // (module 3) in the station's device-related diagnosis, which the master fetched.
+    // (Its quality is 5, waiting for data, until the engine's first poll of it.)
+    let no_reply = run(&mut fdl, &mut master, &mut phy, 20, &mut |m| {
+        module(m, 2)[23] == 2
+    });
+    assert!(no_reply, "{:02X?}", module(&mut master, 2));
+    let diag_seen = run(&mut fdl, &mut master, &mut phy, 10, &mut |m| {
+        m.get_mut(handle).last_diagnostics().is_some_and(|d| {
+            d.flags.contains(dp::DiagnosticFlags::EXT_DIAG)
+                && d.extended_diagnostics.raw_diag_buffer() == Some(&[0x02, 0b100][..])
+        })
+    });
+    assert!(
+        diag_seen,
+        "{:?}",
+        master.get_mut(handle).last_diagnostics().map(|d| (
+            d.flags,
+            d.extended_diagnostics.raw_diag_buffer().map(<[u8]>::to_vec)
+        ))
+    );
+    let other = (p0 + 1) % ANSWERING;
     {
         let q = master.get_mut(handle).pi_q_mut();
         for (slot, counter) in [(p0, 1u8), (other, 7)] {
