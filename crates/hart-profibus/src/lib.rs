@@ -19,6 +19,8 @@
 //! has been idle for 33 bit times (TSYN), so a damaged telegram is never answered and
 //! the rest of it is never mistaken for a new one.
 
+#![warn(missing_docs)]
+
 pub mod cfg;
 pub mod fdl;
 #[cfg(feature = "gateway")]
