@@ -3,6 +3,7 @@ gateway: run as a separate process by crates/hartkit/tests/gateway_profibus.rs, 
 imported or shipped by hartkit.
 
 Usage: pyprofibus_master.py PORT GSD ADDRESS MODULES SECONDS [LOOPTEST_SLOT]
+(the bit rate is 19200, or $PYPROFIBUS_BAUD)
 
 Parameterises and configures the station at ADDRESS from the GSD file with MODULES
 "HART device" modules, exchanges data for SECONDS, and prints one JSON line per
@@ -26,7 +27,8 @@ def main():
     looptest = int(sys.argv[6]) if len(sys.argv) > 6 else None
     conf = "\n".join([
         "[PROFIBUS]", "debug = 0",
-        "[PHY]", "type = serial", "dev = " + port, "baud = 19200",
+        "[PHY]", "type = serial", "dev = " + port,
+        "baud = " + os.environ.get("PYPROFIBUS_BAUD", "19200"),
         "[DP]", "master_class = 1", "master_addr = 2",
         "[SLAVE_0]", "name = hartkit", "addr = %d" % address, "gsd = " + gsd,
         "sync_mode = 0", "freeze_mode = 0", "group_mask = 1", "watchdog_ms = 2000",

@@ -205,3 +205,46 @@ fn pyprofibus_master_exchanges_data_and_makes_a_loop_test() {
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// 93.75 kbit/s, a rate outside the termios table that both ends set by value
+/// (hart-serial and pyserial): data exchange as at 19.2 kbit/s.
+#[test]
+fn pyprofibus_at_93_75_kbit_s() {
+    let Some(py) = python() else { return };
+    let Some(pty) = pty_pair() else { return };
+    let (dir, gsd, config) = files("fast");
+    let _gw = gateway(
+        &[
+            "--config",
+            config.to_str().unwrap(),
+            "--profibus",
+            pty.1.to_str().unwrap(),
+            "--profibus-baud",
+            "93750",
+        ],
+        1,
+    );
+    let out = std::process::Command::new(&py)
+        .arg(common::workspace().join("scripts/interop/pyprofibus_master.py"))
+        .args([
+            pty.2.to_str().unwrap(),
+            gsd.to_str().unwrap(),
+            "5",
+            "2",
+            "10",
+        ])
+        .env("PYPROFIBUS_BAUD", "93750")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.lines().any(|l| l.contains("\"connected\": true")),
+        "no data exchange at 93.75 kbit/s:\n{text}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
