@@ -22,7 +22,7 @@ function statusWords(d) {
 function plantRow(d) {
   var pct = d.percent_range;
   var bar = (typeof pct === "number")
-    ? '<div class="bar"><div style="width:' + Math.max(0, Math.min(100, pct)).toFixed(1) + '%"></div></div>' : "";
+    ? '<meter class="bar" min="0" max="100" value="' + Math.max(0, Math.min(100, pct)).toFixed(1) + '"></meter>' : "";
   var pv = d.pv || {};
   return '<tr id="dev-' + d.unit + '" data-unit="' + d.unit + '"><td>' + d.unit + '</td>' +
     '<td><a href="/device/' + d.unit + '" class="tag">' + esc(d.name) + '</a><div class="muted small">' + esc(d.descriptor) + '</div></td>' +

@@ -10,7 +10,7 @@ use axum::body::Bytes;
 use axum::extract::{ConnectInfo, DefaultBodyLimit, Path, Query, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::sse::{Event, KeepAlive, Sse};
-use axum::response::{Html, IntoResponse, Redirect, Response};
+use axum::response::{AppendHeaders, Html, IntoResponse, Redirect, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use futures::Stream;
@@ -46,6 +46,7 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
         .route("/traffic", get(traffic_page))
         .route("/login", get(login_page).post(login_form))
         .route("/logout", post(logout_form))
+        .route("/favicon.ico", get(|| async { StatusCode::NO_CONTENT }))
         .route(
             "/assets/style.css",
             get(|| asset(STYLE, "text/css; charset=utf-8")),
@@ -389,13 +390,13 @@ async fn login_form(
     .await;
     match outcome {
         Ok((cookie, _)) => (
-            [
+            AppendHeaders([
                 (header::SET_COOKIE, cookie),
                 (
                     header::SET_COOKIE,
                     auth::set_cookie(LOGIN_COOKIE, "", state.secure, Some(0)),
                 ),
-            ],
+            ]),
             Redirect::to("/"),
         )
             .into_response(),

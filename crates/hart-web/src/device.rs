@@ -579,4 +579,28 @@ mod tests {
         assert!(!confirms(&WriteOp::FixedCurrent(0.0), &json!({}), 0x08));
         assert!(confirms(&WriteOp::FixedCurrent(0.0), &json!({}), 0));
     }
+
+    proptest::proptest! {
+        /// Whatever a form or a JSON body holds, planning a write answers (a plan or
+        /// a 400), never panics.
+        #[test]
+        fn any_fields_plan_or_refuse(
+            pairs in proptest::collection::vec(
+                (proptest::sample::select(WRITE_FIELDS.to_vec()), ".{0,40}"), 0..6),
+            junk in ".{0,12}",
+        ) {
+            let mut f: BTreeMap<String, String> =
+                pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+            let _ = plan(&f);
+            f.insert(junk, "1".into());
+            let _ = plan(&f);
+        }
+
+        #[test]
+        fn any_json_gives_fields_or_an_error(text in ".{0,200}") {
+            if let Ok(v) = serde_json::from_str::<Value>(&text) {
+                let _ = fields_of_json(&v);
+            }
+        }
+    }
 }

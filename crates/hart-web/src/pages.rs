@@ -35,7 +35,7 @@ fn plant_row(d: &Value) -> String {
     let pct = d["percent_range"].as_f64();
     let bar = pct.map_or(String::new(), |p| {
         format!(
-            "<div class=\"bar\"><div style=\"width:{:.1}%\"></div></div>",
+            "<meter class=\"bar\" min=\"0\" max=\"100\" value=\"{:.1}\"></meter>",
             p.clamp(0.0, 100.0)
         )
     });
