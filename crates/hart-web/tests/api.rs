@@ -636,3 +636,44 @@ fn a_loop_test_is_released_by_itself() {
         assert_eq!(r.json()["confirmed"], true, "{}", r.text());
     });
 }
+
+#[test]
+fn live_views_are_bounded() {
+    local(async {
+        let s = server("streams", false, false).await;
+        let open = |addr: SocketAddr| async move {
+            let mut c = tokio::net::TcpStream::connect(addr).await.unwrap();
+            c.write_all(format!("GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+                .await
+                .unwrap();
+            let mut buf = vec![0u8; 512];
+            let n = tokio::time::timeout(Duration::from_secs(10), c.read(&mut buf))
+                .await
+                .unwrap()
+                .unwrap();
+            (c, String::from_utf8_lossy(&buf[..n]).into_owned())
+        };
+        let mut held = vec![];
+        for _ in 0..256 {
+            let (c, head) = open(s.addr).await;
+            assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+            held.push(c);
+        }
+        let (_, head) = open(s.addr).await;
+        assert!(head.starts_with("HTTP/1.1 503"), "{head}");
+        // A view closed frees its place (once the server's next event finds it gone).
+        held.pop();
+        drop(held.pop());
+        let mut freed = false;
+        for _ in 0..20 {
+            tokio::time::sleep(Duration::from_millis(500)).await;
+            let (c, head) = open(s.addr).await;
+            if head.starts_with("HTTP/1.1 200") {
+                freed = true;
+                held.push(c);
+                break;
+            }
+        }
+        assert!(freed, "a closed view's place is given again");
+    });
+}
