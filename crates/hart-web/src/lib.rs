@@ -35,6 +35,7 @@ mod auth;
 mod device;
 mod error;
 mod html;
+pub mod limits;
 mod pages;
 mod state;
 pub mod svg;
@@ -165,9 +166,14 @@ pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<
     let app = api::router(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
     let handle = axum_server::Handle::new();
     let h = handle.clone();
+    // Sockets: the event streams and the connection limit, with room for the rest.
+    hart_host::load::raise_open_file_limit(limits::MAX_CONNECTIONS as u64 + 256);
     match tls {
         Some(tls) => {
-            let server = axum_server::from_tcp_rustls(listener, tls).handle(h);
+            let mut server = axum_server::from_tcp_rustls(listener, tls)
+                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .handle(h);
+            header_timeout(server.http_builder());
             tokio::spawn(async move {
                 if let Err(e) = server.serve(app).await {
                     tracing::error!("web: the HTTPS server stopped: {e}");
@@ -175,7 +181,10 @@ pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<
             });
         }
         None => {
-            let server = axum_server::from_tcp(listener).handle(h);
+            let mut server = axum_server::from_tcp(listener)
+                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .handle(h);
+            header_timeout(server.http_builder());
             tokio::spawn(async move {
                 if let Err(e) = server.serve(app).await {
                     tracing::error!("web: the HTTP server stopped: {e}");
@@ -189,6 +198,14 @@ pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<
         handle,
         state,
     })
+}
+
+/// Closes a connection that has not sent a request's head within
+/// [`limits::HEADER_TIMEOUT`].
+fn header_timeout(b: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt::TokioExecutor>) {
+    b.http1()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits::HEADER_TIMEOUT);
 }
 
 /// The rustls configuration of `files`, with errors that say which file is wrong.

@@ -677,3 +677,54 @@ fn live_views_are_bounded() {
         assert!(freed, "a closed view's place is given again");
     });
 }
+
+#[test]
+fn silent_connections_do_not_lock_browsers_out() {
+    local(async {
+        hart_host::load::raise_open_file_limit(4096);
+        let s = server("silent", false, false).await;
+        // More silent connections than the server keeps: a port scanner's, a crashed
+        // client's.
+        let mut silent = vec![];
+        for _ in 0..hart_web::limits::MAX_CONNECTIONS + 100 {
+            silent.push(tokio::net::TcpStream::connect(s.addr).await.unwrap());
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        // A browser still gets in at once: the oldest silent ones make room.
+        let started = std::time::Instant::now();
+        let r = get(s.addr, "/api/devices/1").await;
+        assert_eq!(r.status, 200);
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "{:?}",
+            started.elapsed()
+        );
+        // The oldest silent connection was closed by the server.
+        let mut buf = [0u8; 16];
+        let n = tokio::time::timeout(Duration::from_secs(5), silent[0].read(&mut buf))
+            .await
+            .expect("closed, not waiting")
+            .unwrap_or(0);
+        assert_eq!(n, 0);
+    });
+}
+
+#[test]
+fn a_request_head_that_never_ends_is_closed() {
+    local(async {
+        let s = server("slowloris", false, false).await;
+        let mut c = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        c.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n").await.unwrap();
+        let started = std::time::Instant::now();
+        let mut sink = vec![];
+        let _ = tokio::time::timeout(Duration::from_secs(20), c.read_to_end(&mut sink))
+            .await
+            .expect("the server closes it");
+        let waited = started.elapsed();
+        assert!(
+            waited >= hart_web::limits::HEADER_TIMEOUT - Duration::from_secs(1)
+                && waited < hart_web::limits::HEADER_TIMEOUT + Duration::from_secs(5),
+            "{waited:?}"
+        );
+    });
+}
