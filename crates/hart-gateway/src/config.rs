@@ -595,6 +595,20 @@ fn web_config(
         }
         web.memory_window = w;
     }
+    // The HART-IP server's identities with write rights may log in with their keys.
+    if let Some(p) = &opts.psk_file {
+        let table = hart_ip_tls::PskTable::load(p)
+            .map_err(|e| Error::config(format!("--psk-file: {e}")))?;
+        web.psk_logins = table
+            .keys
+            .iter()
+            .filter(|k| k.rights.may_write())
+            .map(|k| hart_web::PskLogin {
+                identity: k.identity.clone(),
+                key: k.key.clone(),
+            })
+            .collect();
+    }
     web.tls =
         match (
             opts.web_cert.clone().or(section.cert),

@@ -318,7 +318,7 @@ impl Gateway {
             };
             let mode = if read_only {
                 "read only"
-            } else if w.admin_password_file.is_some() {
+            } else if w.admin_password_file.is_some() || !w.psk_logins.is_empty() {
                 "writes after login"
             } else {
                 "read only: no --web-admin-password-file"

@@ -142,7 +142,7 @@ fn session(state: &AppState, headers: &HeaderMap) -> Option<SessionView> {
 fn visitor<'a>(state: &AppState, session: Option<&'a SessionView>) -> Visitor<'a> {
     Visitor {
         session,
-        writes: state.password.is_some() && !state.access.read_only,
+        writes: state.writes(),
     }
 }
 
@@ -177,7 +177,7 @@ fn authorize_write(
             "the gateway is read only (--read-only): no writes",
         ));
     }
-    if state.password.is_none() {
+    if !state.writes() {
         return Err(ApiError::forbidden(
             "writes are off: start the gateway with --web-admin-password-file FILE",
         ));
@@ -309,13 +309,18 @@ async fn login_page(State(state): St, headers: HeaderMap) -> Response {
         )
         .into_response();
     };
-    let writes = state.password.is_some() && !state.access.read_only;
+    let writes = state.writes();
     (
         [(
             header::SET_COOKIE,
             auth::set_cookie(LOGIN_COOKIE, &token, state.secure, None),
         )],
-        Html(pages::login(&token, None, writes)),
+        Html(pages::login(
+            &token,
+            None,
+            writes,
+            !state.config.psk_logins.is_empty(),
+        )),
     )
         .into_response()
 }
@@ -324,13 +329,16 @@ async fn login_page(State(state): St, headers: HeaderMap) -> Response {
 fn log_in(
     state: &AppState,
     peer: SocketAddr,
+    identity: Option<&str>,
     password: Option<&str>,
 ) -> Result<(String, SessionView), ApiError> {
-    let Some(expected) = state.password.as_deref() else {
+    if !state.writes() {
         return Err(ApiError::forbidden(
-            "writes are off on this gateway (no --web-admin-password-file): there is nothing to log in to",
+            "writes are off on this gateway (no --web-admin-password-file, no PSK identity \
+             with write rights): there is nothing to log in to",
         ));
-    };
+    }
+    let identity = identity.map(str::trim).filter(|i| !i.is_empty());
     let now = Instant::now();
     let mut sessions = lock(&state.sessions);
     if let Some(wait) = sessions.refused_for(peer.ip(), now) {
@@ -343,22 +351,42 @@ fn log_in(
             ),
         ));
     }
-    if !password.is_some_and(|p| auth::password_matches(p, expected)) {
+    // An identity logs in with its pre-shared key; no identity, the administrator with
+    // the password.
+    let who = match identity {
+        Some(id) => state
+            .config
+            .psk_logins
+            .iter()
+            .find(|l| l.identity == id)
+            .filter(|l| password.is_some_and(|p| auth::key_matches(p, &l.key)))
+            .map(|l| l.identity.clone()),
+        None => state
+            .password
+            .as_deref()
+            .filter(|expected| password.is_some_and(|p| auth::password_matches(p, expected)))
+            .map(|_| "administrator".to_string()),
+    };
+    let Some(who) = who else {
         sessions.failed(peer.ip(), now);
         tracing::warn!("web: a failed login from {peer}");
-        return Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong password"));
-    }
+        return Err(ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            if identity.is_some() {
+                "unknown identity, an identity without write rights, or a wrong key"
+            } else {
+                "wrong password"
+            },
+        ));
+    };
     sessions.succeeded(peer.ip());
-    let (token, view) = sessions.create(now).ok_or_else(|| {
+    let (token, view) = sessions.create(now, &who).ok_or_else(|| {
         ApiError::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             "no random numbers from the system",
         )
     })?;
-    tracing::info!(
-        "web: administrator logged in from {peer} (session {})",
-        view.number
-    );
+    tracing::info!("web: {who} logged in from {peer} (session {})", view.number);
     Ok((
         auth::set_cookie(SESSION_COOKIE, &token, state.secure, None),
         view,
@@ -371,7 +399,7 @@ async fn login_form(
     headers: HeaderMap,
     body: Result<Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Response {
-    let writes = state.password.is_some() && !state.access.read_only;
+    let writes = state.writes();
     let outcome = async {
         let body = body.map_err(|e| ApiError::new(e.status(), e.body_text()))?;
         same_origin(&headers)?;
@@ -385,7 +413,12 @@ async fn login_form(
                 "the login form's token is missing or wrong: open the login page again",
             ));
         }
-        log_in(&state, peer, fields.get("password").map(String::as_str))
+        log_in(
+            &state,
+            peer,
+            fields.get("identity").map(String::as_str),
+            fields.get("password").map(String::as_str),
+        )
     }
     .await;
     match outcome {
@@ -411,7 +444,12 @@ async fn login_form(
                     header::SET_COOKIE,
                     auth::set_cookie(LOGIN_COOKIE, &token, state.secure, None),
                 )],
-                Html(pages::login(&token, Some(&e.message), writes)),
+                Html(pages::login(
+                    &token,
+                    Some(&e.message),
+                    writes,
+                    !state.config.psk_logins.is_empty(),
+                )),
             )
                 .into_response()
         }
@@ -475,7 +513,7 @@ async fn write(
             front_end: "web",
             session: Some(session.number),
             peer: peer.to_string(),
-            identity: Some("administrator".into()),
+            identity: Some(session.who.clone()),
             via: "web dashboard".into(),
             ..Default::default()
         },
@@ -846,10 +884,17 @@ async fn api_login(
 ) -> Result<Response, ApiError> {
     same_origin(&headers)?;
     let fields = json_fields(&headers, body)?;
-    let (cookie, view) = log_in(&state, peer, fields.get("password").map(String::as_str))?;
+    let (cookie, view) = log_in(
+        &state,
+        peer,
+        fields.get("identity").map(String::as_str),
+        fields.get("password").map(String::as_str),
+    )?;
     Ok((
         [(header::SET_COOKIE, cookie)],
-        Json(json!({"logged_in": true, "csrf": view.csrf, "session": view.number})),
+        Json(
+            json!({"logged_in": true, "csrf": view.csrf, "session": view.number, "who": view.who}),
+        ),
     )
         .into_response())
 }
@@ -876,7 +921,7 @@ async fn api_session(State(state): St, headers: HeaderMap) -> Json<Value> {
     let s = session(&state, &headers);
     Json(json!({
         "logged_in": s.is_some(),
-        "writes": state.password.is_some() && !state.access.read_only,
+        "writes": state.writes(),
         "csrf": s.map(|s| s.csrf),
     }))
 }

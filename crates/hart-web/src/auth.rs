@@ -63,6 +63,19 @@ pub(crate) fn password_matches(given: &str, expected: &str) -> bool {
     given.as_bytes().ct_eq(expected.as_bytes()).into()
 }
 
+/// Whether `given` (hex, any case, spaces allowed) is `key`, in constant time.
+pub(crate) fn key_matches(given: &str, key: &[u8]) -> bool {
+    let hex: String = given.chars().filter(|c| !c.is_whitespace()).collect();
+    if hex.len() != key.len() * 2 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return false;
+    }
+    let bytes: Vec<u8> = (0..hex.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).unwrap_or(0))
+        .collect();
+    bytes.ct_eq(key).into()
+}
+
 /// Whether two tokens are equal, in constant time.
 pub(crate) fn token_matches(given: &str, expected: &str) -> bool {
     !expected.is_empty() && given.as_bytes().ct_eq(expected.as_bytes()).into()
@@ -105,6 +118,7 @@ pub(crate) fn set_cookie(name: &str, value: &str, secure: bool, max_age: Option<
 #[derive(Debug, Clone)]
 struct Session {
     csrf: String,
+    who: String,
     number: u64,
     created: Instant,
     last: Instant,
@@ -115,6 +129,8 @@ struct Session {
 pub(crate) struct SessionView {
     /// The CSRF token its forms carry.
     pub csrf: String,
+    /// Who logged in: `administrator`, or a PSK identity.
+    pub who: String,
     /// Its number, for the audit.
     pub number: u64,
 }
@@ -130,7 +146,7 @@ pub(crate) struct Sessions {
 impl Sessions {
     /// A new session: (cookie token, its view); `None` when the system gives no
     /// random numbers.
-    pub(crate) fn create(&mut self, now: Instant) -> Option<(String, SessionView)> {
+    pub(crate) fn create(&mut self, now: Instant, who: &str) -> Option<(String, SessionView)> {
         if self.by_token.len() >= MAX_SESSIONS {
             if let Some(oldest) = self
                 .by_token
@@ -145,12 +161,14 @@ impl Sessions {
         let token = random_token()?;
         let s = Session {
             csrf: random_token()?,
+            who: who.to_string(),
             number: self.next,
             created: now,
             last: now,
         };
         let view = SessionView {
             csrf: s.csrf.clone(),
+            who: s.who.clone(),
             number: s.number,
         };
         self.by_token.insert(token.clone(), s);
@@ -171,6 +189,7 @@ impl Sessions {
         s.last = now;
         Some(SessionView {
             csrf: s.csrf.clone(),
+            who: s.who.clone(),
             number: s.number,
         })
     }
@@ -218,13 +237,13 @@ mod tests {
     fn sessions_expire_and_are_bounded() {
         let t0 = Instant::now();
         let mut s = Sessions::default();
-        let (tok, view) = s.create(t0).unwrap();
+        let (tok, view) = s.create(t0, "administrator").unwrap();
         assert_eq!(s.get(&tok, t0, Duration::from_secs(10)), Some(view));
         assert!(s
             .get(&tok, t0 + Duration::from_secs(11), Duration::from_secs(10))
             .is_none());
         for _ in 0..200 {
-            s.create(t0);
+            s.create(t0, "administrator");
         }
         assert!(s.by_token.len() <= MAX_SESSIONS);
         assert!(s.get("not-a-token", t0, Duration::from_secs(10)).is_none());
@@ -254,5 +273,9 @@ mod tests {
         assert!(!token_matches("abd", "abc"));
         assert_eq!(random_token().unwrap().len(), 64);
         assert!(set_cookie("x", "y", true, Some(0)).contains("Secure; Max-Age=0"));
+        assert!(key_matches("00 11aa", &[0, 0x11, 0xAA]));
+        assert!(!key_matches("0011ab", &[0, 0x11, 0xAA]));
+        assert!(!key_matches("0011", &[0, 0x11, 0xAA]));
+        assert!(!key_matches("zz11aa", &[0, 0x11, 0xAA]));
     }
 }

@@ -34,8 +34,9 @@ pub(crate) struct Visitor<'a> {
 pub(crate) fn page(title: &str, page: &str, visitor: &Visitor<'_>, body: &str) -> String {
     let login = match visitor.session {
         Some(s) => format!(
-            r#"<form method="post" action="/logout" class="inline"><input type="hidden" name="csrf" value="{}"><span class="who">administrator</span> <button type="submit">Log out</button></form>"#,
-            esc(&s.csrf)
+            r#"<form method="post" action="/logout" class="inline"><input type="hidden" name="csrf" value="{}"><span class="who">{}</span> <button type="submit">Log out</button></form>"#,
+            esc(&s.csrf),
+            esc(&s.who)
         ),
         None if visitor.writes => r#"<a href="/login">Log in</a>"#.to_string(),
         None => r#"<span class="who" title="start the gateway with --web-admin-password-file to allow writes">read only</span>"#.to_string(),

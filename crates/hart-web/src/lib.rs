@@ -64,6 +64,27 @@ pub struct WebConfig {
     pub memory_window: Duration,
     /// How long a login lasts without use.
     pub session_idle: Duration,
+    /// The HART-IP server's pre-shared keys with write rights: each identity may log in
+    /// with its key (hex) as the password, and its writes are audited under its name.
+    pub psk_logins: Vec<PskLogin>,
+}
+
+/// An identity that may log in with its pre-shared key.
+#[derive(Clone, PartialEq, Eq)]
+pub struct PskLogin {
+    /// The identity.
+    pub identity: String,
+    /// The key.
+    pub key: Vec<u8>,
+}
+
+impl std::fmt::Debug for PskLogin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Never print the key.
+        f.debug_struct("PskLogin")
+            .field("identity", &self.identity)
+            .finish_non_exhaustive()
+    }
 }
 
 impl WebConfig {
@@ -76,6 +97,7 @@ impl WebConfig {
             history_db: None,
             memory_window: Duration::from_secs(3600),
             session_idle: Duration::from_secs(3600),
+            psk_logins: vec![],
         }
     }
 }

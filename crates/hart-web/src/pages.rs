@@ -408,21 +408,27 @@ Command <input name=\"command\" size=\"4\" inputmode=\"numeric\"> \
 }
 
 /// The login page (`token`: the form's CSRF token, also in a cookie).
-pub(crate) fn login(token: &str, error: Option<&str>, writes: bool) -> String {
+pub(crate) fn login(token: &str, error: Option<&str>, writes: bool, identities: bool) -> String {
     let visitor = Visitor {
         session: None,
         writes,
     };
     let body = format!(
         "<h1>Log in</h1>{}{}<form method=\"post\" action=\"/login\" class=\"login-form\"><input type=\"hidden\" name=\"csrf\" value=\"{}\">\
-<label for=\"password\">Administrator's password</label> <input type=\"password\" name=\"password\" id=\"password\" autocomplete=\"current-password\" autofocus> <button type=\"submit\">Log in</button></form>",
+{}<label for=\"password\">Password</label> <input type=\"password\" name=\"password\" id=\"password\" autocomplete=\"current-password\" autofocus> <button type=\"submit\">Log in</button></form>",
         error.map_or(String::new(), |e| format!("<div class=\"banner bad\">{}</div>", esc(e))),
         if writes {
             ""
         } else {
             "<p class=\"muted\">Writes are off on this gateway: there is nothing to log in to.</p>"
         },
-        esc(token)
+        esc(token),
+        if identities {
+            "<p class=\"muted small\">The administrator leaves the identity empty and gives the password; a HART-IP PSK identity with write rights gives its name and its key (hex).</p>\
+<label for=\"identity\">Identity</label> <input name=\"identity\" id=\"identity\" autocomplete=\"username\" size=\"16\"> "
+        } else {
+            ""
+        }
     );
     page("Log in", "login", &visitor, &body)
 }

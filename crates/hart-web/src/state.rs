@@ -91,6 +91,12 @@ impl AppState {
         }
     }
 
+    /// Whether anyone may write here: a password or a PSK identity to log in with, and
+    /// the gateway not read only.
+    pub(crate) fn writes(&self) -> bool {
+        (self.password.is_some() || !self.config.psk_logins.is_empty()) && !self.access.read_only
+    }
+
     /// The plant as the event stream and `/api/devices` give it.
     pub(crate) fn plant_json(&self) -> serde_json::Value {
         crate::device::plant(&self.engine)

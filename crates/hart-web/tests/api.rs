@@ -728,3 +728,66 @@ fn a_request_head_that_never_ends_is_closed() {
         );
     });
 }
+
+#[test]
+fn a_psk_identity_with_write_rights_logs_in_with_its_key() {
+    local(async {
+        let dir = tempdir::Dir::new("psk");
+        let devices = hart_host::transport::Plant::demo().devices().unwrap();
+        let (engine, _) = hart_poller::Engine::start(
+            hart_poller::EngineConfig {
+                poll: true,
+                ..Default::default()
+            },
+            vec![hart_poller::LoopSpec {
+                settings: Default::default(),
+                line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
+            }],
+        );
+        engine.ready().await;
+        let mut config = hart_web::WebConfig::new("127.0.0.1:0".parse().unwrap());
+        config.psk_logins = vec![hart_web::PskLogin {
+            identity: "tech1".into(),
+            key: (0u8..16).collect(),
+        }];
+        let audit = dir.0.join("audit.jsonl");
+        let access = hart_web::Access {
+            audit: hart_access::Audit::new(Some(audit.clone())),
+            ..Default::default()
+        };
+        let web = hart_web::start(engine, config, access).await.unwrap();
+        let a = web.addr;
+        let key = "000102030405060708090a0b0c0d0e0f";
+        for bad in [
+            r#"{"identity": "tech1", "password": "00"}"#,
+            r#"{"identity": "tech2", "password": "000102030405060708090a0b0c0d0e0f"}"#,
+            r#"{"password": "000102030405060708090a0b0c0d0e0f"}"#,
+        ] {
+            assert_json_error(&post_json(a, "/api/login", &[], bad).await, 401);
+        }
+        let r = post_json(
+            a,
+            "/api/login",
+            &[],
+            &format!(r#"{{"identity": "tech1", "password": "{key}"}}"#),
+        )
+        .await;
+        assert_eq!(r.status, 200, "{}", r.text());
+        let v = r.json();
+        assert_eq!(v["who"], "tech1");
+        let cookie = format!("hartkit_session={}", r.cookies()["hartkit_session"]);
+        let csrf = v["csrf"].as_str().unwrap();
+        let r = post_json(
+            a,
+            "/api/devices/1/write",
+            &[("Cookie", &cookie), ("X-CSRF-Token", csrf)],
+            r#"{"damping": 0.7}"#,
+        )
+        .await;
+        assert_eq!(r.json()["confirmed"], true, "{}", r.text());
+        let audit = std::fs::read_to_string(&audit).unwrap();
+        assert!(audit.contains("\"identity\":\"tech1\""), "{audit}");
+        assert!(get(a, "/login").await.text().contains("name=\"identity\""));
+        web.stop();
+    });
+}
