@@ -205,6 +205,18 @@ async fn plant_page(State(state): St, headers: HeaderMap) -> Html<String> {
     Html(pages::plant(&state, &visitor(&state, s.as_ref())))
 }
 
+/// The device of a page's path, or the page that says there is none.
+fn resolve_page(state: &AppState, id: &str, v: &Visitor<'_>) -> Result<usize, Box<Response>> {
+    device::resolve(&state.engine, id).map_err(|e| {
+        (
+            e.status,
+            Html(pages::error("No such device", &e.message, v)),
+        )
+            .into_response()
+            .into()
+    })
+}
+
 async fn device_page(
     State(state): St,
     Path(id): Path<String>,
@@ -213,15 +225,9 @@ async fn device_page(
 ) -> Response {
     let s = session(&state, &headers);
     let v = visitor(&state, s.as_ref());
-    let position = match device::resolve(&state.engine, &id) {
+    let position = match resolve_page(&state, &id, &v) {
         Ok(p) => p,
-        Err(e) => {
-            return (
-                e.status,
-                Html(pages::error("No such device", &e.message, &v)),
-            )
-                .into_response()
-        }
+        Err(page) => return *page,
     };
     let window = q
         .get("window")
@@ -236,12 +242,8 @@ async fn traffic_page(State(state): St, headers: HeaderMap) -> Html<String> {
     Html(pages::traffic(&state, &visitor(&state, s.as_ref())))
 }
 
+/// A form's `a=1&b=2` as fields (the last of a name repeated wins).
 fn form_fields(body: &[u8]) -> Result<BTreeMap<String, String>, ApiError> {
-    serde_urlencoded_pairs(body)
-}
-
-/// `a=1&b=2` as pairs (the last of a name repeated wins).
-fn serde_urlencoded_pairs(body: &[u8]) -> Result<BTreeMap<String, String>, ApiError> {
     let pairs: Vec<(String, String)> = serde_urlencoded::from_bytes(body)
         .map_err(|e| ApiError::bad_request(format!("the form could not be read: {e}")))?;
     Ok(pairs.into_iter().collect())
@@ -256,15 +258,9 @@ async fn device_write_form(
 ) -> Response {
     let s = session(&state, &headers);
     let v = visitor(&state, s.as_ref());
-    let position = match device::resolve(&state.engine, &id) {
+    let position = match resolve_page(&state, &id, &v) {
         Ok(p) => p,
-        Err(e) => {
-            return (
-                e.status,
-                Html(pages::error("No such device", &e.message, &v)),
-            )
-                .into_response()
-        }
+        Err(page) => return *page,
     };
     let outcome = async {
         let body = body.map_err(|e| ApiError::new(e.status(), e.body_text()))?;

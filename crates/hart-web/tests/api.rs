@@ -56,6 +56,22 @@ async fn server(name: &str, password: bool, read_only: bool) -> Server {
     .await
 }
 
+/// A polling engine on `plant`, answered in memory, its devices found.
+async fn engine_on(plant: hart_host::transport::Plant) -> hart_poller::Engine {
+    let (engine, _) = hart_poller::Engine::start(
+        hart_poller::EngineConfig {
+            poll: true,
+            ..Default::default()
+        },
+        vec![hart_poller::LoopSpec {
+            settings: Default::default(),
+            line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(plant.devices().unwrap())),
+        }],
+    );
+    engine.ready().await;
+    engine
+}
+
 /// A dashboard on `plant`.
 async fn server_on(
     plant: hart_host::transport::Plant,
@@ -64,18 +80,7 @@ async fn server_on(
     read_only: bool,
 ) -> Server {
     let dir = tempdir::Dir::new(name);
-    let devices = plant.devices().unwrap();
-    let (engine, _) = hart_poller::Engine::start(
-        hart_poller::EngineConfig {
-            poll: true,
-            ..Default::default()
-        },
-        vec![hart_poller::LoopSpec {
-            settings: Default::default(),
-            line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
-        }],
-    );
-    engine.ready().await;
+    let engine = engine_on(plant).await;
     let mut config = hart_web::WebConfig::new("127.0.0.1:0".parse().unwrap());
     if password {
         let p = dir.0.join("password");
@@ -733,18 +738,7 @@ fn a_request_head_that_never_ends_is_closed() {
 fn a_psk_identity_with_write_rights_logs_in_with_its_key() {
     local(async {
         let dir = tempdir::Dir::new("psk");
-        let devices = hart_host::transport::Plant::demo().devices().unwrap();
-        let (engine, _) = hart_poller::Engine::start(
-            hart_poller::EngineConfig {
-                poll: true,
-                ..Default::default()
-            },
-            vec![hart_poller::LoopSpec {
-                settings: Default::default(),
-                line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
-            }],
-        );
-        engine.ready().await;
+        let engine = engine_on(hart_host::transport::Plant::demo()).await;
         let mut config = hart_web::WebConfig::new("127.0.0.1:0".parse().unwrap());
         config.psk_logins = vec![hart_web::PskLogin {
             identity: "tech1".into(),
