@@ -10,14 +10,18 @@
 
 use std::future::Future;
 use std::io;
+use std::net::SocketAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
 use axum_server::accept::Accept;
+use hart_access::pool::{self, Admission, LogLimit, Pool};
+use hart_access::NetList;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::TcpStream;
 
 /// Connections served at once.
 pub const MAX_CONNECTIONS: usize = 512;
@@ -25,20 +29,18 @@ pub const MAX_CONNECTIONS: usize = 512;
 /// connection).
 pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// What the limit shares between connections.
+/// What the limit shares between connections: hart-access's connection pool (the
+/// one the Modbus and OPC UA front ends use), ranking a connection that never sent a
+/// byte first and keeping every other.
 #[derive(Default)]
 pub(crate) struct Counts {
-    open: AtomicUsize,
+    pool: Mutex<Pool<Arc<Switch>>>,
+    log: Mutex<LogLimit>,
     refused: AtomicU64,
-    warned: Mutex<Option<Instant>>,
-    next: AtomicU64,
-    /// Each open connection's switch, by number.
-    conns: Mutex<std::collections::HashMap<u64, Arc<Switch>>>,
 }
 
 /// What the limit knows of one connection, and how it closes it.
 struct Switch {
-    opened: Instant,
     /// A byte has come from the client.
     spoke: std::sync::atomic::AtomicBool,
     /// Closed to admit another.
@@ -46,24 +48,11 @@ struct Switch {
     waker: Mutex<Option<std::task::Waker>>,
 }
 
-impl Counts {
-    /// Closes the oldest connection that never sent a byte; whether there was one.
-    fn evict_silent(&self) -> bool {
-        let conns = self.conns.lock().unwrap_or_else(|e| e.into_inner());
-        let victim = conns
-            .values()
-            .filter(|s| !s.spoke.load(Ordering::Relaxed) && !s.killed.load(Ordering::Relaxed))
-            .min_by_key(|s| s.opened);
-        let Some(v) = victim else { return false };
-        v.killed.store(true, Ordering::SeqCst);
-        if let Some(w) = v.waker.lock().unwrap_or_else(|e| e.into_inner()).take() {
-            w.wake();
-        }
-        true
-    }
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// An acceptor that refuses connections beyond the limit, around another (plain or
+/// An acceptor that admits connections through the pool, around another (plain or
 /// TLS).
 #[derive(Clone)]
 pub(crate) struct Limit<A> {
@@ -82,9 +71,13 @@ impl<A> Limit<A> {
     }
 }
 
-impl<A, I, S> Accept<I, S> for Limit<A>
+/// No address is a priority host of the dashboard, and one address may hold every
+/// place (browsers behind one proxy).
+static NO_PRIORITY: std::sync::LazyLock<NetList> = std::sync::LazyLock::new(NetList::empty);
+
+impl<A, S> Accept<TcpStream, S> for Limit<A>
 where
-    A: Accept<I, S>,
+    A: Accept<TcpStream, S>,
     A::Future: Send + 'static,
     A::Stream: Unpin,
 {
@@ -92,36 +85,50 @@ where
     type Service = A::Service;
     type Future = Pin<Box<dyn Future<Output = io::Result<(Self::Stream, Self::Service)>> + Send>>;
 
-    fn accept(&self, stream: I, service: S) -> Self::Future {
+    fn accept(&self, stream: TcpStream, service: S) -> Self::Future {
         let counts = self.counts.clone();
-        if counts.open.fetch_add(1, Ordering::SeqCst) >= self.max && !counts.evict_silent() {
-            counts.open.fetch_sub(1, Ordering::SeqCst);
-            let refused = counts.refused.fetch_add(1, Ordering::Relaxed) + 1;
-            let mut warned = counts.warned.lock().unwrap_or_else(|e| e.into_inner());
-            if warned.is_none_or(|t| t.elapsed() >= Duration::from_secs(60)) {
-                *warned = Some(Instant::now());
-                tracing::warn!(
-                    "web: {} connections are open (the limit); refusing more ({refused} so far)",
-                    self.max
-                );
-            }
-            drop(stream);
-            return Box::pin(async { Err(io::Error::other("too many connections")) });
-        }
-        // Counted from here: a handshake that fails gives its place back.
-        let number = counts.next.fetch_add(1, Ordering::Relaxed);
+        let now = Instant::now();
+        let peer = stream
+            .peer_addr()
+            .unwrap_or_else(|_| SocketAddr::from(([0, 0, 0, 0], 0)));
         let switch = Arc::new(Switch {
-            opened: Instant::now(),
             spoke: Default::default(),
             killed: Default::default(),
             waker: Mutex::new(None),
         });
-        counts
-            .conns
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(number, switch.clone());
-        let guard = Guard { counts, number };
+        let admission = Admission {
+            max_connections: self.max,
+            max_per_address: usize::MAX,
+            priority: &NO_PRIORITY,
+        };
+        let rank = |e: &pool::Entry<Arc<Switch>>| {
+            (!e.state.spoke.load(Ordering::Relaxed)).then_some((0, e.opened))
+        };
+        let admitted = lock(&counts.pool).admit(peer, &admission, now, switch.clone(), rank);
+        let id = match admitted {
+            Ok((id, evicted)) => {
+                if let Some((_, e)) = evicted {
+                    e.state.killed.store(true, Ordering::SeqCst);
+                    if let Some(w) = lock(&e.state.waker).take() {
+                        w.wake();
+                    }
+                }
+                id
+            }
+            Err(_) => {
+                let refused = counts.refused.fetch_add(1, Ordering::Relaxed) + 1;
+                if lock(&counts.log).allow_logged(now, "web") {
+                    tracing::warn!(
+                        "web: refused the connection from {peer}: {} connections are open (the limit), all in use ({refused} refused so far)",
+                        self.max
+                    );
+                }
+                drop(stream);
+                return Box::pin(async { Err(io::Error::other("too many connections")) });
+            }
+        };
+        // A handshake that fails gives its place back.
+        let guard = Guard { counts, id };
         let fut = self.inner.accept(stream, service);
         Box::pin(async move {
             let (s, service) = fut.await?;
@@ -140,17 +147,12 @@ where
 /// Gives a connection's place back when dropped.
 struct Guard {
     counts: Arc<Counts>,
-    number: u64,
+    id: u64,
 }
 
 impl Drop for Guard {
     fn drop(&mut self) {
-        self.counts
-            .conns
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&self.number);
-        self.counts.open.fetch_sub(1, Ordering::SeqCst);
+        lock(&self.counts.pool).remove(self.id);
     }
 }
 
@@ -179,7 +181,7 @@ impl<S: AsyncRead + Unpin> AsyncRead for Counted<S> {
         }
         if !self.switch.spoke.load(Ordering::Relaxed) {
             // Kept so that an eviction wakes the connection's task.
-            let mut w = self.switch.waker.lock().unwrap_or_else(|e| e.into_inner());
+            let mut w = lock(&self.switch.waker);
             if !w.as_ref().is_some_and(|w| w.will_wake(cx.waker())) {
                 *w = Some(cx.waker().clone());
             }
