@@ -14,6 +14,8 @@
 //! * [`Audit`]: one line for every write let through, naming the front end, the
 //!   session's identity and peer, and the innermost device and command.
 //! * [`NetList`]: client addresses as networks (`10.0.0.0/24`), for Modbus writes.
+//! * [`pool`]: the connection pool of the TCP front ends: limits, priority hosts, which
+//!   connection a full pool closes, and a budget of log lines.
 //!
 //! The crate does no I/O but the audit file's appends.
 
@@ -23,6 +25,7 @@ mod allow;
 mod audit;
 pub mod devices;
 mod nets;
+pub mod pool;
 
 pub use allow::CommandAllowList;
 pub use audit::{json_line, Audit, WriteRecord};

@@ -70,6 +70,8 @@ pub struct GatewayConfig {
     pub history: Option<hart_history::HistoryConfig>,
     /// The MQTT Sparkplug B publisher, if any.
     pub mqtt: Option<hart_sparkplug::MqttConfig>,
+    /// The web dashboard, if any.
+    pub web: Option<hart_web::WebConfig>,
     /// The console view, when no front end is asked for.
     pub console: Option<ConsoleConfig>,
     /// Only these HART commands may be sent by clients (`--allow-commands`).
@@ -142,6 +144,7 @@ impl GatewayConfig {
         let modbus_cfg = modbus_config(file, opts)?;
         let opcua = opcua_config(file, opts)?;
         let mqtt = mqtt_config(file, opts)?;
+        let mut web = web_config(file, opts)?;
         let history = match (&opts.history, &file.history) {
             (Some(db), Some(section)) => Some(hart_history::HistoryConfig {
                 db: db.clone(),
@@ -162,12 +165,14 @@ impl GatewayConfig {
             && profibus.is_none()
             && opcua.is_none()
             && mqtt.is_none()
+            && web.is_none()
             && history.is_none();
         let poll = modbus.is_some()
             || modbus_rtu.is_some()
             || profibus.is_some()
             || opcua.is_some()
             || mqtt.is_some()
+            || web.is_some()
             || history.is_some()
             || console
             || file.poll.is_some()
@@ -198,6 +203,10 @@ impl GatewayConfig {
             .as_deref()
             .map(|b| socket_addr("--modbus", b, 502))
             .transpose()?;
+        // The dashboard's trends read the historian's database.
+        if let (Some(w), Some(h)) = (web.as_mut(), history.as_ref()) {
+            w.history_db = Some(h.db.clone());
+        }
         Ok(GatewayConfig {
             engine: EngineConfig { poll, defaults },
             loops,
@@ -208,6 +217,7 @@ impl GatewayConfig {
             profibus,
             opcua,
             mqtt,
+            web,
             history,
             allow_commands: opts.allow_commands.clone(),
             audit_file: opts.audit_file.clone(),
@@ -593,4 +603,68 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
         },
         audit: hart_access::Audit::new(opts.audit_file.clone()),
     })
+}
+
+/// The web dashboard from `--web*` and `[web]`; `None`: no dashboard. A port alone
+/// (`--web 8080`) listens on 127.0.0.1: the dashboard is reached from elsewhere only
+/// when an address says so.
+fn web_config(
+    file: &GatewayFile,
+    opts: &ServeOptions,
+) -> Result<Option<hart_web::WebConfig>, Error> {
+    let section = file.web.clone().unwrap_or_default();
+    let Some(bind) = opts.web.clone().or(section.bind.clone()) else {
+        if opts.web_admin_password_file.is_some()
+            || opts.web_cert.is_some()
+            || opts.web_key.is_some()
+        {
+            return Err(Error::config(
+                "--web-admin-password-file, --web-cert and --web-key go with --web ADDR[:PORT]",
+            ));
+        }
+        return Ok(None);
+    };
+    let bind = match bind.trim().parse::<u16>() {
+        Ok(port) => SocketAddr::from(([127, 0, 0, 1], port)),
+        Err(_) => socket_addr("--web", &bind, hart_web::DEFAULT_PORT)?,
+    };
+    let mut web = hart_web::WebConfig::new(bind);
+    web.admin_password_file = opts
+        .web_admin_password_file
+        .clone()
+        .or(section.admin_password_file);
+    if let Some(w) = section.memory_window {
+        if w < Duration::from_secs(60) || w > Duration::from_secs(7 * 86_400) {
+            return Err(Error::config(
+                "[web] memory_window: give 1m to 7d (each device keeps at most 3600 points)",
+            ));
+        }
+        web.memory_window = w;
+    }
+    // The HART-IP server's identities with write rights may log in with their keys.
+    if let Some(p) = &opts.psk_file {
+        let table = hart_ip_tls::PskTable::load(p)
+            .map_err(|e| Error::config(format!("--psk-file: {e}")))?;
+        web.psk_logins = table
+            .keys
+            .iter()
+            .filter(|k| k.rights.may_write())
+            .map(|k| hart_web::PskLogin {
+                identity: k.identity.clone(),
+                key: k.key.clone(),
+            })
+            .collect();
+    }
+    web.tls =
+        match (
+            opts.web_cert.clone().or(section.cert),
+            opts.web_key.clone().or(section.key),
+        ) {
+            (Some(cert), Some(key)) => Some(hart_web::TlsFiles { cert, key }),
+            (None, None) => None,
+            _ => return Err(Error::config(
+                "HTTPS needs both --web-cert FILE and --web-key FILE (or cert and key in [web])",
+            )),
+        };
+    Ok(Some(web))
 }

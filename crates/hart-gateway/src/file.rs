@@ -39,6 +39,9 @@ pub struct GatewayFile {
     /// The MQTT Sparkplug B publisher (`[mqtt]`).
     #[serde(default)]
     pub mqtt: Option<hart_sparkplug::MqttConfig>,
+    /// The web dashboard (`[web]`).
+    #[serde(default)]
+    pub web: Option<WebSection>,
     /// Device-specific commands declared reads (`[[device_commands]]`, as the
     /// `[[device]]` tables of `--device-commands FILE`).
     #[serde(default)]
@@ -182,4 +185,22 @@ impl GatewayFile {
         toml::from_str(&text)
             .map_err(|e| crate::Error::config(format!("--config {}: {e}", path.display())))
     }
+}
+
+/// `[web]`: the web dashboard (docs/web.md).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WebSection {
+    /// `ADDR[:PORT]` (a port alone: 127.0.0.1), as `--web`.
+    pub bind: Option<String>,
+    /// The administrator's password file, as `--web-admin-password-file`.
+    pub admin_password_file: Option<PathBuf>,
+    /// HTTPS certificate chain (PEM), as `--web-cert`.
+    pub cert: Option<PathBuf>,
+    /// HTTPS private key (PEM), as `--web-key`.
+    pub key: Option<PathBuf>,
+    /// How much of each device's PV and loop current the dashboard keeps in memory
+    /// for trends without a historian (default 1h).
+    #[serde(default, with = "humantime_serde")]
+    pub memory_window: Option<std::time::Duration>,
 }

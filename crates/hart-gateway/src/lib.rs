@@ -102,6 +102,7 @@ pub struct Gateway {
     opcua: Option<hart_opcua::OpcUaServer>,
     mqtt: Option<hart_sparkplug::Handle>,
     history: Option<hart_history::Handle>,
+    web: Option<hart_web::WebServer>,
     modbus_tcp: Option<SocketAddr>,
 }
 
@@ -169,6 +170,7 @@ impl Gateway {
             opcua: None,
             mqtt: None,
             history: None,
+            web: None,
             modbus_tcp: None,
         };
         // A front end that cannot start stops what has started.
@@ -336,6 +338,28 @@ impl Gateway {
             self.started.push(what);
             self.mqtt = Some(handle);
         }
+        if let Some(w) = config.web {
+            let access = hart_web::Access {
+                audit: hart_access::Audit::new(config.audit_file.clone()),
+                allow: config.allow_commands.clone(),
+                read_only,
+            };
+            let mode = if read_only {
+                "read only"
+            } else if w.admin_password_file.is_some() || !w.psk_logins.is_empty() {
+                "writes after login"
+            } else {
+                "read only: no --web-admin-password-file"
+            };
+            let server = hart_web::start(engine.clone(), w, access)
+                .await
+                .map_err(|e| match e {
+                    hart_web::Error::Config(m) => Error::config(format!("--web: {m}")),
+                    hart_web::Error::Io(m) => Error::io(format!("--web: {m}")),
+                })?;
+            self.started.push(format!("web: {} ({mode})", server.url));
+            self.web = Some(server);
+        }
         if let Some(c) = config.console {
             self.tasks
                 .push(tokio::task::spawn_local(console::view(engine, c)));
@@ -365,6 +389,11 @@ impl Gateway {
         self.mqtt.as_ref().map(|m| m.status())
     }
 
+    /// Where the web dashboard listens, if it runs.
+    pub fn web_addr(&self) -> Option<SocketAddr> {
+        self.web.as_ref().map(|w| w.addr)
+    }
+
     /// Where the Modbus TCP server listens, if it runs.
     pub fn modbus_tcp_addr(&self) -> Option<SocketAddr> {
         self.modbus_tcp
@@ -378,6 +407,9 @@ impl Gateway {
         // The last batch is written before the historian stops.
         if let Some(h) = self.history {
             h.stop().await;
+        }
+        if let Some(w) = self.web {
+            w.stop();
         }
         for t in self.tasks {
             t.abort();

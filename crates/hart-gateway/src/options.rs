@@ -90,6 +90,15 @@ pub struct ServeOptions {
     pub mqtt_primary_host: Option<String>,
     /// `--mqtt-qos 0|1`: the QoS of births and data (`[mqtt] data_qos`).
     pub mqtt_qos: Option<u8>,
+    /// `--web ADDR[:PORT]`: serve the web dashboard here (a port alone: 127.0.0.1).
+    pub web: Option<String>,
+    /// `--web-admin-password-file FILE`: the administrator's password (first line);
+    /// without it the dashboard only reads.
+    pub web_admin_password_file: Option<PathBuf>,
+    /// `--web-cert FILE`: HTTPS with this PEM certificate chain (with `--web-key`).
+    pub web_cert: Option<PathBuf>,
+    /// `--web-key FILE`: the PEM private key of `--web-cert`.
+    pub web_key: Option<PathBuf>,
     /// `--json`: the console view (no front end) prints JSON lines.
     pub json: bool,
 }

@@ -205,3 +205,85 @@ fn an_outage_is_read_back_from_the_historian() {
     });
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_web_dashboard_starts_from_options_and_the_file() {
+    local(async {
+        // A port alone listens on loopback only.
+        let config = GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            instant: true,
+            web: Some("0".into()),
+            ..ServeOptions::default()
+        })
+        .unwrap();
+        let web = config.web.clone().unwrap();
+        assert!(web.bind.ip().is_loopback(), "{}", web.bind);
+        assert!(config.engine.poll, "the dashboard reads the image");
+        let gateway = Gateway::start(config).await.unwrap();
+        let addr = gateway.web_addr().unwrap();
+        assert!(
+            gateway.started()[0].starts_with(&format!("web: http://{addr}/ (read only")),
+            "{:?}",
+            gateway.started()
+        );
+        gateway.stop().await;
+        // The same from [web], with the historian's database for the trends.
+        let dir = std::env::temp_dir().join(format!("hart-gw-web-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("gateway.toml");
+        std::fs::write(
+            &file,
+            format!(
+                "[web]\nbind = \"127.0.0.1:0\"\nmemory_window = \"2h\"\n[history]\ndb = \"{}\"\n",
+                dir.join("h.sqlite").display()
+            ),
+        )
+        .unwrap();
+        let config = GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            instant: true,
+            config: Some(file),
+            ..ServeOptions::default()
+        })
+        .unwrap();
+        let web = config.web.unwrap();
+        assert_eq!(web.memory_window, Duration::from_secs(7200));
+        assert!(web.history_db.unwrap().ends_with("h.sqlite"));
+        let _ = std::fs::remove_dir_all(&dir);
+        // Mistakes.
+        for opts in [
+            ServeOptions {
+                sim: Some(vec![]),
+                web_admin_password_file: Some("pw".into()),
+                ..ServeOptions::default()
+            },
+            ServeOptions {
+                sim: Some(vec![]),
+                web: Some("127.0.0.1:0".into()),
+                web_cert: Some("cert.pem".into()),
+                ..ServeOptions::default()
+            },
+            ServeOptions {
+                sim: Some(vec![]),
+                web: Some("not an address".into()),
+                ..ServeOptions::default()
+            },
+        ] {
+            let e = GatewayConfig::from_options(&opts).err().unwrap();
+            assert_eq!(e.kind, ErrorKind::Config, "{e}");
+        }
+        // A password file that is missing stops the start, as a port in use does.
+        let config = GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            instant: true,
+            web: Some("127.0.0.1:0".into()),
+            web_admin_password_file: Some("/nonexistent/web.pass".into()),
+            ..ServeOptions::default()
+        })
+        .unwrap();
+        let e = Gateway::start(config).await.err().unwrap();
+        assert_eq!(e.kind, ErrorKind::Io, "{e}");
+        assert!(e.message.contains("--web-admin-password-file"), "{e}");
+    });
+}

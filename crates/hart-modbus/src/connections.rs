@@ -16,11 +16,11 @@
 //!
 //! Every refusal, eviction and time-out is logged with the peer and the reason.
 
-use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
+use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use hart_access::pool;
 use tokio::sync::Notify;
 
 /// The limits.
@@ -64,59 +64,34 @@ pub(crate) enum Phase {
     Answering,
 }
 
-struct Entry {
-    peer: SocketAddr,
-    priority: bool,
-    opened: Instant,
+/// What the pool keeps of a connection.
+struct Conn {
     /// When it last completed a request (or opened).
     last_used: Instant,
     phase: Phase,
     close: Arc<Notify>,
-    /// Why it is being closed (set before `close` is notified).
-    closing: Option<&'static str>,
 }
 
-/// The pool of open connections.
+/// The pool of open connections: hart-access's pool, with the Modbus front end's
+/// ranking, shared by the connections' tasks.
 #[derive(Default)]
 pub(crate) struct Pool {
-    entries: Mutex<HashMap<u64, Entry>>,
-    next: std::sync::atomic::AtomicU64,
+    inner: Mutex<pool::Pool<Conn>>,
     /// Keeps a flood from flooding the log too.
     pub(crate) log: LogLimit,
 }
 
-/// Lines about connections logged per second at most; the rest are counted and the
-/// count logged when the next second begins, so a flood of connections cannot fill
-/// the disk with log lines.
-pub const LOG_LINES_PER_SECOND: u32 = 20;
+pub use hart_access::pool::LOG_LINES_PER_SECOND;
 
-/// A per-second budget of log lines.
+/// A per-second budget of log lines, shared by the connections.
 #[derive(Default)]
-pub(crate) struct LogLimit(Mutex<(Option<Instant>, u32, u64)>);
+pub(crate) struct LogLimit(Mutex<pool::LogLimit>);
 
 impl LogLimit {
     /// Whether a line may be logged now; when a second with lines left out ends, says
     /// how many first.
     pub(crate) fn allow(&self) -> bool {
-        let now = Instant::now();
-        let mut g = lock(&self.0);
-        let (start, _, left_out) = &mut *g;
-        if start.is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1)) {
-            if *left_out > 0 {
-                tracing::warn!(
-                    "modbus: {left_out} more connection refusals, closings and time-outs in the last second(s), not logged one by one"
-                );
-            }
-            *g = (Some(now), 0, 0);
-        }
-        let (_, lines, left_out) = &mut *g;
-        if *lines < LOG_LINES_PER_SECOND {
-            *lines += 1;
-            true
-        } else {
-            *left_out += 1;
-            false
-        }
+        lock(&self.0).allow_logged(Instant::now(), "modbus")
     }
 }
 
@@ -147,118 +122,81 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 impl Pool {
-    /// Admits a connection from `peer`, evicting the oldest idle one when the pool is
-    /// full: its id and the notify that closes it.
+    /// Admits a connection from `peer`, evicting one when the pool is full: its id and
+    /// the notify that closes it.
     pub(crate) fn admit(
         &self,
         peer: SocketAddr,
         limits: &Limits,
         now: Instant,
     ) -> Result<(u64, Arc<Notify>), Refused> {
-        let priority = limits.priority.contains(peer.ip());
-        let mut entries = lock(&self.entries);
-        let from_here = entries
-            .values()
-            .filter(|e| same_host(e.peer.ip(), peer.ip()) && e.closing.is_none())
-            .count();
-        if !priority && from_here >= limits.max_per_address {
-            return Err(Refused::PerAddress(from_here));
-        }
-        let open = entries.values().filter(|e| e.closing.is_none()).count();
-        if open >= limits.max_connections {
-            // Never a priority connection, nor one whose request is being answered.
-            // First one that has never completed a request, then one stuck in a
-            // request (a Modbus request is a few hundred bytes: on a network it comes
-            // whole in milliseconds), then the oldest idle one: a client that does
-            // work is worth more than a socket that only takes room, so a flood of
-            // new or half-sent connections does not push out a SCADA between two of
-            // its polls.
-            let rank = |p: Phase| match p {
-                Phase::Fresh => Some(0),
-                Phase::Receiving(_) => Some(1),
-                Phase::Idle => Some(2),
-                Phase::Answering => None,
-            };
-            let victim = entries
-                .iter()
-                .filter(|(_, e)| !e.priority && e.closing.is_none())
-                .filter_map(|(id, e)| {
-                    let since = match e.phase {
-                        Phase::Receiving(t) => t,
-                        _ => e.last_used,
-                    };
-                    rank(e.phase).map(|r| ((r, since), *id))
-                })
-                .min()
-                .map(|(_, id)| id);
-            let Some(id) = victim else {
-                return Err(Refused::Full(open));
-            };
-            if let Some(e) = entries.get_mut(&id) {
-                e.closing = Some("closed to admit a new connection: the pool was full");
-                e.close.notify_one();
-                if self.log.allow() {
-                    tracing::warn!(
-                        "modbus: closing the connection from {} (idle {:.0} s, open {:.0} s) to admit {peer}: {} connections open (the limit)",
-                        e.peer,
-                        now.saturating_duration_since(e.last_used).as_secs_f64(),
-                        now.saturating_duration_since(e.opened).as_secs_f64(),
-                        limits.max_connections
-                    );
-                }
+        let admission = pool::Admission {
+            max_connections: limits.max_connections,
+            max_per_address: limits.max_per_address,
+            priority: &limits.priority,
+        };
+        let close = Arc::new(Notify::new());
+        let fresh = Conn {
+            last_used: now,
+            phase: Phase::Fresh,
+            close: close.clone(),
+        };
+        // Never one whose request is being answered. First one that has never
+        // completed a request, then one stuck in a request (a Modbus request is a few
+        // hundred bytes: on a network it comes whole in milliseconds), then the oldest
+        // idle one: a client that does work is worth more than a socket that only
+        // takes room, so a flood of new or half-sent connections does not push out a
+        // SCADA between two of its polls.
+        let rank = |e: &pool::Entry<Conn>| match e.state.phase {
+            Phase::Fresh => Some((0, e.state.last_used)),
+            Phase::Receiving(t) => Some((1, t)),
+            Phase::Idle => Some((2, e.state.last_used)),
+            Phase::Answering => None,
+        };
+        let admitted = lock(&self.inner).admit(peer, &admission, now, fresh, rank);
+        let (id, evicted) = admitted.map_err(|r| match r {
+            pool::Refused::PerAddress(n) => Refused::PerAddress(n),
+            pool::Refused::Full(n) => Refused::Full(n),
+        })?;
+        if let Some((_, e)) = evicted {
+            e.state.close.notify_one();
+            if self.log.allow() {
+                tracing::warn!(
+                    "modbus: closing the connection from {} (idle {:.0} s, open {:.0} s) to admit {peer}: {} connections open (the limit)",
+                    e.peer,
+                    now.saturating_duration_since(e.state.last_used).as_secs_f64(),
+                    now.saturating_duration_since(e.opened).as_secs_f64(),
+                    limits.max_connections
+                );
             }
         }
-        let id = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let close = Arc::new(Notify::new());
-        entries.insert(
-            id,
-            Entry {
-                peer,
-                priority,
-                opened: now,
-                last_used: now,
-                phase: Phase::Fresh,
-                close: close.clone(),
-                closing: None,
-            },
-        );
         Ok((id, close))
     }
 
     /// Records what connection `id` does now.
     pub(crate) fn set_phase(&self, id: u64, phase: Phase, now: Instant) {
-        if let Some(e) = lock(&self.entries).get_mut(&id) {
+        if let Some(e) = lock(&self.inner).get_mut(id) {
             if phase == Phase::Idle {
-                e.last_used = now;
+                e.state.last_used = now;
             }
-            e.phase = phase;
+            e.state.phase = phase;
         }
     }
 
-    /// The phase of `id`, and why it is being closed if it is.
-    pub(crate) fn state(&self, id: u64) -> Option<(Phase, Option<&'static str>)> {
-        lock(&self.entries).get(&id).map(|e| (e.phase, e.closing))
+    /// The phase of `id`; `None` once it was closed to admit another.
+    pub(crate) fn phase(&self, id: u64) -> Option<Phase> {
+        lock(&self.inner).get(id).map(|e| e.state.phase)
     }
 
     /// Forgets a closed connection.
     pub(crate) fn remove(&self, id: u64) {
-        lock(&self.entries).remove(&id);
+        lock(&self.inner).remove(id);
     }
 
     /// Connections open now.
     pub(crate) fn len(&self) -> usize {
-        lock(&self.entries).len()
+        lock(&self.inner).len()
     }
-}
-
-/// Whether two addresses are the same host (an IPv4 client seen as `::ffff:a.b.c.d`
-/// counts as its IPv4 address).
-fn same_host(a: IpAddr, b: IpAddr) -> bool {
-    let v4 = |ip: IpAddr| match ip {
-        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
-        v4 => v4,
-    };
-    v4(a) == v4(b)
 }
 
 /// When connection `id` must have made progress by, from its phase: `None` while it
@@ -298,7 +236,7 @@ mod tests {
         // Full: a (never used) goes before the SCADA's (idle, and older), which is a
         // priority connection anyway.
         let (c, _) = pool.admit(addr("10.0.0.4:1000"), &limits, at(5)).unwrap();
-        assert!(pool.state(a).unwrap().1.is_some(), "a is being closed");
+        assert!(pool.phase(a).is_none(), "a was closed");
         drop(a_close);
         pool.remove(a);
         // Full again, and nothing to close but the SCADA's: refused.
@@ -307,7 +245,7 @@ mod tests {
             pool.admit(addr("10.0.0.5:1000"), &limits, at(7)),
             Err(Refused::Full(3))
         ));
-        assert!(pool.state(scada).unwrap().1.is_none(), "the SCADA's stays");
+        assert!(pool.phase(scada).is_some(), "the SCADA's stays");
         // Per address: two from .3 at most; the priority host has no such limit.
         pool.remove(c);
         assert!(pool.admit(addr("10.0.0.3:1001"), &limits, at(8)).is_ok());
@@ -328,8 +266,8 @@ mod tests {
         pool.set_phase(scada, Phase::Idle, at(1));
         let (scan, _) = pool.admit(addr("10.0.0.9:1000"), &limits, at(2)).unwrap();
         pool.admit(addr("10.0.0.9:1001"), &limits, at(3)).unwrap();
-        assert!(pool.state(scan).unwrap().1.is_some(), "the unused one goes");
-        assert!(pool.state(scada).unwrap().1.is_none(), "the SCADA's stays");
+        assert!(pool.phase(scan).is_none(), "the unused one goes");
+        assert!(pool.phase(scada).is_some(), "the SCADA's stays");
     }
 
     #[test]
@@ -346,11 +284,8 @@ mod tests {
         let (half, _) = pool.admit(addr("10.0.0.9:1000"), &limits, at(2)).unwrap();
         pool.set_phase(half, Phase::Receiving(at(2)), at(2));
         pool.admit(addr("10.0.0.9:1001"), &limits, at(3)).unwrap();
-        assert!(
-            pool.state(half).unwrap().1.is_some(),
-            "the half-sent one goes"
-        );
-        assert!(pool.state(scada).unwrap().1.is_none(), "the SCADA's stays");
+        assert!(pool.phase(half).is_none(), "the half-sent one goes");
+        assert!(pool.phase(scada).is_some(), "the SCADA's stays");
     }
 
     #[test]

@@ -660,20 +660,10 @@ impl tokio::io::AsyncRead for Counted {
         use std::task::Poll;
         let this = &mut *self;
         if this.close.as_mut().poll(cx).is_ready() {
-            let why = this
-                .gateway
-                .pool
-                .state(this.id)
-                .and_then(|s| s.1)
-                .unwrap_or("closed by the pool");
-            return this.closed(why);
+            return this.closed("closed to admit a new connection: the pool was full");
         }
         let limits = &this.gateway.config.limits;
-        let phase = this
-            .gateway
-            .pool
-            .state(this.id)
-            .map_or(Phase::Idle, |s| s.0);
+        let phase = this.gateway.pool.phase(this.id).unwrap_or(Phase::Idle);
         if let Some(due) = connections::deadline(phase, this.opened, limits) {
             let due = tokio::time::Instant::from_std(due);
             if this.timer.deadline() != due {

@@ -23,9 +23,10 @@
 //! This module is sans-IO: the pool and the handshake watcher take the time and the
 //! bytes and say what to do.
 
-use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
+use std::net::SocketAddr;
 use std::time::{Duration, Instant};
+
+use hart_access::pool;
 
 /// The limits of the OPC UA front end.
 #[derive(Debug, Clone)]
@@ -128,10 +129,9 @@ pub(crate) enum Phase {
     Open,
 }
 
-struct Entry {
-    peer: SocketAddr,
-    priority: bool,
-    opened: Instant,
+/// What the pool keeps of a connection.
+#[derive(Debug, Clone, Copy)]
+struct Conn {
     /// When the client last sent bytes (or the connection opened).
     last_sent: Instant,
     phase: Phase,
@@ -158,6 +158,15 @@ pub(crate) enum Refused {
     Full(usize),
 }
 
+impl From<pool::Refused> for Refused {
+    fn from(r: pool::Refused) -> Self {
+        match r {
+            pool::Refused::PerAddress(n) => Refused::PerAddress(n),
+            pool::Refused::Full(n) => Refused::Full(n),
+        }
+    }
+}
+
 impl std::fmt::Display for Refused {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -176,12 +185,9 @@ impl std::fmt::Display for Refused {
     }
 }
 
-/// The open connections (sans-IO).
+/// The open connections: hart-access's pool, with the OPC UA front end's ranking.
 #[derive(Default)]
-pub(crate) struct Pool {
-    entries: HashMap<u64, Entry>,
-    next: u64,
-}
+pub(crate) struct Pool(pool::Pool<Conn>);
 
 impl Pool {
     /// Admits a connection from `peer` at `now`: its id, and the connection closed to
@@ -192,103 +198,69 @@ impl Pool {
         limits: &Limits,
         now: Instant,
     ) -> Result<(u64, Option<Evicted>), Refused> {
-        let priority = limits.priority.contains(peer.ip());
-        let from_here = self
-            .entries
-            .values()
-            .filter(|e| same_host(e.peer.ip(), peer.ip()))
-            .count();
-        if !priority && from_here >= limits.max_per_address {
-            return Err(Refused::PerAddress(from_here));
-        }
-        let mut evicted = None;
-        if self.entries.len() >= limits.max_connections {
-            // Never a priority connection. First the oldest still in its handshake (a
-            // client opens its secure channel in milliseconds: the rest are scanners
-            // or floods), then the one idle longest among those idle for
-            // EVICTABLE_IDLE; a client at work is kept.
-            let victim = self
-                .entries
-                .iter()
-                .filter(|(_, e)| !e.priority)
-                .filter_map(|(id, e)| match e.phase {
-                    Phase::Handshake => Some(((0, e.opened), *id)),
-                    Phase::Open if now.saturating_duration_since(e.last_sent) >= EVICTABLE_IDLE => {
-                        Some(((1, e.last_sent), *id))
-                    }
-                    Phase::Open => None,
-                })
-                .min()
-                .map(|(_, id)| id);
-            let Some(id) = victim else {
-                return Err(Refused::Full(self.entries.len()));
-            };
-            if let Some(e) = self.entries.remove(&id) {
-                evicted = Some(Evicted {
-                    id,
-                    peer: e.peer,
-                    phase: e.phase,
-                    idle: now.saturating_duration_since(e.last_sent),
-                    age: now.saturating_duration_since(e.opened),
-                });
+        let admission = pool::Admission {
+            max_connections: limits.max_connections,
+            max_per_address: limits.max_per_address,
+            priority: &limits.priority,
+        };
+        let fresh = Conn {
+            last_sent: now,
+            phase: Phase::Handshake,
+        };
+        // First the oldest still in its handshake (a client opens its secure channel
+        // in milliseconds: the rest are scanners or floods), then the one idle longest
+        // among those idle for EVICTABLE_IDLE; a client at work is kept.
+        let rank = |e: &pool::Entry<Conn>| match e.state.phase {
+            Phase::Handshake => Some((0, e.opened)),
+            Phase::Open if now.saturating_duration_since(e.state.last_sent) >= EVICTABLE_IDLE => {
+                Some((1, e.state.last_sent))
             }
-        }
-        let id = self.next;
-        self.next += 1;
-        self.entries.insert(
+            Phase::Open => None,
+        };
+        let (id, evicted) = self.0.admit(peer, &admission, now, fresh, rank)?;
+        Ok((
             id,
-            Entry {
-                peer,
-                priority,
-                opened: now,
-                last_sent: now,
-                phase: Phase::Handshake,
-            },
-        );
-        Ok((id, evicted))
+            evicted.map(|(id, e)| Evicted {
+                id,
+                peer: e.peer,
+                phase: e.state.phase,
+                idle: now.saturating_duration_since(e.state.last_sent),
+                age: now.saturating_duration_since(e.opened),
+            }),
+        ))
     }
 
     /// Connection `id` has opened its secure channel.
     pub(crate) fn opened(&mut self, id: u64, now: Instant) {
-        if let Some(e) = self.entries.get_mut(&id) {
-            e.phase = Phase::Open;
-            e.last_sent = now;
+        if let Some(e) = self.0.get_mut(id) {
+            e.state.phase = Phase::Open;
+            e.state.last_sent = now;
         }
     }
 
     /// The client of connection `id` sent bytes at `now`.
     pub(crate) fn sent(&mut self, id: u64, now: Instant) {
-        if let Some(e) = self.entries.get_mut(&id) {
-            e.last_sent = now;
+        if let Some(e) = self.0.get_mut(id) {
+            e.state.last_sent = now;
         }
     }
 
     /// Whether connection `id` is still in the pool (not evicted).
     #[cfg(test)]
     pub(crate) fn contains(&self, id: u64) -> bool {
-        self.entries.contains_key(&id)
+        self.0.get(id).is_some()
     }
 
     /// Forgets a closed connection.
     pub(crate) fn remove(&mut self, id: u64) {
-        self.entries.remove(&id);
+        self.0.remove(id);
     }
 
     /// Connections open now.
     #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
-        self.entries.len()
+        self.0.len()
     }
-}
-
-/// Whether two addresses are the same host (an IPv4 client seen as `::ffff:a.b.c.d`
-/// counts as its IPv4 address).
-fn same_host(a: IpAddr, b: IpAddr) -> bool {
-    let v4 = |ip: IpAddr| match ip {
-        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
-        v4 => v4,
-    };
-    v4(a) == v4(b)
 }
 
 /// What the server has said on a connection so far, from the bytes it sent.
@@ -372,44 +344,8 @@ impl HandshakeWatch {
     }
 }
 
-/// Lines about connections logged per second at most; the rest are counted and the
-/// count logged when the next second begins, so a flood of connections cannot fill
-/// the disk with log lines.
-pub const LOG_LINES_PER_SECOND: u32 = 20;
-
-/// A per-second budget of log lines (sans-IO: the time is given).
-#[derive(Debug, Default)]
-pub(crate) struct LogLimit {
-    start: Option<Instant>,
-    lines: u32,
-    left_out: u64,
-}
-
-impl LogLimit {
-    /// Whether a line may be logged at `now`; and, when a second with lines left out
-    /// has ended, how many were left out (to be logged first).
-    pub(crate) fn allow(&mut self, now: Instant) -> (bool, u64) {
-        let mut left_out = 0;
-        if self
-            .start
-            .is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1))
-        {
-            left_out = self.left_out;
-            *self = LogLimit {
-                start: Some(now),
-                lines: 0,
-                left_out: 0,
-            };
-        }
-        if self.lines < LOG_LINES_PER_SECOND {
-            self.lines += 1;
-            (true, left_out)
-        } else {
-            self.left_out += 1;
-            (false, left_out)
-        }
-    }
-}
+pub(crate) use hart_access::pool::LogLimit;
+pub use hart_access::pool::LOG_LINES_PER_SECOND;
 
 /// The OPC UA TCP `ERR` message telling a client why it is closed.
 pub(crate) fn err_message(status: u32, reason: &str) -> Vec<u8> {
@@ -582,19 +518,6 @@ mod tests {
         ));
         // Failed stays failed.
         assert!(matches!(w.feed(b"anything"), Handshake::Failed(_)));
-    }
-
-    #[test]
-    fn the_log_budget_counts_what_it_leaves_out() {
-        let mut log = LogLimit::default();
-        let t0 = Instant::now();
-        for i in 0..LOG_LINES_PER_SECOND {
-            assert_eq!(log.allow(t0), (true, 0), "line {i}");
-        }
-        assert_eq!(log.allow(t0), (false, 0));
-        assert_eq!(log.allow(t0 + Duration::from_millis(900)), (false, 0));
-        assert_eq!(log.allow(t0 + Duration::from_secs(1)), (true, 2));
-        assert_eq!(log.allow(t0 + Duration::from_secs(3)), (true, 0));
     }
 
     #[test]

@@ -36,13 +36,7 @@ impl Shared {
     /// Whether a line about a connection may be logged now (and says how many were
     /// left out in the last second(s) first).
     fn log(&self) -> bool {
-        let (ok, left_out) = lock(&self.log).allow(Instant::now());
-        if left_out > 0 {
-            tracing::warn!(
-                "opcua: {left_out} more connection refusals, closings and time-outs in the last second(s), not logged one by one"
-            );
-        }
-        ok
+        lock(&self.log).allow_logged(Instant::now(), "opcua")
     }
 }
 

@@ -56,6 +56,49 @@ pub struct SubDevice {
     pub present: bool,
 }
 
+/// Frames kept for a traffic watcher that falls behind; older ones are lost to it
+/// (counted by its receiver's lag).
+pub const TRAFFIC_QUEUE: usize = 4096;
+
+/// What a traffic frame is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrafficKind {
+    /// A request the engine sent (a poll, a client's request, a write).
+    Request,
+    /// The reply to the request before it.
+    Reply,
+    /// The request before it had no reply after its retries (no bytes).
+    NoReply,
+    /// A burst message heard on the loop.
+    Burst,
+}
+
+impl TrafficKind {
+    /// `request`, `reply`, `no-reply` or `burst`.
+    pub fn name(self) -> &'static str {
+        match self {
+            TrafficKind::Request => "request",
+            TrafficKind::Reply => "reply",
+            TrafficKind::NoReply => "no-reply",
+            TrafficKind::Burst => "burst",
+        }
+    }
+}
+
+/// One frame on a loop, as the engine saw it: for traffic views (the web dashboard's)
+/// and captures. A request retried by the line is shown once, with its reply.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TrafficFrame {
+    /// Loop (channel) index.
+    pub channel: u8,
+    /// Wall-clock time on the engine's clock.
+    pub time: std::time::SystemTime,
+    /// Request, reply, no reply or burst.
+    pub kind: TrafficKind,
+    /// The frame from its delimiter to its check byte (empty for `NoReply`).
+    pub pdu: Vec<u8>,
+}
+
 /// What the engine's tasks and handles share.
 pub(crate) struct Shared {
     pub(crate) config: EngineConfig,
@@ -63,6 +106,7 @@ pub(crate) struct Shared {
     pub(crate) image: Arc<Image>,
     pub(crate) subs: Arc<Mutex<Vec<SubDevice>>>,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
+    pub(crate) traffic: broadcast::Sender<Arc<TrafficFrame>>,
     ready: watch::Sender<Vec<bool>>,
     /// Why each loop's port is down, when it is.
     failures: std::sync::Mutex<Vec<Option<String>>>,
@@ -249,6 +293,7 @@ impl Engine {
             image,
             subs: Arc::new(Mutex::new(vec![])),
             bursts: broadcast::channel(64).0,
+            traffic: broadcast::channel(TRAFFIC_QUEUE).0,
             ready: ready_tx,
             failures: std::sync::Mutex::new(vec![None; loops.len()]),
             disturbed: std::sync::Mutex::new(vec![None; loops.len()]),
@@ -274,6 +319,13 @@ impl Engine {
             },
             tasks,
         )
+    }
+
+    /// The frames on every loop from now on ([`TrafficFrame`]); costs nothing while
+    /// no one subscribes. A receiver that falls more than [`TRAFFIC_QUEUE`] frames
+    /// behind loses the oldest.
+    pub fn traffic(&self) -> broadcast::Receiver<Arc<TrafficFrame>> {
+        self.shared.traffic.subscribe()
     }
 
     /// The current image.

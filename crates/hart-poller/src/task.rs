@@ -22,7 +22,7 @@ use crate::image::{DeviceImage, LastPoll};
 use crate::line::{pdu, Line};
 use crate::request::{LoopOutcome, LoopRequest};
 use crate::schedule::{Micros, Schedule};
-use crate::{Shared, SubDevice};
+use crate::{Shared, SubDevice, TrafficFrame, TrafficKind};
 
 /// After the first pass without polling, one more address of the scan is visited
 /// whenever the loop has had no request for this long, so the sub-device list stays
@@ -281,7 +281,7 @@ impl LoopTask {
         if !r.start() {
             return;
         }
-        let outcome = match self.line.transact(&r.pdu, r.retries).await {
+        let outcome = match self.transact(&r.pdu, r.retries).await {
             Some(reply) => {
                 self.learn(&r.pdu, &reply).await;
                 self.after_write(&r.pdu, &reply);
@@ -432,7 +432,7 @@ impl LoopTask {
             return;
         };
         let request = pdu(&FrameSpec::request(Address::short(other), 0, &[]));
-        let again = self.line.transact(&request, 1).await;
+        let again = self.transact(&request, 1).await;
         let same = again
             .as_deref()
             .and_then(|r| Frame::parse_pdu(r).ok())
@@ -466,7 +466,7 @@ impl LoopTask {
     /// (command 20).
     async fn identify(&mut self, poll: u8) -> Option<DeviceInfo> {
         let request = pdu(&FrameSpec::request(Address::short(poll), 0, &[]));
-        let reply = self.line.transact(&request, 1).await?;
+        let reply = self.transact(&request, 1).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() || f.response_code != Some(0) {
             return None;
@@ -510,7 +510,7 @@ impl LoopTask {
                 data,
             )
         });
-        let reply = self.line.transact(&request, retries).await?;
+        let reply = self.transact(&request, retries).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() {
             return None;
@@ -742,6 +742,32 @@ impl LoopTask {
     /// several (a poll that also reads status and configuration takes up to five, 3 s
     /// on a loop with a burst device): a write waits at most for one transaction, never
     /// for a whole step, so it is not given up as "busy" after MAX_QUEUE_WAIT.
+    /// One transaction on the line, shown to the traffic views
+    /// ([`crate::Engine::traffic`]) when someone watches.
+    async fn transact(&mut self, pdu: &[u8], retries: u8) -> Option<Vec<u8>> {
+        let watched = self.shared.traffic.receiver_count() > 0;
+        if watched {
+            self.traffic(TrafficKind::Request, pdu.to_vec());
+        }
+        let reply = self.line.transact(pdu, retries).await;
+        if watched {
+            match &reply {
+                Some(r) => self.traffic(TrafficKind::Reply, r.clone()),
+                None => self.traffic(TrafficKind::NoReply, vec![]),
+            }
+        }
+        reply
+    }
+
+    fn traffic(&self, kind: TrafficKind, pdu: Vec<u8>) {
+        let _ = self.shared.traffic.send(Arc::new(TrafficFrame {
+            channel: self.channel,
+            time: self.clock.wall(),
+            kind,
+            pdu,
+        }));
+    }
+
     async fn carry_writes(&mut self) {
         while let Ok(r) = self.writes.try_recv() {
             self.carry(r).await;
@@ -763,6 +789,9 @@ impl LoopTask {
                         .image
                         .update(p, |d| d.apply_reply(command, rc, status, &data, now, wall));
                 }
+            }
+            if self.shared.traffic.receiver_count() > 0 {
+                self.traffic(TrafficKind::Burst, b.clone());
             }
             let _ = self.shared.bursts.send(b);
         }

@@ -41,12 +41,17 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+#[cfg(feature = "json")]
+extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
 pub mod command;
+pub mod decode;
 pub mod deframer;
 pub mod frame;
+#[cfg(feature = "json")]
+pub mod json;
 pub mod tables;
 pub mod types;
 pub mod wire;

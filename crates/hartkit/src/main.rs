@@ -1759,6 +1759,20 @@ struct ServeCli {
     /// docs/mqtt.md).
     #[arg(long, value_name = "0|1", value_parser = clap::value_parser!(u8).range(0..=1))]
     mqtt_qos: Option<u8>,
+    /// Serve the web dashboard here: plant, device pages, trends, traffic and a JSON
+    /// API (see docs/web.md). A port alone listens on 127.0.0.1 only (default port 8080).
+    #[arg(long, value_name = "ADDR[:PORT]")]
+    web: Option<String>,
+    /// The web dashboard's administrator password: the first line of this file. Without
+    /// it the dashboard only reads; with it, writes need a login.
+    #[arg(long, value_name = "FILE")]
+    web_admin_password_file: Option<std::path::PathBuf>,
+    /// Serve the web dashboard over HTTPS with this PEM certificate chain (with --web-key).
+    #[arg(long, value_name = "FILE")]
+    web_cert: Option<std::path::PathBuf>,
+    /// The PEM private key of --web-cert.
+    #[arg(long, value_name = "FILE")]
+    web_key: Option<std::path::PathBuf>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit
     /// (with --profibus: the PROFIBUS stations and modules).
     #[arg(long)]
@@ -1886,6 +1900,10 @@ impl ServeCli {
             mqtt_edge_node: self.edge_node.clone(),
             mqtt_primary_host: self.primary_host.clone(),
             mqtt_qos: self.mqtt_qos,
+            web: self.web.clone(),
+            web_admin_password_file: self.web_admin_password_file.clone(),
+            web_cert: self.web_cert.clone(),
+            web_key: self.web_key.clone(),
             json: self.json,
         }
     }

@@ -145,9 +145,16 @@ fn compared(shown: &str) -> bool {
 /// ends, so the client commands after it run against it.
 fn gateway_on_loopback(args: &[String]) -> bool {
     let a: Vec<&str> = args.iter().map(String::as_str).collect();
-    let front_end = ["--hart-ip", "--modbus", "--opcua", "--history", "--mqtt"]
-        .iter()
-        .any(|f| a.contains(f));
+    let front_end = [
+        "--hart-ip",
+        "--modbus",
+        "--opcua",
+        "--history",
+        "--mqtt",
+        "--web",
+    ]
+    .iter()
+    .any(|f| a.contains(f));
     a.first() == Some(&"serve")
         && a.contains(&"--sim")
         && front_end

@@ -1,11 +1,18 @@
 //! The `--json` view of a frame. Field names are a contract other tools read; see
-//! `docs/frame-json.md`.
+//! `docs/frame-json.md`. Needs the `json` feature.
 
-use hart_proto::frame::{Address, Frame};
-use hart_proto::wire::{Field, Meaning, Value, Visitor};
+use crate::frame::{Address, Frame};
+use crate::wire::{Field, Meaning, Value, Visitor};
 use serde_json::{json, Map, Value as Json};
 
-use crate::hex;
+use alloc::format;
+use alloc::string::{String, ToString};
+use alloc::vec::Vec;
+
+/// Upper-case hex, no separators.
+fn hex_compact(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02X}")).collect()
+}
 
 /// A float as JSON: the shortest decimal that reads back as the same `f32`
 /// (so 23.4 stays 23.4), `null` when not finite (e.g. the HART NaN 0x7FA00000).
@@ -45,9 +52,9 @@ pub fn frame(f: &Frame<'_>) -> Json {
     m.insert("delimiter".into(), json!(f.delimiter_byte));
     m.insert("frame_type".into(), json!(f.frame_type().name()));
     m.insert("address".into(), address(&f.address));
-    m.insert("expansion".into(), json!(hex::compact(f.expansion)));
+    m.insert("expansion".into(), json!(hex_compact(f.expansion)));
     m.insert("command".into(), json!(f.command));
-    if f.command_byte == hart_proto::frame::EXTENDED_COMMAND {
+    if f.command_byte == crate::frame::EXTENDED_COMMAND {
         m.insert("command_byte".into(), json!(f.command_byte));
     }
     m.insert("byte_count".into(), json!(f.byte_count));
@@ -59,10 +66,10 @@ pub fn frame(f: &Frame<'_>) -> Json {
             json!(f.is_communication_error()),
         );
     }
-    m.insert("data".into(), json!(hex::compact(f.data)));
+    m.insert("data".into(), json!(hex_compact(f.data)));
     m.insert("checksum_ok".into(), json!(f.checksum_ok()));
-    m.insert("trailing".into(), json!(hex::compact(f.trailing)));
-    match crate::decode_body(f) {
+    m.insert("trailing".into(), json!(hex_compact(f.trailing)));
+    match crate::decode::decode_body(f) {
         Some(Ok(d)) => {
             let mut v = JsonVisitor::default();
             d.describe(&mut v);
@@ -97,7 +104,7 @@ pub fn value(v: &Value<'_>) -> Json {
         Value::Uint(u) => json!(u),
         Value::Float(x) => float(*x),
         Value::Str(s) => json!(s),
-        Value::Hex(b) => json!(hex::compact(b)),
+        Value::Hex(b) => json!(hex_compact(b)),
         Value::Date(d) => json!(d.to_string()),
         Value::Bool(b) => json!(b),
     }
@@ -144,7 +151,7 @@ impl Visitor for JsonVisitor {
         let code = code as u8;
         match f.meaning {
             Meaning::Unit => {
-                if let Some(u) = hart_proto::tables::unit(code) {
+                if let Some(u) = crate::tables::unit(code) {
                     m.insert(format!("{}_symbol", f.name), json!(u.symbol));
                     m.insert(format!("{}_name", f.name), json!(u.name));
                 }

@@ -1,0 +1,305 @@
+//! The connection pool of the gateway's TCP front ends (Modbus TCP, OPC UA, the web
+//! dashboard), sans-IO: the time is given, and the caller closes what the pool says.
+//!
+//! As the Modbus messaging implementation guide describes connection management
+//! (Modbus Messaging on TCP/IP Implementation Guide V1.0b, 4.2.1: a bounded pool; when
+//! it is full, a connection not in use is closed to admit a new one; connections from
+//! priority addresses are kept), with the limits a plant's port needs against port
+//! scanners, crashed clients and clients that open a connection per request:
+//!
+//! * at most `max_connections` at once and at most `max_per_address` from one address
+//!   (priority addresses are exempt from both the per-address limit and eviction);
+//! * a full pool evicts one connection to admit the new one: the one the front end
+//!   ranks lowest (its `rank` function: a class, then the time it has been so, oldest
+//!   first; `None` for a connection that must not be closed, such as one being
+//!   answered); with none to evict, the new one is refused.
+//!
+//! Each front end keeps its own per-connection state in the pool (`S`), ranks it, and
+//! logs refusals and evictions through a [`LogLimit`].
+
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
+use std::time::{Duration, Instant};
+
+use crate::NetList;
+
+/// The pool's limits.
+#[derive(Debug, Clone, Copy)]
+pub struct Admission<'a> {
+    /// Most connections at once.
+    pub max_connections: usize,
+    /// Most connections from one address (priority addresses aside).
+    pub max_per_address: usize,
+    /// Addresses whose connections are never evicted nor limited per address.
+    pub priority: &'a NetList,
+}
+
+/// One open connection.
+#[derive(Debug, Clone)]
+pub struct Entry<S> {
+    /// The client.
+    pub peer: SocketAddr,
+    /// From a priority address.
+    pub priority: bool,
+    /// When it was admitted.
+    pub opened: Instant,
+    /// The front end's state of it.
+    pub state: S,
+}
+
+/// Why a connection was not admitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refused {
+    /// So many connections from that address already.
+    PerAddress(usize),
+    /// So many open, and none that may be closed.
+    Full(usize),
+}
+
+/// A connection admitted: its id, and the connection closed to make room (already
+/// out of the pool; the caller closes its socket).
+pub type Admitted<S> = (u64, Option<(u64, Entry<S>)>);
+
+/// The open connections.
+#[derive(Debug)]
+pub struct Pool<S> {
+    entries: HashMap<u64, Entry<S>>,
+    next: u64,
+}
+
+impl<S> Default for Pool<S> {
+    fn default() -> Self {
+        Pool {
+            entries: HashMap::new(),
+            next: 0,
+        }
+    }
+}
+
+impl<S> Pool<S> {
+    /// Admits a connection from `peer` at `now` with `state`; when the pool is full,
+    /// evicts the lowest-ranked connection (`rank`: smallest first, `None` never).
+    pub fn admit(
+        &mut self,
+        peer: SocketAddr,
+        limits: &Admission<'_>,
+        now: Instant,
+        state: S,
+        rank: impl Fn(&Entry<S>) -> Option<(u8, Instant)>,
+    ) -> Result<Admitted<S>, Refused> {
+        let priority = limits.priority.contains(peer.ip());
+        let from_here = self
+            .entries
+            .values()
+            .filter(|e| same_host(e.peer.ip(), peer.ip()))
+            .count();
+        if !priority && from_here >= limits.max_per_address {
+            return Err(Refused::PerAddress(from_here));
+        }
+        let mut evicted = None;
+        if self.entries.len() >= limits.max_connections {
+            let victim = self
+                .entries
+                .iter()
+                .filter(|(_, e)| !e.priority)
+                .filter_map(|(id, e)| rank(e).map(|r| (r, *id)))
+                .min()
+                .map(|(_, id)| id);
+            let Some(id) = victim else {
+                return Err(Refused::Full(self.entries.len()));
+            };
+            evicted = self.entries.remove(&id).map(|e| (id, e));
+        }
+        let id = self.next;
+        self.next += 1;
+        self.entries.insert(
+            id,
+            Entry {
+                peer,
+                priority,
+                opened: now,
+                state,
+            },
+        );
+        Ok((id, evicted))
+    }
+
+    /// Connection `id`, while it is in the pool.
+    pub fn get(&self, id: u64) -> Option<&Entry<S>> {
+        self.entries.get(&id)
+    }
+
+    /// Connection `id`, to change its state.
+    pub fn get_mut(&mut self, id: u64) -> Option<&mut Entry<S>> {
+        self.entries.get_mut(&id)
+    }
+
+    /// Forgets a closed connection.
+    pub fn remove(&mut self, id: u64) -> Option<Entry<S>> {
+        self.entries.remove(&id)
+    }
+
+    /// Connections open now.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether none is open.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+}
+
+/// Whether two addresses are the same host (an IPv4 client seen as `::ffff:a.b.c.d`
+/// counts as its IPv4 address).
+pub fn same_host(a: IpAddr, b: IpAddr) -> bool {
+    let v4 = |ip: IpAddr| match ip {
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
+        v4 => v4,
+    };
+    v4(a) == v4(b)
+}
+
+/// Lines about connections logged per second at most; the rest are counted and the
+/// count logged when the next second begins, so a flood of connections cannot fill
+/// the disk with log lines.
+pub const LOG_LINES_PER_SECOND: u32 = 20;
+
+/// A per-second budget of log lines (the time is given).
+#[derive(Debug, Default)]
+pub struct LogLimit {
+    start: Option<Instant>,
+    lines: u32,
+    left_out: u64,
+}
+
+impl LogLimit {
+    /// Whether a line may be logged at `now`; and, when a second with lines left out
+    /// has ended, how many were left out (to be logged first).
+    pub fn allow(&mut self, now: Instant) -> (bool, u64) {
+        let mut left_out = 0;
+        if self
+            .start
+            .is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1))
+        {
+            left_out = self.left_out;
+            *self = LogLimit {
+                start: Some(now),
+                lines: 0,
+                left_out: 0,
+            };
+        }
+        if self.lines < LOG_LINES_PER_SECOND {
+            self.lines += 1;
+            (true, left_out)
+        } else {
+            self.left_out += 1;
+            (false, left_out)
+        }
+    }
+
+    /// [`LogLimit::allow`], logging first (as `front_end`) how many lines the last
+    /// second(s) left out.
+    pub fn allow_logged(&mut self, now: Instant, front_end: &str) -> bool {
+        let (ok, left_out) = self.allow(now);
+        if left_out > 0 {
+            tracing::warn!(
+                "{front_end}: {left_out} more connection refusals, closings and time-outs in the last second(s), not logged one by one"
+            );
+        }
+        ok
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn addr(s: &str) -> SocketAddr {
+        s.parse().unwrap()
+    }
+
+    /// A state that says how it ranks.
+    type Rank = Option<(u8, u64)>;
+
+    #[test]
+    fn a_full_pool_evicts_the_lowest_rank_never_a_priority_one() {
+        let priority = NetList::parse(&["10.0.0.1"]).unwrap();
+        let limits = Admission {
+            max_connections: 3,
+            max_per_address: 2,
+            priority: &priority,
+        };
+        let t0 = Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        let rank = |e: &Entry<Rank>| e.state.map(|(c, s)| (c, at(s)));
+        let mut pool: Pool<Rank> = Pool::default();
+        let (scada, _) = pool
+            .admit(addr("10.0.0.1:1000"), &limits, at(0), Some((0, 0)), rank)
+            .unwrap();
+        let (a, _) = pool
+            .admit(addr("10.0.0.2:1000"), &limits, at(1), Some((1, 1)), rank)
+            .unwrap();
+        let (b, _) = pool
+            .admit(addr("10.0.0.3:1000"), &limits, at(2), Some((0, 2)), rank)
+            .unwrap();
+        // Full: b ranks lowest (class 0); the SCADA's ranks lower still but is a
+        // priority connection.
+        let (c, ev) = pool
+            .admit(addr("10.0.0.4:1000"), &limits, at(3), None, rank)
+            .unwrap();
+        assert_eq!(ev.map(|(id, _)| id), Some(b));
+        // Then a; then nothing but the SCADA's and c (never): refused.
+        let (_, ev) = pool
+            .admit(addr("10.0.0.5:1000"), &limits, at(4), None, rank)
+            .unwrap();
+        assert_eq!(ev.map(|(id, _)| id), Some(a));
+        assert_eq!(
+            pool.admit(addr("10.0.0.6:1000"), &limits, at(5), None, rank)
+                .err(),
+            Some(Refused::Full(3))
+        );
+        assert!(pool.get(scada).is_some() && pool.get(c).is_some());
+        // Per address: two at most, but the priority host has no such limit.
+        pool.remove(c);
+        let (d, _) = pool
+            .admit(addr("10.0.0.4:1001"), &limits, at(6), None, rank)
+            .unwrap();
+        pool.remove(d);
+        assert!(pool
+            .admit(addr("10.0.0.1:1001"), &limits, at(7), None, rank)
+            .is_ok());
+        assert_eq!(pool.len(), 3);
+    }
+
+    #[test]
+    fn per_address_counts_v4_mapped_addresses_as_one_host() {
+        let none = NetList::empty();
+        let limits = Admission {
+            max_connections: 10,
+            max_per_address: 1,
+            priority: &none,
+        };
+        let mut pool: Pool<()> = Pool::default();
+        let now = Instant::now();
+        pool.admit(addr("10.0.0.9:1"), &limits, now, (), |_| None)
+            .unwrap();
+        assert_eq!(
+            pool.admit(addr("[::ffff:10.0.0.9]:2"), &limits, now, (), |_| None)
+                .err(),
+            Some(Refused::PerAddress(1))
+        );
+    }
+
+    #[test]
+    fn the_log_keeps_to_its_budget_and_counts_the_rest() {
+        let mut log = LogLimit::default();
+        let t0 = Instant::now();
+        for _ in 0..LOG_LINES_PER_SECOND {
+            assert_eq!(log.allow(t0), (true, 0));
+        }
+        assert_eq!(log.allow(t0), (false, 0));
+        assert_eq!(log.allow(t0), (false, 0));
+        assert_eq!(log.allow(t0 + Duration::from_secs(1)), (true, 2));
+    }
+}

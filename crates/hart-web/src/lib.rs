@@ -1,0 +1,257 @@
+//! # hart-web
+//!
+//! hartkit's web dashboard: a front end on the polling engine, like the Modbus, OPC UA
+//! and MQTT ones, for the people of the plant rather than its machines.
+//!
+//! * **Plant view** (`/`): every loop and device with its tag, PV and units, a
+//!   percent-of-range bar, loop current, status in words, quality and age, updated
+//!   live by server-sent events (`/api/events`).
+//! * **Device page** (`/device/N`, N the device's unit number as `hartkit serve
+//!   --print-map` gives it): identity (commands 0 and 20), every device variable
+//!   (command 9), additional status in words (command 48), burst configuration
+//!   (command 105), a trend of PV and loop current (from the historian when one runs,
+//!   from memory otherwise, drawn as SVG by the server), and forms for the common
+//!   writes, each confirmed by reading the value back.
+//! * **Traffic view** (`/traffic`): the frames on each loop as the engine sends and
+//!   hears them, filtered by loop, device and command, downloadable as pcapng.
+//! * **A JSON API** under `/api/` behind the same pages (docs/web.md).
+//!
+//! Access: reading needs nothing; writing needs a login with the administrator's
+//! password (`--web-admin-password-file`), a session cookie (HttpOnly,
+//! SameSite=Strict) and a CSRF token on every form and API write; every write goes
+//! through the engine's one write path and its audit. The assets are compiled in: the
+//! dashboard needs no other file and no internet.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use hart_access::{Audit, CommandAllowList};
+use hart_poller::Engine;
+
+mod api;
+mod auth;
+mod device;
+mod error;
+mod html;
+pub mod limits;
+mod pages;
+mod state;
+pub mod svg;
+mod traffic;
+pub mod trend;
+
+pub use error::ApiError;
+pub use state::AppState;
+
+/// The port the dashboard listens on when `--web` gives none.
+pub const DEFAULT_PORT: u16 = 8080;
+
+/// How the dashboard runs (`--web` and the `[web]` section).
+#[derive(Debug, Clone)]
+pub struct WebConfig {
+    /// Where it listens (127.0.0.1 unless told otherwise).
+    pub bind: SocketAddr,
+    /// A file whose first line is the administrator's password; without it the
+    /// dashboard is read only.
+    pub admin_password_file: Option<PathBuf>,
+    /// HTTPS with this certificate chain and private key (PEM files).
+    pub tls: Option<TlsFiles>,
+    /// The historian's database, for trends over longer windows than memory keeps.
+    pub history_db: Option<String>,
+    /// How much of each device's PV and loop current is kept in memory for trends.
+    pub memory_window: Duration,
+    /// How long a login lasts without use.
+    pub session_idle: Duration,
+    /// The HART-IP server's pre-shared keys with write rights: each identity may log in
+    /// with its key (hex) as the password, and its writes are audited under its name.
+    pub psk_logins: Vec<PskLogin>,
+}
+
+/// An identity that may log in with its pre-shared key.
+#[derive(Clone, PartialEq, Eq)]
+pub struct PskLogin {
+    /// The identity.
+    pub identity: String,
+    /// The key.
+    pub key: Vec<u8>,
+}
+
+impl std::fmt::Debug for PskLogin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Never print the key.
+        f.debug_struct("PskLogin")
+            .field("identity", &self.identity)
+            .finish_non_exhaustive()
+    }
+}
+
+impl WebConfig {
+    /// A read-only dashboard on `bind` with the defaults.
+    pub fn new(bind: SocketAddr) -> Self {
+        WebConfig {
+            bind,
+            admin_password_file: None,
+            tls: None,
+            history_db: None,
+            memory_window: Duration::from_secs(3600),
+            session_idle: Duration::from_secs(3600),
+            psk_logins: vec![],
+        }
+    }
+}
+
+/// The certificate chain and private key of HTTPS (PEM).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsFiles {
+    /// Certificate chain, PEM.
+    pub cert: PathBuf,
+    /// Private key, PEM.
+    pub key: PathBuf,
+}
+
+/// The rules every write follows, shared with the gateway's other front ends.
+#[derive(Debug, Clone, Default)]
+pub struct Access {
+    /// Where writes are recorded.
+    pub audit: Audit,
+    /// Only these HART commands may be sent (`--allow-commands`).
+    pub allow: Option<CommandAllowList>,
+    /// The whole gateway is read only (`--read-only`).
+    pub read_only: bool,
+}
+
+/// Why the dashboard could not start.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Error {
+    /// A mistake in the configuration (a password file that is empty).
+    Config(String),
+    /// A file or an address that could not be used.
+    Io(String),
+}
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Error::Config(m) | Error::Io(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+/// A running dashboard.
+pub struct WebServer {
+    /// Where it listens.
+    pub addr: SocketAddr,
+    /// Its address as a URL (`http://127.0.0.1:8080/`).
+    pub url: String,
+    handle: axum_server::Handle,
+    state: Arc<AppState>,
+}
+
+impl WebServer {
+    /// Stops serving (open event streams end) and the dashboard's tasks.
+    pub fn stop(self) {
+        self.handle.shutdown();
+        self.state.stop();
+    }
+}
+
+/// Starts the dashboard on `engine`: binds its address at once (an address in use is
+/// an error here, not later), then serves on the current runtime.
+pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<WebServer, Error> {
+    let password = match &config.admin_password_file {
+        Some(p) => Some(auth::read_password_file(p)?),
+        None => None,
+    };
+    let tls = match &config.tls {
+        Some(t) => Some(tls_config(t).await?),
+        None => None,
+    };
+    let listener = std::net::TcpListener::bind(config.bind).map_err(|e| {
+        Error::Io(format!(
+            "cannot listen on {}: {e}; check that no other program uses the port, or give \
+             another with --web ADDR:PORT",
+            config.bind
+        ))
+    })?;
+    listener
+        .set_nonblocking(true)
+        .map_err(|e| Error::Io(e.to_string()))?;
+    let addr = listener
+        .local_addr()
+        .map_err(|e| Error::Io(e.to_string()))?;
+    let scheme = if tls.is_some() { "https" } else { "http" };
+    let state = AppState::start(engine, config, access, password, tls.is_some());
+    let app = api::router(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
+    let handle = axum_server::Handle::new();
+    let h = handle.clone();
+    // Sockets: the event streams and the connection limit, with room for the rest.
+    hart_host::load::raise_open_file_limit(limits::MAX_CONNECTIONS as u64 + 256);
+    match tls {
+        Some(tls) => {
+            let mut server = axum_server::from_tcp_rustls(listener, tls)
+                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .handle(h);
+            header_timeout(server.http_builder());
+            tokio::spawn(async move {
+                if let Err(e) = server.serve(app).await {
+                    tracing::error!("web: the HTTPS server stopped: {e}");
+                }
+            });
+        }
+        None => {
+            let mut server = axum_server::from_tcp(listener)
+                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .handle(h);
+            header_timeout(server.http_builder());
+            tokio::spawn(async move {
+                if let Err(e) = server.serve(app).await {
+                    tracing::error!("web: the HTTP server stopped: {e}");
+                }
+            });
+        }
+    }
+    Ok(WebServer {
+        addr,
+        url: format!("{scheme}://{addr}/"),
+        handle,
+        state,
+    })
+}
+
+/// Closes a connection that has not sent a request's head within
+/// [`limits::HEADER_TIMEOUT`].
+fn header_timeout(b: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt::TokioExecutor>) {
+    b.http1()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits::HEADER_TIMEOUT);
+}
+
+/// The rustls configuration of `files`, with errors that say which file is wrong.
+async fn tls_config(files: &TlsFiles) -> Result<axum_server::tls_rustls::RustlsConfig, Error> {
+    // One process-wide provider (ring), as the MQTT client's; a second install is
+    // refused harmlessly.
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    for (what, p) in [("certificate", &files.cert), ("key", &files.key)] {
+        if let Err(e) = std::fs::metadata(p) {
+            return Err(Error::Io(format!(
+                "--web-{}: cannot read {}: {e}",
+                if what == "key" { "key" } else { "cert" },
+                p.display()
+            )));
+        }
+    }
+    axum_server::tls_rustls::RustlsConfig::from_pem_file(&files.cert, &files.key)
+        .await
+        .map_err(|e| {
+            Error::Config(format!(
+                "--web-cert {} / --web-key {}: {e}; give a PEM certificate chain and its \
+                 PEM private key (PKCS#8, PKCS#1 or SEC1)",
+                files.cert.display(),
+                files.key.display()
+            ))
+        })
+}
