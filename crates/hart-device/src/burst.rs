@@ -59,10 +59,7 @@ fn periods(device: &Device, m: usize) -> (Micros, Micros) {
     // Fault injection: a device whose burst timer runs 1.5 times too slow.
     let us = |t: u32| {
         let us = u64::from(t) * 1000 / 32;
-        if device
-            .faults()
-            .has(crate::faults::Fault::BurstPeriodOff)
-        {
+        if device.faults().has(crate::faults::Fault::BurstPeriodOff) {
             us * 3 / 2
         } else {
             us

@@ -547,8 +547,7 @@ impl Device {
             device_id: DeviceId::new(id.device_id & 0xFF_FFFF).unwrap_or_default(),
             min_response_preambles: (self.revision() >= 6).then_some(self.cfg.response_preambles),
             max_device_variables: (self.revision() >= 6).then_some(self.cfg.variables.len() as u8),
-            config_change_counter: (self.revision() >= 6)
-                .then_some(self.cfg.config_change_counter),
+            config_change_counter: (self.revision() >= 6).then_some(self.cfg.config_change_counter),
             extended_status: (self.revision() >= 6)
                 .then_some(ExtendedStatus(self.extended_status())),
             manufacturer_id: (self.revision() >= 7).then_some(id.manufacturer_id),

@@ -38,16 +38,36 @@ pub enum Fault {
 
 /// Every fault with its name (as in plant files) and what it does.
 pub const ALL: &[(Fault, &str, &str)] = &[
-    (Fault::LateReply, "late-reply", "replies start 40 character times after the request (after STO)"),
-    (Fault::GapInReply, "gap-in-reply", "a gap of 3 character times inside every reply"),
-    (Fault::BadReplyCheckByte, "bad-reply-check-byte", "replies carry a wrong check byte"),
+    (
+        Fault::LateReply,
+        "late-reply",
+        "replies start 40 character times after the request (after STO)",
+    ),
+    (
+        Fault::GapInReply,
+        "gap-in-reply",
+        "a gap of 3 character times inside every reply",
+    ),
+    (
+        Fault::BadReplyCheckByte,
+        "bad-reply-check-byte",
+        "replies carry a wrong check byte",
+    ),
     (
         Fault::ExecutesBadCheckByte,
         "executes-bad-check-byte",
         "a request with a bad check byte is executed and answered normally",
     ),
-    (Fault::MasterBitNotEchoed, "master-bit-not-echoed", "replies carry the other master's bit"),
-    (Fault::TooFewPreambles, "too-few-preambles", "replies carry 2 preambles"),
+    (
+        Fault::MasterBitNotEchoed,
+        "master-bit-not-echoed",
+        "replies carry the other master's bit",
+    ),
+    (
+        Fault::TooFewPreambles,
+        "too-few-preambles",
+        "replies carry 2 preambles",
+    ),
     (
         Fault::AnswersOtherAddress,
         "answers-other-address",
@@ -63,7 +83,11 @@ pub const ALL: &[(Fault, &str, &str)] = &[
         "cmd38-no-reset",
         "command 38 leaves \"configuration changed\" set",
     ),
-    (Fault::BurstPeriodOff, "burst-period-off", "bursts at 1.5 times the configured period"),
+    (
+        Fault::BurstPeriodOff,
+        "burst-period-off",
+        "bursts at 1.5 times the configured period",
+    ),
 ];
 
 impl Fault {

@@ -88,10 +88,8 @@ impl Node {
         use faults::Fault;
         let f = faults::Faults::of(list);
         self.faults = f;
-        self.slave.set_reply_delay(
-            f.has(Fault::LateReply)
-                .then(|| self.profile.chars(40)),
-        );
+        self.slave
+            .set_reply_delay(f.has(Fault::LateReply).then(|| self.profile.chars(40)));
         self.slave
             .set_fault_answers_any_address(f.has(Fault::AnswersOtherAddress));
         self.slave
