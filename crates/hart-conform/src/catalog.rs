@@ -105,10 +105,10 @@ pub const TESTS: &[TestDef] = &[
     t("BURST-002", Burst, "Consecutive burst frames alternate the master address bit.", "HART ref §8.2 point 5 [V]", false, Line),
     t("BURST-003", Burst, "A request between burst frames is answered.", "HART ref §8.2 point 5 [V]; §9 [V]", false, Pdu),
     t("BURST-004", Burst, "Command 105 answers with the burst configuration (27 or 29 bytes) and response code 9 for a message number the device does not have.", "HART ref §9 Cmd 105 table and RC list [V-ish HF; S Biffi]", true, Pdu),
-    t("PHY-001", Phy, "The carrier amplitude is 400-600 mV peak-to-peak (1 mA ±0.5 mA into 500 Ω: typical 500 mVpp) and above the 120 mVpp carrier-detect level.", "PHY notes §5 (transmit level, carrier detect) [S TI]", true, Recording),
+    t("PHY-001", Phy, "The carrier amplitude is 120-750 mV peak-to-peak: at least the level receivers must hear (120 mVpp), at most 1.5 mA into 500 Ω (typical 500 mVpp).", "PHY notes §5 (transmit level, carrier detect) [S TI]", true, Recording),
     t("PHY-002", Phy, "Mark and space frequencies are 1200 Hz and 2200 Hz within ±1 %.", "PHY notes §5 (frequency tolerance ±1 % not confirmed) [U]", true, Recording),
     t("PHY-003", Phy, "The bit rate is 1200 bit/s within ±1 %.", "PHY notes §5 (bit-rate tolerance ±1 % not confirmed) [U]; HART ref §1 [V]", true, Recording),
-    t("PHY-004", Phy, "The signal is phase continuous: every frame decodes with no parity or framing error.", "PHY notes §5 (phase continuous, phase continuity error 0°) [S AD5700, TI]", true, Recording),
+    t("PHY-004", Phy, "The signal is phase continuous: every transmission decodes without error and no sample step exceeds what a continuous tone and the noise allow.", "PHY notes §5 (phase continuous, phase continuity error 0°) [S AD5700, TI]", true, Recording),
     t("PHY-005", Phy, "The carrier starts less than 5 ms before the first character and stops less than 5 ms after the last.", "PHY notes §5 (carrier start/stop) [S TI]; HART ref §1 (carrier control) [S RA]", true, Recording),
     t("PHY-006", Phy, "The signal-to-noise ratio in the message is at least 20 dB (our floor; in-band noise ≤ 55 mVpp against 500 mVpp).", "PHY notes §5 (noise sensitivity test) [S TI]; floor ours [U]", true, Recording),
 ];
