@@ -16,6 +16,7 @@
 //! change. See docs/conform.md.
 
 pub mod catalog;
+pub mod cli;
 pub mod expect;
 pub mod frames;
 pub mod model;

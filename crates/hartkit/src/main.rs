@@ -109,6 +109,9 @@ enum Top {
         #[arg(long, value_name = "FILE")]
         pcap: Option<String>,
     },
+    /// Conformance tests of a field device: data link, commands, burst mode, and the
+    /// physical layer from a recording (`conform phy FILE.wav`); see docs/conform.md.
+    Conform(Box<ConformCli>),
     /// HART captures: read back pcapng/pcap files (ours, or tcpdump's of HART-IP).
     #[command(subcommand)]
     Capture(CaptureCmd),
@@ -722,6 +725,100 @@ struct TargetArgs {
     unique_id: Option<String>,
 }
 
+/// `hartkit conform`.
+#[derive(Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct ConformCli {
+    #[command(subcommand)]
+    cmd: Option<ConformCmd>,
+    #[command(flatten)]
+    host: HostArgs,
+    /// The device at this polling address (default 0).
+    #[arg(long, conflicts_with = "unique_id")]
+    poll: Option<u8>,
+    /// The device with this unique ID (10 hex digits).
+    #[arg(long, value_name = "HEX")]
+    unique_id: Option<String>,
+    /// Only these groups: link, commands, burst (comma-separated).
+    #[arg(long, value_name = "GROUPS")]
+    only: Option<String>,
+    /// What the device should be: a profile file like the simulated devices' (its
+    /// identity and device-specific commands are checked).
+    #[arg(long, value_name = "DEVICE.toml")]
+    expect: Option<std::path::PathBuf>,
+    /// Write a self-contained HTML report to FILE.
+    #[arg(long, value_name = "FILE.html")]
+    report: Option<std::path::PathBuf>,
+    /// Allow the tests that write (each restores what it changes).
+    #[arg(long)]
+    allow_writes: bool,
+}
+
+#[derive(Subcommand)]
+enum ConformCmd {
+    /// The physical-layer tests on a recording of the device's signal.
+    Phy {
+        /// The recording (WAV).
+        file: std::path::PathBuf,
+        /// JSON, one object per test per line.
+        #[arg(long)]
+        json: bool,
+        /// Write a self-contained HTML report to FILE.
+        #[arg(long, value_name = "FILE.html")]
+        report: Option<std::path::PathBuf>,
+    },
+}
+
+/// `hartkit conform`: opens the target like the other host commands and hands over to
+/// `hart_conform::cli`.
+fn conform(a: &ConformCli) -> Result<String, (String, u8)> {
+    let (report, text) = match &a.cmd {
+        Some(ConformCmd::Phy { file, json, report }) => {
+            hart_conform::cli::phy(file, *json, report.as_deref()).map_err(|e| (e, 2))?
+        }
+        None => {
+            let h = &a.host;
+            if h.trace.is_some() || h.secondary {
+                return Err((
+                    "conform takes neither --trace nor --secondary (it acts as both masters itself; the evidence is in --json and --report)".into(),
+                    2,
+                ));
+            }
+            let args = hart_conform::cli::Args {
+                target: h.port.clone(),
+                poll: a.poll,
+                unique_id: a.unique_id.clone(),
+                only: a.only.clone(),
+                expect: a.expect.clone(),
+                json: h.json,
+                report: a.report.clone(),
+                allow_writes: a.allow_writes,
+            };
+            hart_conform::cli::options(&args).map_err(|e| (e, 2))?;
+            hartkit::host::block_on(async {
+                let psk = h.key()?;
+                let mut t = hart_host::target::open_async_with(&h.port, psk.as_ref())
+                    .await
+                    .map_err(|e| (e, 2))?;
+                hart_conform::cli::run(&mut t, &args).await.map_err(|e| (e, 2))
+            })?
+        }
+    };
+    use std::io::Write as _;
+    let _ = write!(std::io::stdout(), "{text}");
+    match hart_conform::cli::exit_code(&report) {
+        0 => Ok(String::new()),
+        1 => Err((
+            format!(
+                "{} conformance test(s) failed",
+                report.count(hart_conform::Verdict::Fail)
+            ),
+            1,
+        )),
+        code => Err(("no test could run; see the reasons above".into(), code)),
+    }
+}
+
 #[derive(Subcommand, Clone)]
 enum BurstCmd {
     /// Configure a burst message.
@@ -1251,6 +1348,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 run_for: a.run_for,
             },
         ),
+        Top::Conform(a) => conform(a),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         Top::Modbus(ModbusCmd::Bench(a)) => modbus_bench(a),
         Top::Opcua(OpcUaCmd::Trust(a)) => hartkit::gateway::opcua_trust(
