@@ -65,7 +65,7 @@ pub const TESTS: &[TestDef] = &[
     t("LINK-004", Link, "No reply to a long frame for another unique ID.", "HART ref §2.3 Addresses [V]; §3.3 Behaviour rules [S GF]", false, Pdu),
     t("LINK-005", Link, "Command 11 at the broadcast address is answered with the device's tag, not with another tag.", "HART ref §2.3 Addresses (broadcast) [V]; §6 Cmd 11 [V]; §3.3 [V]", false, Pdu),
     t("LINK-006", Link, "Command 21 at the broadcast address is answered with the device's long tag (HART 6+), not with another.", "HART ref §2.3 Addresses (broadcast) [V]; §6 Cmd 21 [V]", false, Pdu),
-    t("LINK-007", Link, "Replies carry the requesting master's address bit, for the primary and the secondary master.", "HART ref §2.3 Addresses (reply copies the address) [V]; §8.2 point 2 [V]", false, Pdu),
+    t("LINK-007", Link, "Replies carry the requesting master's address bit, for the primary and the secondary master.", "HART ref §2.3 Addresses (reply copies the address) [V]; §8.2 point 2 [V]", false, Line),
     t("LINK-008", Link, "Replies carry at least the preambles command 0 states (byte 12, HART 6+).", "HART ref §2.1 Preamble (response preambles) [V]; §6 Cmd 0 byte 12 [V]", false, Line),
     t("LINK-009", Link, "Requests with 2, 5 and 20 preambles are answered (2 and up accepted when at least the device's stated minimum).", "HART ref §2.1 Preamble (SOM: two 0xFF, 5-20 range) [V]", false, Line),
     t("LINK-010", Link, "The reply starts within the slave time-out STO (28 character times) after the request.", "HART ref §8.1 Timers (STO) [V]", false, Line),

@@ -86,7 +86,11 @@ pub fn outputs(r: &Report, json: bool, html: Option<&Path>, sto_us: u64) -> Resu
 /// `hartkit conform phy FILE.wav`: the physical-layer tests on a recording.
 pub fn phy(file: &Path, json: bool, html: Option<&Path>) -> Result<(Report, String), String> {
     let bytes = std::fs::read(file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let r = crate::phy::run(&bytes, &file.display().to_string(), &crate::phy::Limits::default());
+    let r = crate::phy::run(
+        &bytes,
+        &file.display().to_string(),
+        &crate::phy::Limits::default(),
+    );
     let text = outputs(&r, json, html, hart_link::TimingProfile::fsk().sto)?;
     Ok((r, text))
 }

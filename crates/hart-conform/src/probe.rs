@@ -297,8 +297,46 @@ impl<'a, T: Transport> Probe<'a, T> {
     }
 
     /// Sends one frame and listens for the reply (see [`Probe::exchange_parts`]).
+    /// A reply of busy (32) or delayed response initiated or running (33, 34) is
+    /// followed by the identical request again, as the rules ask of a master (HART ref
+    /// §3.3), every 100 ms for at most 10 s; every try is in the evidence.
     pub async fn exchange(&mut self, what: &str, bytes: &[u8], expect_reply: bool) -> Exchange {
-        self.exchange_parts(what, &[bytes], 0, expect_reply).await
+        let mut ex = self.exchange_parts(what, &[bytes], 0, expect_reply).await;
+        let start = self.now();
+        let mut tries = 1;
+        while let Some(rc @ 32..=34) = ex.reply().and_then(|f| f.response_code) {
+            if self.now().saturating_sub(start) > 10_000_000 {
+                break;
+            }
+            let until = self.now() + 100_000;
+            while self.now() < until {
+                if self.recv_until(until).await.is_err() {
+                    break;
+                }
+            }
+            tries += 1;
+            ex = self
+                .exchange_parts(
+                    &format!("{what} (again after response code {rc}, try {tries})"),
+                    &[bytes],
+                    0,
+                    expect_reply,
+                )
+                .await;
+        }
+        // A HART-IP server answers "delayed response dead" (35) for a request its
+        // device never answered on the loop: that is no reply from the device.
+        if !self.timing_visible && ex.reply().and_then(|f| f.response_code) == Some(35) {
+            ex.frames.clear();
+            if let Some(e) = self.evidence.last_mut() {
+                e.what
+                    .push_str(" (the server's response code 35: no reply from the device)");
+            }
+            if expect_reply {
+                self.silent_streak += 1;
+            }
+        }
+        ex
     }
 
     /// Records frames heard while only listening as evidence.

@@ -572,10 +572,15 @@ impl<T: Transport> Runner<'_, '_, T> {
         let id = Identity::decode(&mut Reader::new(f.data))
             .ok()
             .map(|i| i.unique_id());
-        if id != Some(self.dev.uid) {
-            return fail(format!(
-                "the command {command} reply's identity is not the device's"
-            ));
+        match id {
+            Some(id) if id == self.dev.uid => {}
+            Some(id) => {
+                return cnr(format!(
+                    "device {} answered: another device on the loop has the same tag; give each its own",
+                    hex_id(id)
+                ))
+            }
+            None => return fail(format!("the command {command} reply carries no identity")),
         }
         let mut other = tag.clone();
         if let Some(x) = other.first_mut() {
@@ -1166,6 +1171,13 @@ impl<T: Transport> Runner<'_, '_, T> {
             if p2 & CONFIG_CHANGED != 0 {
                 break 'v fail(
                     "command 38 from the primary master left \"configuration changed\" set for it",
+                );
+            }
+            if !self.p.timing_visible {
+                // Over HART-IP the server is the only master on the loop: the
+                // secondary master's flag is out of reach.
+                break 'v pass(
+                    "set by a write, reset by command 38 (the per-master part needs a line, not HART-IP)",
                 );
             }
             if s2 & CONFIG_CHANGED == 0 {

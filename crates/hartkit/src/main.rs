@@ -111,6 +111,7 @@ enum Top {
     },
     /// Conformance tests of a field device: data link, commands, burst mode, and the
     /// physical layer from a recording (`conform phy FILE.wav`); see docs/conform.md.
+    #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
     Conform(Box<ConformCli>),
     /// HART captures: read back pcapng/pcap files (ours, or tcpdump's of HART-IP).
     #[command(subcommand)]
@@ -727,12 +728,22 @@ struct TargetArgs {
 
 /// `hartkit conform`.
 #[derive(Args)]
-#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct ConformCli {
     #[command(subcommand)]
     cmd: Option<ConformCmd>,
-    #[command(flatten)]
-    host: HostArgs,
+    /// Where the device is: any target the host commands take (/dev/ttyUSB0,
+    /// rs485:PATH, sim, sim:PLANT.toml?virtual, udp://HOST[:PORT], tcp://..., tls://...).
+    #[arg(long, short = 'p', value_name = "TARGET")]
+    port: Option<String>,
+    /// JSON instead of the summary: one object per test per line.
+    #[arg(long)]
+    json: bool,
+    /// Pre-shared key for tls:// and dtls:// targets (HART-IP version 2).
+    #[arg(long, value_name = "IDENTITY:HEXKEY", conflicts_with = "psk_file")]
+    psk: Option<String>,
+    /// File with the pre-shared key for tls:// and dtls:// targets.
+    #[arg(long, value_name = "FILE")]
+    psk_file: Option<std::path::PathBuf>,
     /// The device at this polling address (default 0).
     #[arg(long, conflicts_with = "unique_id")]
     poll: Option<u8>,
@@ -777,13 +788,22 @@ fn conform(a: &ConformCli) -> Result<String, (String, u8)> {
             hart_conform::cli::phy(file, *json, report.as_deref()).map_err(|e| (e, 2))?
         }
         None => {
-            let h = &a.host;
-            if h.trace.is_some() || h.secondary {
+            let Some(port) = a.port.clone() else {
                 return Err((
-                    "conform takes neither --trace nor --secondary (it acts as both masters itself; the evidence is in --json and --report)".into(),
+                    "give the device's port: hartkit conform -p TARGET (or conform phy FILE.wav)"
+                        .into(),
                     2,
                 ));
-            }
+            };
+            // The host commands' options, to open the target as they do.
+            let h = &HostArgs {
+                port,
+                json: a.json,
+                trace: None,
+                secondary: false,
+                psk: a.psk.clone(),
+                psk_file: a.psk_file.clone(),
+            };
             let args = hart_conform::cli::Args {
                 target: h.port.clone(),
                 poll: a.poll,
@@ -800,7 +820,9 @@ fn conform(a: &ConformCli) -> Result<String, (String, u8)> {
                 let mut t = hart_host::target::open_async_with(&h.port, psk.as_ref())
                     .await
                     .map_err(|e| (e, 2))?;
-                hart_conform::cli::run(&mut t, &args).await.map_err(|e| (e, 2))
+                hart_conform::cli::run(&mut t, &args)
+                    .await
+                    .map_err(|e| (e, 2))
             })?
         }
     };
