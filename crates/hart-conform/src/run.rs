@@ -866,6 +866,24 @@ impl<T: Transport> Runner<'_, '_, T> {
         };
         let len = d.len();
         let bad_len = |want: &str| fail(format!("command {c}: {len} data bytes, {want} expected"));
+        // Lengths of the replies whose length is all there is to check (or that need
+        // it before their fields are looked at).
+        let min = match c {
+            1 => 5,
+            2 => 8,
+            7 => 2,
+            8 => 4,
+            9 => 13,
+            12 => 24,
+            13 => 21,
+            14 => 16,
+            16 => 3,
+            20 => 32,
+            _ => 0,
+        };
+        if len < min {
+            return bad_len(&min.to_string());
+        }
         match c {
             0 => {
                 let want = match rev {
@@ -889,18 +907,8 @@ impl<T: Transport> Runner<'_, '_, T> {
                     ));
                 }
             }
-            1 => {
-                if len < 5 {
-                    return bad_len("5");
-                }
-                if !unit_ok(d[0]) {
-                    return fail(format!("units code {} is in no table", d[0]));
-                }
-            }
-            2 => {
-                if len < 8 {
-                    return bad_len("8");
-                }
+            1 if !unit_ok(d[0]) => {
+                return fail(format!("units code {} is in no table", d[0]));
             }
             3 => {
                 if len < 9 || (len - 4) % 5 != 0 && len < 24 {
@@ -913,9 +921,6 @@ impl<T: Transport> Runner<'_, '_, T> {
                 }
             }
             7 => {
-                if len < 2 {
-                    return bad_len("2");
-                }
                 if self.dev.poll.is_some_and(|p| p != d[0] & 0x3F) {
                     return fail(format!(
                         "polling address {} reported, {:?} used",
@@ -926,39 +931,25 @@ impl<T: Transport> Runner<'_, '_, T> {
                     return fail(format!("loop current mode {} (0 or 1 expected)", d[1]));
                 }
             }
-            8 => {
-                if len < 4 {
-                    return bad_len("4");
-                }
-            }
             9 => {
-                if len < 13 {
-                    return bad_len("13");
+                if d[1] != 0 {
+                    return fail(format!(
+                        "slot 0 carries device variable {}, 0 was asked",
+                        d[1]
+                    ));
                 }
-                // Status byte: bits 7-6 process data status, 5-4 limit status.
-                let _status = d[8];
-            }
-            12 => {
-                if len < 24 {
-                    return bad_len("24");
+                if !unit_ok(d[3]) {
+                    return fail(format!("units code {} is in no table", d[3]));
                 }
             }
             13 => {
-                if len < 21 {
-                    return bad_len("21");
-                }
                 let (day, month) = (d[18], d[19]);
                 if !(1..=31).contains(&day) || !(1..=12).contains(&month) {
                     return fail(format!("date day {day} month {month} is no date"));
                 }
             }
-            14 => {
-                if len < 16 {
-                    return bad_len("16");
-                }
-                if !unit_ok(d[3]) {
-                    return fail(format!("units code {} is in no table", d[3]));
-                }
+            14 if !unit_ok(d[3]) => {
+                return fail(format!("units code {} is in no table", d[3]));
             }
             15 => {
                 let want = if rev >= 6 { 18 } else { 17 };
@@ -988,16 +979,6 @@ impl<T: Transport> Runner<'_, '_, T> {
                 }
                 if rev >= 6 && d[16] != 250 {
                     return fail(format!("byte 16 is {}, 250 expected (HART 6+)", d[16]));
-                }
-            }
-            16 => {
-                if len < 3 {
-                    return bad_len("3");
-                }
-            }
-            20 => {
-                if len < 32 {
-                    return bad_len("32");
                 }
             }
             _ => {}
