@@ -113,6 +113,34 @@ pub const TESTS: &[TestDef] = &[
     t("PHY-006", Phy, "The signal-to-noise ratio in the message is at least 20 dB (our floor; in-band noise ≤ 55 mVpp against 500 mVpp).", "PHY notes §5 (noise sensitivity test) [S TI]; floor ours [U]", true, Recording),
 ];
 
+/// The catalogue as a Markdown table (docs/conform.md carries it verbatim; a test
+/// checks that it does).
+pub fn markdown_table() -> String {
+    let mut s = String::from("| ID | Group | Rule | Source | Needs |\n|---|---|---|---|---|\n");
+    for t in TESTS {
+        let needs = match t.needs {
+            Needs::Pdu => "any transport",
+            Needs::Line => "a line (not HART-IP)",
+            Needs::Writes => "--allow-writes",
+            Needs::Recording => "a recording",
+        };
+        s.push_str(&format!(
+            "| {} | {} | {} | {}{} | {} |\n",
+            t.id,
+            t.group.name(),
+            t.rule.replace('|', "\\|"),
+            t.source,
+            if t.single_source {
+                " *(single source)*"
+            } else {
+                ""
+            },
+            needs
+        ));
+    }
+    s
+}
+
 /// The test with `id`.
 pub fn find(id: &str) -> Option<&'static TestDef> {
     TESTS.iter().find(|t| t.id == id)
@@ -121,6 +149,17 @@ pub fn find(id: &str) -> Option<&'static TestDef> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_docs_list_every_test() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/conform.md");
+        let docs = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(
+            docs.contains(&markdown_table()),
+            "docs/conform.md does not carry the catalogue as it is; put this table in it:\n{}",
+            markdown_table()
+        );
+    }
 
     #[test]
     fn ids_are_unique_and_grouped() {

@@ -31,8 +31,23 @@ pub fn text(r: &Report) -> String {
     for w in &r.warnings {
         let _ = writeln!(s, "warning: {w}");
     }
-    for t in &r.results {
-        let _ = writeln!(s, "{:<10} {:<15} {}", t.id, t.verdict.name(), t.detail);
+    // A run that found no device: one reason for every test, said once.
+    let same_reason = r.device.is_none()
+        && r.results.len() > 1
+        && r.results
+            .iter()
+            .all(|t| t.verdict == Verdict::CouldNotRun && t.detail == r.results[0].detail);
+    if same_reason {
+        let _ = writeln!(
+            s,
+            "none of the {} tests could run: {}",
+            r.results.len(),
+            r.results[0].detail
+        );
+    } else {
+        for t in &r.results {
+            let _ = writeln!(s, "{:<10} {:<15} {}", t.id, t.verdict.name(), t.detail);
+        }
     }
     let _ = writeln!(
         s,

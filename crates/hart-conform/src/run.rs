@@ -252,13 +252,12 @@ async fn identify<T: Transport>(p: &mut Probe<'_, T>, a: DeviceAddress) -> Resul
         return Err(format!("{what}: {e}"));
     }
     let Some(f) = last.reply() else {
-        let heard = if last.frames.is_empty() {
-            "nothing came back".to_string()
-        } else {
-            format!(
-                "only an undecodable answer came back ({})",
-                last.frames[0].summary()
-            )
+        let heard = match last.frames.first() {
+            None => "nothing came back".to_string(),
+            Some(f) if f.complete && f.frame().is_some() => {
+                format!("only other traffic was heard: {}", f.summary())
+            }
+            Some(f) => format!("only an undecodable answer came back: {}", f.summary()),
         };
         return Err(format!(
             "no device answered {what} in 3 tries ({heard}): check the address (--poll/--unique-id), the port, the modem's power and the loop resistor"
