@@ -119,3 +119,132 @@ fn no_device_is_could_not_run_everywhere() {
         r.results[0].detail
     );
 }
+
+/// A line that works for `good` requests, then carries nothing more (a device that
+/// stops answering mid-run), or answers every request with `garbage`.
+struct Faulty {
+    inner: SimTransport,
+    sends: usize,
+    good: usize,
+    garbage: Option<u64>,
+    now: u64,
+}
+
+impl hart_host::transport::Transport for Faulty {
+    fn profile(&self) -> hart_link::TimingProfile {
+        self.inner.profile()
+    }
+    fn now(&self) -> u64 {
+        self.inner.now().max(self.now)
+    }
+    async fn send(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.sends += 1;
+        self.inner.send(bytes).await
+    }
+    async fn recv(&mut self, deadline: u64) -> std::io::Result<Vec<(u8, u64)>> {
+        let got = self.inner.recv(deadline).await?;
+        if let (Some(seed), true) = (&mut self.garbage, self.sends > self.good) {
+            // As many bytes as came, each replaced by noise (0xFF now and then, so
+            // that some look like preambles).
+            return Ok(got
+                .into_iter()
+                .map(|(_, at)| {
+                    *seed ^= *seed << 13;
+                    *seed ^= *seed >> 7;
+                    *seed ^= *seed << 17;
+                    let b = if *seed % 5 == 0 {
+                        0xFF
+                    } else {
+                        (*seed >> 8) as u8
+                    };
+                    (b, at)
+                })
+                .collect());
+        }
+        if self.sends > self.good && self.garbage.is_none() {
+            self.now = self.now.max(deadline);
+            return Ok(vec![]);
+        }
+        Ok(got)
+    }
+    fn describe(&self) -> String {
+        "a faulty line".into()
+    }
+}
+
+fn run_on(t: &mut Faulty) -> Report {
+    let o = Options::new("faulty", DeviceAddress::Poll(0));
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .unwrap();
+    rt.block_on(run(t, &o))
+}
+
+#[test]
+fn a_device_that_stops_answering_is_reported_not_waited_for() {
+    let inner = SimTransport::new(&plant("pressure", None, false, &[]), true).unwrap();
+    let mut t = Faulty {
+        inner,
+        sends: 0,
+        good: 12,
+        garbage: None,
+        now: 0,
+    };
+    let r = run_on(&mut t);
+    assert!(r.device.is_some());
+    let stopped = r
+        .results
+        .iter()
+        .filter(|t| t.verdict == Verdict::CouldNotRun && t.detail.contains("stopped answering"))
+        .count();
+    assert!(stopped > 20, "{}", hart_conform::report::text(&r));
+    // Bounded: after it stopped, no more than a few requests went out.
+    assert!(t.sends < 40, "{} requests", t.sends);
+}
+
+#[test]
+fn garbage_replies_end_in_a_clear_verdict() {
+    for seed in 1..20u64 {
+        let inner = SimTransport::new(&plant("pressure", None, false, &[]), true).unwrap();
+        let mut t = Faulty {
+            inner,
+            sends: 0,
+            good: 0,
+            garbage: Some(seed * 0x9E37_79B9),
+            now: 0,
+        };
+        let r = run_on(&mut t);
+        assert!(r.device.is_none(), "seed {seed}");
+        assert!(r.results.iter().all(|t| t.verdict == Verdict::CouldNotRun));
+        assert!(
+            r.results[0].detail.contains("no device answered"),
+            "{}",
+            r.results[0].detail
+        );
+    }
+}
+
+#[test]
+fn garbage_after_identification_fails_or_cannot_run_but_ends() {
+    for seed in 1..10u64 {
+        let inner = SimTransport::new(&plant("pressure", None, false, &[]), true).unwrap();
+        let mut t = Faulty {
+            inner,
+            sends: 0,
+            good: 1,
+            garbage: Some(seed * 0x51_7CC1),
+            now: 0,
+        };
+        let r = run_on(&mut t);
+        assert!(r.device.is_some(), "seed {seed}");
+        assert_eq!(
+            r.count(Verdict::Pass)
+                + r.count(Verdict::NotApplicable)
+                + r.count(Verdict::Fail)
+                + r.count(Verdict::CouldNotRun),
+            r.results.len()
+        );
+        assert!(t.sends < 200, "seed {seed}: {} requests", t.sends);
+    }
+}
