@@ -667,6 +667,14 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     async fn link_timing(&mut self, gaps: bool) -> Outcome {
         let ct = self.p.char_time;
+        // A pseudo-terminal has no bit rate: what the far end writes arrives at once,
+        // and the port's timestamps (characters spaced back from the read) would be
+        // fiction.
+        if self.p.describe().contains("/dev/pts/") {
+            return cnr(
+                "a pseudo-terminal delivers characters at once, not at the line's bit rate: reply timing cannot be measured on it",
+            );
+        }
         // Serial ports stamp characters when the read returns: allow for that.
         let slack = if self.p.describe().starts_with("simulated") {
             0

@@ -925,6 +925,11 @@ struct ServeArgs {
     /// Stop after this many seconds (default: run until killed).
     #[arg(long, value_name = "SECONDS")]
     run_for: Option<f64>,
+    /// Make every device break this rule on purpose, to test a conformance tester
+    /// (`hartkit conform`): late-reply, gap-in-reply, bad-reply-check-byte, ... (the
+    /// list is in docs/conform.md). Repeat for several.
+    #[arg(long = "fault", value_name = "NAME")]
+    faults: Vec<String>,
 }
 
 #[derive(Args)]
@@ -1226,6 +1231,11 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
         state_dir: a.state_dir.clone(),
         write_protect: a.write_protect,
         run_for: a.run_for.map(std::time::Duration::from_secs_f64),
+        faults: a
+            .faults
+            .iter()
+            .map(|f| hart_device::faults::Fault::parse(f).map_err(|e| format!("--fault: {e}")))
+            .collect::<Result<_, _>>()?,
     };
     hartkit::serve::serve(&opts, |line| {
         use std::io::Write as _;

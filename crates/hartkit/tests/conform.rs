@@ -268,3 +268,39 @@ fn over_a_pseudo_terminal_at_1200_bit_s() {
     assert_eq!(code, 0, "{err} {:?}\n{out}", with("fail", &r));
     assert!(with("pass", &r).len() >= 30, "{:?}", with("pass", &r));
 }
+
+/// A device on the pseudo-terminal that breaks a rule (`sim serve --fault`): caught
+/// through a real serial port, and nothing else fails.
+#[test]
+fn a_faulty_device_on_a_pseudo_terminal() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args([
+            "sim",
+            "serve",
+            "--pty",
+            "--profile",
+            "pressure",
+            "--poll",
+            "0",
+            "--fault",
+            "master-bit-not-echoed",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.as_mut().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
+    let s = Served(child, pty);
+    let (code, out, err) = hartkit(&[
+        "conform", "-p", &s.1, "--poll", "0", "--only", "link", "--json",
+    ]);
+    let r = results(&out);
+    assert_eq!(code, 1, "{err}");
+    assert_eq!(with("fail", &r), vec!["LINK-007"], "{out}");
+    // A pseudo-terminal has no bit rate: the timing tests say so instead of guessing.
+    let cnr = with("could-not-run", &r);
+    assert!(cnr.contains(&"LINK-010".to_string()) && cnr.contains(&"LINK-011".to_string()));
+}
