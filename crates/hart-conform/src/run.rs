@@ -405,10 +405,19 @@ impl<T: Transport> Runner<'_, '_, T> {
             },
             "CMD-104" => self.rc_write_protected().await,
             "CMD-105" => self.common_practice().await,
+            "CMD-106" => match needs6(d.id) {
+                Some(o) => o,
+                None => self.rc_too_large_small().await,
+            },
             "CMD-200" => self.expect_commands().await,
             "CMD-201" => self.expect_identity(),
             "BURST-001" | "BURST-002" | "BURST-003" => self.burst(d.id).await,
             "BURST-004" => self.burst_105().await,
+            "BURST-005" | "BURST-006" if rev < 7 => {
+                na(format!("{} is a HART 7 rule (burst message numbers); the device is HART {rev}", d.id))
+            }
+            "BURST-005" => self.burst_invalid_message().await,
+            "BURST-006" => self.burst_period_adjusted().await,
             other => cnr(format!("{other} has no implementation in this version")),
         }
     }
@@ -1554,6 +1563,157 @@ impl<T: Transport> Runner<'_, '_, T> {
             backs.len(),
             worst * 100.0
         ))
+    }
+
+    /// Command 105 for message 0: its reply data, or why not.
+    async fn burst_config(&mut self, m: u8) -> Result<Vec<u8>, Outcome> {
+        let (rc, d, _) = self.read(105, &[m]).await?;
+        if rc == 64 {
+            return Err(na(
+                "command 105 not implemented: the device has no burst mode",
+            ));
+        }
+        if tables::response_class(rc) == tables::ResponseClass::Error || d.len() < 22 {
+            return Err(fail(format!(
+                "command 105 answered response code {rc} with {} bytes",
+                d.len()
+            )));
+        }
+        Ok(d)
+    }
+
+    async fn burst_invalid_message(&mut self) -> Outcome {
+        let before = match self.burst_config(0).await {
+            Ok(d) => d,
+            Err(o) => return o,
+        };
+        let n = before.get(11).copied().unwrap_or(1).max(1);
+        let nan = hart_proto::types::HART_NAN_BITS.to_be_bytes();
+        let requests: [(u16, Vec<u8>); 5] = [
+            (
+                103,
+                [
+                    vec![n],
+                    32000u32.to_be_bytes().to_vec(),
+                    32000u32.to_be_bytes().to_vec(),
+                ]
+                .concat(),
+            ),
+            (104, [vec![n, 0, 0, 250], nan.to_vec()].concat()),
+            (107, [vec![250; 8], vec![n]].concat()),
+            (108, vec![0, 1, n]),
+            (109, vec![0, n]),
+        ];
+        for (c, req) in requests {
+            let ex = self.cmd(c, &req).await;
+            match ex.rc_data() {
+                Some((9, _)) => {}
+                Some((rc, _)) => {
+                    return fail(format!(
+                        "command {c} for burst message {n} (the device has {n}) answered response code {rc}, 9 expected"
+                    ))
+                }
+                None => return fail(format!("no reply to command {c}")),
+            }
+        }
+        match self.burst_config(0).await {
+            Ok(after) if after == before => pass(format!(
+                "commands 103-109 for message {n}: response code 9, nothing changed"
+            )),
+            Ok(_) => fail(
+                "burst message 0 changed after requests for a message the device does not have",
+            ),
+            Err(o) => o,
+        }
+    }
+
+    async fn burst_period_adjusted(&mut self) -> Outcome {
+        let before = match self.burst_config(0).await {
+            Ok(d) => d,
+            Err(o) => return o,
+        };
+        let original = before[14..22].to_vec();
+        // 0.3 s = 9600 in 1/32 ms: between the legal 0.5 s and nothing shorter.
+        let asked = 9600u32;
+        let req = [
+            vec![0],
+            asked.to_be_bytes().to_vec(),
+            asked.to_be_bytes().to_vec(),
+        ]
+        .concat();
+        let ex = self.cmd(103, &req).await;
+        let verdict = match ex.rc_data() {
+            Some((8, d)) if d.len() >= 9 => {
+                let got = u32::from_be_bytes([d[1], d[2], d[3], d[4]]);
+                const LEGAL: [u32; 7] = [16_000, 32_000, 64_000, 128_000, 256_000, 512_000, 1_024_000];
+                if LEGAL.contains(&got) || (1_920_000..=115_200_000).contains(&got) {
+                    pass(format!(
+                        "0.3 s answered response code 8 and {:.2} s",
+                        f64::from(got) / 32_000.0
+                    ))
+                } else {
+                    fail(format!(
+                        "0.3 s adjusted to {:.3} s, which is no legal period",
+                        f64::from(got) / 32_000.0
+                    ))
+                }
+            }
+            Some((rc, _)) if tables::response_class(rc) == tables::ResponseClass::Error => {
+                fail(format!("command 103 with 0.3 s answered error response code {rc}; 8 (adjusted) expected"))
+            }
+            Some((rc, _)) => fail(format!("command 103 with 0.3 s answered response code {rc}, 8 expected")),
+            None => fail("no reply to command 103"),
+        };
+        // Restore the periods.
+        let ex = self.cmd(103, &[vec![0], original.clone()].concat()).await;
+        let restored = matches!(ex.rc_data(), Some((0 | 8, _)));
+        let back = matches!(self.burst_config(0).await, Ok(d) if d[14..22] == original[..]);
+        if !(restored && back) {
+            return fail(format!(
+                "the burst period of message 0 could not be restored: set it again ({})",
+                crate::model::hex(&original)
+            ));
+        }
+        verdict
+    }
+
+    async fn rc_too_large_small(&mut self) -> Outcome {
+        let Some(original) = self.dev.identity.min_response_preambles else {
+            return cnr("command 0 does not state the reply preambles to restore");
+        };
+        let mut verdict = None;
+        for (value, code, what) in [(255u8, 3u8, "too large"), (0, 4, "too small")] {
+            let ex = self.cmd(59, &[value]).await;
+            match ex.rc_data() {
+                Some((64, _)) => {
+                    verdict = Some(na("command 59 not implemented"));
+                    break;
+                }
+                Some((rc, _)) if rc == code => {}
+                Some((8, d)) if d.first().is_some_and(|&v| (5..=20).contains(&v)) => {}
+                Some((rc, d)) => {
+                    verdict = Some(fail(format!(
+                        "command 59 with {value} preambles answered response code {rc} {}; {code} ({what}) or 8 with 5-20 expected",
+                        crate::model::hex(&d)
+                    )));
+                    break;
+                }
+                None => {
+                    verdict = Some(fail("no reply to command 59"));
+                    break;
+                }
+            }
+        }
+        // Restore (harmless when nothing changed).
+        let ex = self.cmd(59, &[original]).await;
+        if !matches!(ex.rc_data(), Some((0 | 64, _))) {
+            return fail(format!(
+                "the reply preambles could not be restored to {original} with command 59"
+            ));
+        }
+        verdict.unwrap_or_else(|| {
+            pass("255 and 0 reply preambles refused or set to the nearest value")
+        })
     }
 
     async fn burst_105(&mut self) -> Outcome {
