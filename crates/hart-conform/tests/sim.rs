@@ -248,3 +248,22 @@ fn garbage_after_identification_fails_or_cannot_run_but_ends() {
         assert!(t.sends < 200, "seed {seed}: {} requests", t.sends);
     }
 }
+
+#[test]
+fn a_loop_in_use_is_warned_about() {
+    let mut t = SimTransport::new(&plant("pressure", None, false, &[]), true).unwrap();
+    // A handheld on the loop reading command 1 every 200 ms.
+    t.add_secondary(200_000);
+    let mut o = Options::new("sim", DeviceAddress::Poll(0));
+    o.groups = vec![hart_conform::Group::Link];
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .unwrap();
+    let r = rt.block_on(run(&mut t, &o));
+    assert!(
+        r.warnings.iter().any(|w| w.contains("the loop is in use")),
+        "{:?}",
+        r.warnings
+    );
+}
