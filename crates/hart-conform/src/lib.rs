@@ -15,6 +15,8 @@
 //! Tests that write run only with [`run::Options::allow_writes`] and restore what they
 //! change. See docs/conform.md.
 
+#![warn(missing_docs)]
+
 pub mod catalog;
 pub mod cli;
 pub mod expect;
