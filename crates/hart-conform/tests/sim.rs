@@ -267,3 +267,44 @@ fn a_loop_in_use_is_warned_about() {
         r.warnings
     );
 }
+
+#[test]
+fn expect_files_are_checked() {
+    let valve = hart_device::profiles::BUILTIN
+        .iter()
+        .find(|(n, _)| *n == "valve")
+        .unwrap()
+        .1;
+    let run_with = |text: &str| {
+        let mut t = SimTransport::new(&plant("valve", None, false, &[]), true).unwrap();
+        let mut o = Options::new("sim", DeviceAddress::Poll(0));
+        o.groups = vec![hart_conform::Group::Commands];
+        o.expect = Some(hart_conform::expect::Expect::from_toml(text).unwrap());
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .unwrap();
+        rt.block_on(run(&mut t, &o))
+    };
+    let verdict = |r: &Report, id: &str| r.results.iter().find(|t| t.id == id).unwrap().verdict;
+    // The device's own profile: its identity and device-specific commands match.
+    let r = run_with(valve);
+    assert_eq!(
+        verdict(&r, "CMD-200"),
+        Verdict::Pass,
+        "{}",
+        hart_conform::report::text(&r)
+    );
+    assert_eq!(verdict(&r, "CMD-201"), Verdict::Pass);
+    // Another device revision, and a command the device does not have.
+    let other = valve.replace("device_revision = ", "device_revision = 9")
+        + "\n[[commands]]\nnumber = 200\nreply_hex = \"0102\"\n";
+    let r = run_with(&other);
+    assert_eq!(
+        verdict(&r, "CMD-200"),
+        Verdict::Fail,
+        "{}",
+        hart_conform::report::text(&r)
+    );
+    assert_eq!(verdict(&r, "CMD-201"), Verdict::Fail);
+}
