@@ -92,6 +92,7 @@ pub const TESTS: &[TestDef] = &[
     t("CMD-048", Commands, "Command 48: 9 to 25 data bytes (HART 7), answered when the status says more status is available.", "HART ref §6 Cmd 48 [V]; §4 (more status available) [V]", false, Pdu),
     t("CMD-017", Commands, "Command 17 writes the message; command 12 reads back exactly what was written (restored afterwards).", "HART ref §6 Cmd 17, Cmd 12 [V]", false, Writes),
     t("CMD-018", Commands, "Command 18 writes tag, descriptor and date; command 13 reads them back exactly (restored afterwards).", "HART ref §6 Cmd 18, Cmd 13 [V]", false, Writes),
+    t("CMD-019", Commands, "Command 19 writes the final assembly number; command 16 reads it back exactly (restored afterwards).", "HART ref §6 Cmd 19, Cmd 16 [V]", false, Writes),
     t("CMD-022", Commands, "Command 22 (HART 6+) writes the long tag; command 20 reads it back exactly (restored afterwards).", "HART ref §6 Cmd 22, Cmd 20 [V]", false, Writes),
     t("CMD-038", Commands, "A write sets \"configuration changed\"; command 38 resets it for the asking master only.", "HART ref §4 Second status byte (per master) [V]; §6 Cmd 38 [V]", false, Writes),
     t("CMD-101", Commands, "A request with too few data bytes is answered with response code 5 and no data.", "HART ref §3.3 Behaviour rules [V]; §3.2 code 5 [V]", false, Pdu),

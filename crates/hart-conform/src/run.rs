@@ -57,6 +57,10 @@ impl Options {
 const CONFIG_CHANGED: u8 = 0x40;
 const MORE_STATUS: u8 = 0x10;
 
+/// Why a writing test could not run on a write-protected device.
+const WRITE_PROTECTED: &str =
+    "the device is write protected (response code 7 to a write); this test needs it writable (CMD-104 checks the protection)";
+
 /// After this many exchanges in a row without the reply they expected, the device is
 /// taken to have stopped answering and the remaining tests are not run.
 const SILENT_LIMIT: u32 = 4;
@@ -392,6 +396,7 @@ impl<T: Transport> Runner<'_, '_, T> {
             "CMD-048" => self.cmd_48().await,
             "CMD-017" => self.write_readback(12, 17, 24).await,
             "CMD-018" => self.write_readback(13, 18, 21).await,
+            "CMD-019" => self.write_readback(16, 19, 3).await,
             "CMD-022" => match needs6(d.id) {
                 Some(o) => o,
                 None => self.write_readback(20, 22, 32).await,
@@ -1053,9 +1058,15 @@ impl<T: Transport> Runner<'_, '_, T> {
             18 => {
                 let _ = hart_proto::types::packed_ascii::pack("CONFORM", &mut new[..6]);
             }
-            _ => {
+            22 => {
                 new.iter_mut().for_each(|b| *b = 0);
                 new[..15].copy_from_slice(b"hartkit-conform");
+            }
+            // The final assembly number (3 bytes): another number.
+            _ => {
+                if let Some(b) = new.last_mut() {
+                    *b ^= 0x5A;
+                }
             }
         }
         if new == original {
@@ -1064,6 +1075,7 @@ impl<T: Transport> Runner<'_, '_, T> {
         let mut verdict = None;
         let ex = self.cmd(write, &new).await;
         match ex.rc_data() {
+            Some((7, _)) => return cnr(WRITE_PROTECTED),
             Some((rc, _)) if tables::response_class(rc) == tables::ResponseClass::Error => {
                 verdict = Some(fail(format!("command {write} answered response code {rc}")));
             }
@@ -1137,6 +1149,9 @@ impl<T: Transport> Runner<'_, '_, T> {
             Err(o) => return o,
         };
         let ex = self.cmd(17, &msg).await;
+        if matches!(ex.rc_data(), Some((7, _))) {
+            return cnr(WRITE_PROTECTED);
+        }
         if !matches!(ex.rc_data(), Some((0, _))) {
             return cnr(
                 "command 17 (writing the message as it is, to set the flag) was not accepted",
@@ -1608,6 +1623,7 @@ impl<T: Transport> Runner<'_, '_, T> {
             let ex = self.cmd(c, &req).await;
             match ex.rc_data() {
                 Some((9, _)) => {}
+                Some((7, _)) => return cnr(WRITE_PROTECTED),
                 Some((rc, _)) => {
                     return fail(format!(
                         "command {c} for burst message {n} (the device has {n}) answered response code {rc}, 9 expected"
@@ -1642,6 +1658,9 @@ impl<T: Transport> Runner<'_, '_, T> {
         ]
         .concat();
         let ex = self.cmd(103, &req).await;
+        if matches!(ex.rc_data(), Some((7, _))) {
+            return cnr(WRITE_PROTECTED);
+        }
         let verdict = match ex.rc_data() {
             Some((8, d)) if d.len() >= 9 => {
                 let got = u32::from_be_bytes([d[1], d[2], d[3], d[4]]);
@@ -1689,6 +1708,7 @@ impl<T: Transport> Runner<'_, '_, T> {
                     verdict = Some(na("command 59 not implemented"));
                     break;
                 }
+                Some((7, _)) => return cnr(WRITE_PROTECTED),
                 Some((rc, _)) if rc == code => {}
                 Some((8, d)) if d.first().is_some_and(|&v| (5..=20).contains(&v)) => {}
                 Some((rc, d)) => {

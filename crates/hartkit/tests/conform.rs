@@ -304,3 +304,51 @@ fn a_faulty_device_on_a_pseudo_terminal() {
     let cnr = with("could-not-run", &r);
     assert!(cnr.contains(&"LINK-010".to_string()) && cnr.contains(&"LINK-011".to_string()));
 }
+
+/// A write-protected device (`sim serve --write-protect`): CMD-104 checks the
+/// protection; the other writing tests say they need a writable device.
+#[test]
+fn a_write_protected_device() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args([
+            "sim",
+            "serve",
+            "--pty",
+            "--profile",
+            "pressure",
+            "--poll",
+            "0",
+            "--write-protect",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.as_mut().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
+    let s = Served(child, pty);
+    let (code, out, err) = hartkit(&[
+        "conform",
+        "-p",
+        &s.1,
+        "--poll",
+        "0",
+        "--only",
+        "commands",
+        "--allow-writes",
+        "--json",
+    ]);
+    let r = results(&out);
+    assert_eq!(code, 0, "{err} {:?}", with("fail", &r));
+    assert!(with("pass", &r).contains(&"CMD-104".to_string()), "{out}");
+    for id in [
+        "CMD-017", "CMD-018", "CMD-019", "CMD-022", "CMD-038", "CMD-106",
+    ] {
+        assert!(
+            with("could-not-run", &r).contains(&id.to_string()),
+            "{id}: {out}"
+        );
+    }
+}
