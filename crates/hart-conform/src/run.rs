@@ -1474,8 +1474,100 @@ impl<T: Transport> Runner<'_, '_, T> {
             Err(o) => return o,
         };
         if msgs.is_empty() {
-            return na("no burst message is enabled (hartkit burst ... enable turns one on)");
+            if !self.opts.allow_writes || self.dev.revision < 7 {
+                return na(
+                    "no burst message is enabled (with --allow-writes the test enables one for itself on a HART 7 device)",
+                );
+            }
+            // Enable message 0 (command 1 every second) for this test, and put it back.
+            let original = match self.burst_config(0).await {
+                Ok(d) => d,
+                Err(o) => return o,
+            };
+            if let Err(o) = self
+                .burst_setup(0, 1, 32_000, &[0, 0, 250], &[0x7F, 0xA0, 0, 0], 1)
+                .await
+            {
+                self.burst_restore(&original).await;
+                return o;
+            }
+            let outcome = self
+                .burst_check(id, vec![(0, 1, 1_000_000, 1_000_000)])
+                .await;
+            let restored = self.burst_restore(&original).await;
+            return match (outcome, restored) {
+                ((v, d), true) => (v, format!("{d} (message 0 enabled for the test, then restored)")),
+                (_, false) => fail(format!(
+                    "burst message 0 could not be put back as it was (command 105: {}); set it again",
+                    crate::model::hex(&original)
+                )),
+            };
         }
+        self.burst_check(id, msgs).await
+    }
+
+    /// Configures burst message `m` (command, period in 1/32 ms, trigger mode,
+    /// classification and units, trigger level bytes, control) with commands 108, 103,
+    /// 104 and 109.
+    async fn burst_setup(
+        &mut self,
+        m: u8,
+        command: u16,
+        period: u32,
+        trigger: &[u8; 3],
+        level: &[u8; 4],
+        control: u8,
+    ) -> Result<(), Outcome> {
+        let [hi, lo] = command.to_be_bytes();
+        let p = period.to_be_bytes();
+        let steps: [(u16, Vec<u8>); 4] = [
+            (108, vec![hi, lo, m]),
+            (103, [vec![m], p.to_vec(), p.to_vec()].concat()),
+            (104, [vec![m], trigger.to_vec(), level.to_vec()].concat()),
+            (109, vec![control, m]),
+        ];
+        for (c, req) in steps {
+            let ex = self.cmd(c, &req).await;
+            match ex.rc_data() {
+                Some((7, _)) => return Err(cnr(WRITE_PROTECTED)),
+                Some((rc, _)) if tables::response_class(rc) == tables::ResponseClass::Error => {
+                    return Err(fail(format!(
+                        "command {c} (configuring burst message {m}) answered response code {rc}"
+                    )))
+                }
+                Some(_) => {}
+                None => return Err(fail(format!("no reply to command {c}"))),
+            }
+        }
+        Ok(())
+    }
+
+    /// Puts burst message 0 back as command 105 showed it; true when it reads back so.
+    async fn burst_restore(&mut self, original: &[u8]) -> bool {
+        if original.len() < 29 {
+            return false;
+        }
+        let command = u16::from_be_bytes([original[12], original[13]]);
+        let period = u32::from_be_bytes([original[14], original[15], original[16], original[17]]);
+        let max = &original[18..22];
+        // Off first, so that nothing bursts half-configured.
+        let _ = self.cmd(109, &[0, 0]).await;
+        let _ = self.cmd(108, &[original[12], original[13], 0]).await;
+        let _ = self
+            .cmd(
+                103,
+                &[vec![0], period.to_be_bytes().to_vec(), max.to_vec()].concat(),
+            )
+            .await;
+        let _ = self
+            .cmd(104, &[vec![0], original[22..29].to_vec()].concat())
+            .await;
+        let _ = self.cmd(109, &[original[0], 0]).await;
+        let _ = command;
+        matches!(self.burst_config(0).await, Ok(d) if d == original)
+    }
+
+    async fn burst_check(&mut self, id: &str, msgs: Vec<(u8, u16, Micros, Micros)>) -> Outcome {
         if id == "BURST-003" {
             let ex = self.cmd(1, &[]).await;
             return match ex.reply() {

@@ -308,3 +308,33 @@ fn expect_files_are_checked() {
     );
     assert_eq!(verdict(&r, "CMD-201"), Verdict::Fail);
 }
+
+#[test]
+fn burst_tests_enable_a_message_on_a_quiet_device_and_restore_it() {
+    let verdicts = |r: &Report| -> Vec<(&'static str, Verdict)> {
+        r.results
+            .iter()
+            .filter(|t| t.id.starts_with("BURST-00") && t.id <= "BURST-003")
+            .map(|t| (t.id, t.verdict))
+            .collect()
+    };
+    let r = conform(&plant("pressure", None, false, &[]), true);
+    assert!(
+        verdicts(&r).iter().all(|(_, v)| *v == Verdict::Pass),
+        "{}",
+        hart_conform::report::text(&r)
+    );
+    // Without --allow-writes they do not apply to a device that is not bursting.
+    let r = conform(&plant("pressure", None, false, &[]), false);
+    assert!(verdicts(&r)
+        .iter()
+        .all(|(_, v)| *v == Verdict::NotApplicable));
+    // A slow burst timer is caught on the message the test enabled.
+    let r = conform(&plant("pressure", None, false, &["burst-period-off"]), true);
+    assert_eq!(
+        failed(&r),
+        vec!["BURST-001"],
+        "{}",
+        hart_conform::report::text(&r)
+    );
+}
