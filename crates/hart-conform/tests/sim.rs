@@ -94,10 +94,24 @@ fn each_fault_is_caught_by_its_test_only() {
 
 #[test]
 fn every_fault_has_a_row() {
+    let docs = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../docs/conform.md"
+    ))
+    .unwrap();
     for (_, name, _) in hart_device::faults::ALL {
+        let (_, _, tests) = FAULTS
+            .iter()
+            .find(|(f, _, _)| f == name)
+            .unwrap_or_else(|| panic!("{name} has no row"));
+        // docs/conform.md lists it with the same tests.
+        let line = docs
+            .lines()
+            .find(|l| l.starts_with(&format!("| `{name}` |")))
+            .unwrap_or_else(|| panic!("docs/conform.md does not list {name}"));
         assert!(
-            FAULTS.iter().any(|(f, _, _)| f == name),
-            "{name} has no row"
+            line.ends_with(&format!("| {} |", tests.join(", "))),
+            "{line}"
         );
     }
 }
