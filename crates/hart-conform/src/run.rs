@@ -776,8 +776,10 @@ impl<T: Transport> Runner<'_, '_, T> {
         let mut req =
             Probe::<T>::request(self.dev.preambles, self.long(MasterKind::Primary), 0, &[]);
         let pre = self.dev.preambles;
+        let Some(&old) = req.get(pre) else {
+            return cnr("the request could not be built");
+        };
         // Frame type 7 is no frame type; fix the check byte so only the delimiter is wrong.
-        let old = req[pre];
         req[pre] = (old & !0x07) | 0x07;
         if let Some(last) = req.last_mut() {
             *last ^= old ^ ((old & !0x07) | 0x07);
@@ -798,7 +800,7 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     async fn link_gap_in_request(&mut self) -> Outcome {
         let req = Probe::<T>::request(self.dev.preambles, self.long(MasterKind::Primary), 0, &[]);
-        let cut = self.dev.preambles + 3;
+        let cut = (self.dev.preambles + 3).min(req.len());
         let pause = self.p.char_time * 3;
         let ex = self
             .p
