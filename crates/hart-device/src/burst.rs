@@ -54,9 +54,17 @@ pub fn trigger_units(cfg: &DeviceConfig, m: usize) -> Option<u8> {
     }
 }
 
-fn periods(cfg: &DeviceConfig, m: usize) -> (Micros, Micros) {
-    let b = &cfg.burst[m];
-    let us = |t: u32| u64::from(t) * 1000 / 32;
+fn periods(device: &Device, m: usize) -> (Micros, Micros) {
+    let b = &device.config().burst[m];
+    // Fault injection: a device whose burst timer runs 1.5 times too slow.
+    let us = |t: u32| {
+        let us = u64::from(t) * 1000 / 32;
+        if device.faults().has(crate::faults::Fault::BurstPeriodOff) {
+            us * 3 / 2
+        } else {
+            us
+        }
+    };
     (
         us(b.update_period),
         us(b.max_update_period).max(us(b.update_period)),
@@ -113,7 +121,7 @@ impl Device {
         if !active(self.config(), m) {
             return None;
         }
-        let (min, max) = periods(self.config(), m);
+        let (min, max) = periods(self, m);
         let Some(last) = self.burst_runtime_ref(m).last_publish else {
             return Some(now);
         };
@@ -138,7 +146,7 @@ impl Device {
         (0..self.config().burst.len())
             .filter(|&m| active(self.config(), m))
             .filter_map(|m| {
-                let (min, _) = periods(self.config(), m);
+                let (min, _) = periods(self, m);
                 let due = self.message_due(m, now)?;
                 let last = self.burst_runtime_ref(m).last_publish.unwrap_or(now);
                 // A message already due is the slave's business (it waits for a slot);
@@ -169,7 +177,7 @@ pub fn publish(device: &mut Device, reply: &mut Reply, now: Micros) -> u16 {
     // Keep the cadence: a BACK waits for a slot on the line, so it goes out a little
     // after it was due; count the period from when it was due (never more than one
     // period back).
-    let (min, _) = periods(device.config(), m);
+    let (min, _) = periods(device, m);
     let published = if due <= now && due + min > now {
         due
     } else {

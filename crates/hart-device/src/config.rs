@@ -38,6 +38,10 @@ pub struct Identity {
     pub min_request_preambles: u8,
     /// Flags (Common Table 11).
     pub flags: u8,
+    /// HART universal revision the device speaks: 7 (default), 6 or 5. A HART 5 or 6
+    /// device answers command 0 in the 12- or 17-byte form; a HART 5 device does not
+    /// implement commands 7, 8, 9, 20, 21 and 22.
+    pub universal_revision: u8,
 }
 
 impl Default for Identity {
@@ -53,6 +57,7 @@ impl Default for Identity {
             device_profile: 1,
             min_request_preambles: 5,
             flags: 0,
+            universal_revision: 7,
         }
     }
 }

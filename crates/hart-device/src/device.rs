@@ -113,6 +113,8 @@ pub struct Device {
     reset_pending: bool,
     /// The master whose address bit the next BACK carries.
     burst_to: MasterKind,
+    /// Faults the device commits on purpose ([`crate::faults`]).
+    faults: crate::faults::Faults,
 }
 
 impl Device {
@@ -155,6 +157,7 @@ impl Device {
             dirty: false,
             reset_pending: false,
             burst_to: MasterKind::Primary,
+            faults: crate::faults::Faults::NONE,
         };
         // Start every filter at its input, as a device that has been running.
         for i in 0..n {
@@ -174,6 +177,17 @@ impl Device {
             self.cfg.identity.expanded_device_type,
             self.cfg.identity.device_id,
         )
+    }
+
+    /// Makes the device commit `faults` (those of the application layer: missing
+    /// response code 5, command 38 not resetting, burst period off).
+    pub fn set_faults(&mut self, faults: crate::faults::Faults) {
+        self.faults = faults;
+    }
+
+    /// The faults the device commits.
+    pub fn faults(&self) -> crate::faults::Faults {
+        self.faults
     }
 
     /// Sets the write-protect jumper.
@@ -525,20 +539,28 @@ impl Device {
             expansion_code: 254,
             expanded_device_type: id.expanded_device_type,
             min_request_preambles: id.min_request_preambles,
-            universal_revision: 7,
+            universal_revision: self.revision(),
             device_revision: id.device_revision,
             software_revision: id.software_revision,
             hardware: HardwareRevision::new(id.hardware_revision, 0),
             flags: Flags(id.flags),
             device_id: DeviceId::new(id.device_id & 0xFF_FFFF).unwrap_or_default(),
-            min_response_preambles: Some(self.cfg.response_preambles),
-            max_device_variables: Some(self.cfg.variables.len() as u8),
-            config_change_counter: Some(self.cfg.config_change_counter),
-            extended_status: Some(ExtendedStatus(self.extended_status())),
-            manufacturer_id: Some(id.manufacturer_id),
-            private_label_distributor: Some(id.private_label_distributor),
-            device_profile: Some(DeviceProfile(id.device_profile)),
+            min_response_preambles: (self.revision() >= 6).then_some(self.cfg.response_preambles),
+            max_device_variables: (self.revision() >= 6).then_some(self.cfg.variables.len() as u8),
+            config_change_counter: (self.revision() >= 6).then_some(self.cfg.config_change_counter),
+            extended_status: (self.revision() >= 6)
+                .then_some(ExtendedStatus(self.extended_status())),
+            manufacturer_id: (self.revision() >= 7).then_some(id.manufacturer_id),
+            private_label_distributor: (self.revision() >= 7)
+                .then_some(id.private_label_distributor),
+            device_profile: (self.revision() >= 7).then_some(DeviceProfile(id.device_profile)),
         }
+    }
+
+    /// The HART universal revision the device speaks (5, 6 or 7; the profile's
+    /// `identity.universal_revision`).
+    pub fn revision(&self) -> u8 {
+        self.cfg.identity.universal_revision.clamp(5, 7)
     }
 
     fn time_of_day(now: Micros) -> HartTime {
@@ -573,8 +595,16 @@ impl Device {
 
     fn dispatch(&mut self, command: u16, data: &[u8], master: MasterKind, now: Micros) -> Outcome {
         let info = cmd::info(command);
+        // Universal commands added by HART 6 (and command 31) are not in older devices.
+        if self.revision() < 6 && matches!(command, 7 | 8 | 9 | 20 | 21 | 22 | 31) {
+            return err(rc::NOT_IMPLEMENTED);
+        }
         let request = match hart_proto::decode_request(command, data) {
             Some(Ok(r)) => Some(r),
+            // Fault injection: too few data bytes answered as a success, without data.
+            Some(Err(_)) if self.faults.has(crate::faults::Fault::NoTooFewDataBytes) => {
+                return ok(vec![])
+            }
             Some(Err(_)) => return err(rc::TOO_FEW_DATA_BYTES),
             None => None,
         };
@@ -992,7 +1022,9 @@ impl Device {
                         return err(9);
                     }
                 }
-                self.masters[master_index(master)].config_changed = false;
+                if !self.faults.has(crate::faults::Fault::Cmd38NoReset) {
+                    self.masters[master_index(master)].config_changed = false;
+                }
                 ok(encode(&cmd::ResetConfigChanged {
                     config_change_counter: Some(self.cfg.config_change_counter),
                 }))

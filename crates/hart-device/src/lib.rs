@@ -18,6 +18,7 @@
 pub mod burst;
 pub mod config;
 pub mod device;
+pub mod faults;
 pub mod persist;
 pub mod profiles;
 pub mod units;
@@ -41,6 +42,13 @@ pub struct Node {
     state_path: Option<PathBuf>,
     /// The master bit of a BACK handed out by [`Node::poll`] and not yet transmitted.
     back_to: Option<MasterKind>,
+    /// Faults the device commits ([`faults`]).
+    faults: faults::Faults,
+    /// The line's timing.
+    profile: TimingProfile,
+    /// The rest of a reply held back by [`faults::Fault::GapInReply`], and when it goes
+    /// out (set once the first part has left).
+    held: Option<(Vec<u8>, Option<Micros>)>,
 }
 
 impl Node {
@@ -62,6 +70,9 @@ impl Node {
             device,
             state_path: None,
             back_to: None,
+            faults: faults::Faults::NONE,
+            profile,
+            held: None,
         };
         n.sync(now);
         n
@@ -70,6 +81,51 @@ impl Node {
     /// Saves the configuration to `path` whenever it changes.
     pub fn persist_to(&mut self, path: PathBuf) {
         self.state_path = Some(path);
+    }
+
+    /// Makes the device commit `faults` from now on (see [`faults::Fault`]).
+    pub fn set_faults(&mut self, list: &[faults::Fault]) {
+        use faults::Fault;
+        let f = faults::Faults::of(list);
+        self.faults = f;
+        self.slave
+            .set_reply_delay(f.has(Fault::LateReply).then(|| self.profile.chars(40)));
+        self.slave
+            .set_fault_answers_any_address(f.has(Fault::AnswersOtherAddress));
+        self.slave
+            .set_fault_executes_bad_check_byte(f.has(Fault::ExecutesBadCheckByte));
+        self.device.set_faults(f);
+    }
+
+    /// The faults the device commits.
+    pub fn faults(&self) -> faults::Faults {
+        self.faults
+    }
+
+    /// Applies the faults that change a reply on its way out (not burst frames).
+    fn damage_reply(&mut self, mut bytes: Vec<u8>) -> Vec<u8> {
+        use faults::Fault;
+        let f = self.faults;
+        let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
+        if f.has(Fault::TooFewPreambles) && pre > 2 {
+            bytes.drain(..pre - 2);
+        }
+        let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
+        if f.has(Fault::MasterBitNotEchoed) && bytes.len() > pre + 2 {
+            bytes[pre + 1] ^= 0x80;
+            let last = bytes.len() - 1;
+            bytes[last] ^= 0x80;
+        }
+        if f.has(Fault::BadReplyCheckByte) {
+            if let Some(last) = bytes.last_mut() {
+                *last ^= 0x5A;
+            }
+        }
+        if f.has(Fault::GapInReply) && bytes.len() > pre + 7 {
+            let rest = bytes.split_off(pre + 6);
+            self.held = Some((rest, None));
+        }
+        bytes
     }
 
     /// Feeds a received character.
@@ -85,6 +141,12 @@ impl Node {
 
     /// Advances to `now`; returns bytes to transmit, if it is time.
     pub fn poll(&mut self, now: Micros) -> Option<Vec<u8>> {
+        if let Some((_, at)) = &self.held {
+            return match at {
+                Some(at) if now >= *at => self.held.take().map(|(rest, _)| rest),
+                _ => None,
+            };
+        }
         self.device.tick(now);
         self.sync(now);
         let out = self
@@ -98,11 +160,21 @@ impl Node {
                 .map(|f| f.address.master());
             self.sync(now);
         }
-        out
+        match out {
+            Some(bytes) if self.back_to.is_none() && self.faults != faults::Faults::NONE => {
+                Some(self.damage_reply(bytes))
+            }
+            other => other,
+        }
     }
 
     /// The last transmission has left.
     pub fn transmitted(&mut self, now: Micros) {
+        if let Some((_, at @ None)) = &mut self.held {
+            // The first part of a reply with a gap has left: the rest follows later.
+            *at = Some(now + self.profile.chars(3));
+            return;
+        }
         self.slave.transmitted(now);
         // The slave alternates the master bit after each BACK; the device puts the
         // status of the master the next BACK goes to in it.
@@ -114,6 +186,9 @@ impl Node {
 
     /// When to poll again.
     pub fn next_deadline(&self, now: Micros) -> Option<Micros> {
+        if let Some((_, at)) = &self.held {
+            return *at;
+        }
         match (self.slave.next_deadline(), self.device.burst_wakeup(now)) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),

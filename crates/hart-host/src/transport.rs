@@ -304,7 +304,7 @@ impl Transport for SerialTransport {
 }
 
 /// One device of a simulated plant.
-#[derive(Debug, Clone, serde::Deserialize)]
+#[derive(Debug, Clone, Default, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlantDevice {
     /// Built-in profile name or profile file.
@@ -314,6 +314,14 @@ pub struct PlantDevice {
     /// Burst: command published and period in seconds.
     #[serde(default)]
     pub burst: Option<PlantBurst>,
+    /// HART universal revision the device speaks (5, 6 or 7), overriding its
+    /// profile's (`revision = 5` makes a HART 5 identity of any profile).
+    #[serde(default)]
+    pub revision: Option<u8>,
+    /// Rules the device breaks on purpose, by name (`faults = ["late-reply"]`; the
+    /// names are in [`hart_device::faults::ALL`]), for testing conformance testers.
+    #[serde(default)]
+    pub faults: Vec<String>,
 }
 
 /// Burst settings of a plant device.
@@ -342,6 +350,7 @@ impl Plant {
             profile: profile.into(),
             poll,
             burst,
+            ..Default::default()
         };
         Plant {
             device: vec![
@@ -408,6 +417,7 @@ impl Plant {
                     profile: p.clone(),
                     poll,
                     burst: None,
+                    ..Default::default()
                 })
                 .collect(),
         })
@@ -424,6 +434,15 @@ impl Plant {
             c.polling_address = d.poll & 0x3F;
             c.loop_current_mode = u8::from(d.poll == 0);
             c.identity.device_id = (c.identity.device_id + u32::from(d.poll)) & 0xFF_FFFF;
+            if let Some(r) = d.revision {
+                if !(5..=7).contains(&r) {
+                    return Err(format!(
+                        "device at polling address {}: revision = {r}: give 5, 6 or 7",
+                        d.poll
+                    ));
+                }
+                c.identity.universal_revision = r;
+            }
             if let Some(b) = &d.burst {
                 let m = &mut c.burst[0];
                 m.command = b.command;
@@ -431,7 +450,9 @@ impl Plant {
                 m.update_period = (b.period * 32_000.0) as u32;
                 m.max_update_period = m.update_period;
             }
-            devices.push(Device::new(c));
+            let mut device = Device::new(c);
+            device.set_faults(hart_device::faults::Faults::of(&self.faults_of(d)?));
+            devices.push(device);
         }
         Ok(devices)
     }
@@ -439,11 +460,25 @@ impl Plant {
     /// Builds the devices ([`Plant::devices`]), each behind its data-link slave on a
     /// line with `profile`.
     pub fn nodes(&self, profile: TimingProfile) -> Result<Vec<Node>, String> {
-        Ok(self
-            .devices()?
-            .into_iter()
-            .map(|d| Node::new(d, profile, 0))
-            .collect())
+        let mut nodes = vec![];
+        for (d, spec) in self.devices()?.into_iter().zip(&self.device) {
+            let mut node = Node::new(d, profile, 0);
+            node.set_faults(&self.faults_of(spec)?);
+            nodes.push(node);
+        }
+        Ok(nodes)
+    }
+
+    /// The faults a plant device is told to commit; an unknown name is an error that
+    /// lists the known ones.
+    fn faults_of(&self, d: &PlantDevice) -> Result<Vec<hart_device::faults::Fault>, String> {
+        d.faults
+            .iter()
+            .map(|name| {
+                hart_device::faults::Fault::parse(name)
+                    .map_err(|e| format!("device at polling address {}: {e}", d.poll))
+            })
+            .collect()
     }
 }
 

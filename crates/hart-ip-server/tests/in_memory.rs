@@ -40,6 +40,7 @@ fn plant() -> Plant {
         profile: profile.into(),
         poll,
         burst,
+        ..Default::default()
     };
     Plant {
         device: vec![

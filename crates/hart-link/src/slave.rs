@@ -147,6 +147,10 @@ pub struct Slave {
     burst_due: Option<Micros>,
     burst_to: MasterKind,
     stats: SlaveStats,
+    /// Fault injection (conformance testing): answer every address.
+    fault_any_address: bool,
+    /// Fault injection: execute requests whose only error is the check byte.
+    fault_bad_check: bool,
 }
 
 impl Slave {
@@ -164,6 +168,8 @@ impl Slave {
             burst_due: None,
             burst_to: MasterKind::Primary,
             stats: SlaveStats::default(),
+            fault_any_address: false,
+            fault_bad_check: false,
         }
     }
 
@@ -207,6 +213,19 @@ impl Slave {
         self.config.reply_delay = delay;
     }
 
+    /// Fault injection for testing conformance testers: when `on`, the slave answers
+    /// requests for any polling address and any unique ID (a rule broken on purpose).
+    pub fn set_fault_answers_any_address(&mut self, on: bool) {
+        self.fault_any_address = on;
+    }
+
+    /// Fault injection for testing conformance testers: when `on`, a request whose only
+    /// error is its check byte is executed and answered as if it were intact, instead
+    /// of with the communication-error summary (a rule broken on purpose).
+    pub fn set_fault_executes_bad_check_byte(&mut self, on: bool) {
+        self.fault_bad_check = on;
+    }
+
     /// Changes the number of preambles in replies.
     pub fn set_response_preambles(&mut self, n: usize) {
         self.config.response_preambles = n;
@@ -234,8 +253,12 @@ impl Slave {
             tx_to,
             burst_mode,
             stats,
+            fault_any_address,
+            fault_bad_check,
             ..
         } = self;
+        let any = *fault_any_address;
+        let bad_check_ok = *fault_bad_check;
         let bursting = *burst_mode;
         let mut ready = false;
         line.receive(byte, flags, now, &mut |e, _| {
@@ -244,7 +267,7 @@ impl Slave {
             let (address, command, extended, status) = match &e {
                 DeframerEvent::Frame(f)
                     if f.frame_type() == FrameType::Stx
-                        && is_me(config, &f.address, f.command_byte) =>
+                        && (any || is_me(config, &f.address, f.command_byte)) =>
                 {
                     stats.requests += 1;
                     if !handler.request(f, &mut reply, now) {
@@ -261,10 +284,37 @@ impl Slave {
                     let (Some(a), Some(cmd)) = (d.address, d.command_byte) else {
                         return;
                     };
-                    if !is_me(config, &a, cmd) {
+                    if !(any || is_me(config, &a, cmd)) {
                         return;
                     }
                     stats.requests += 1;
+                    // Fault injection: a request damaged only in its check byte is
+                    // executed as if it were intact.
+                    let only_check = d.errors & 0x7F == hart_proto::tables::comm_error::CHECK_BYTE;
+                    if bad_check_ok && only_check {
+                        if let Ok(f) = Frame::parse_pdu(d.pdu) {
+                            if !handler.request(&f, &mut reply, now) {
+                                return;
+                            }
+                            let spec = FrameSpec {
+                                preambles: config.response_preambles,
+                                frame_type: FrameType::Ack,
+                                address: f.address.with_burst(bursting),
+                                expansion: &[],
+                                physical_layer: 0,
+                                command: f.command,
+                                extended: f.extended,
+                                status: Some((reply.response_code, reply.device_status)),
+                                data: reply.data(),
+                            };
+                            if let Ok(n) = spec.encode(&mut tx[..]) {
+                                *tx_len = n;
+                                *tx_to = f.address.master();
+                                ready = true;
+                            }
+                            return;
+                        }
+                    }
                     stats.comm_error_replies += 1;
                     (
                         a,

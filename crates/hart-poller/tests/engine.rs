@@ -213,6 +213,7 @@ fn writes_go_through_and_the_configuration_is_read_again() {
             profile: "pressure".into(),
             poll: 0,
             burst: None,
+            ..Default::default()
         });
         let m = MemoryLoop::new(plant.devices().unwrap());
         let engine = start(10_000, LoopSettings::default(), m).await;

@@ -109,6 +109,10 @@ enum Top {
         #[arg(long, value_name = "FILE")]
         pcap: Option<String>,
     },
+    /// Conformance tests of a field device: data link, commands, burst mode, and the
+    /// physical layer from a recording (`conform phy FILE.wav`); see docs/conform.md.
+    #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+    Conform(Box<ConformCli>),
     /// HART captures: read back pcapng/pcap files (ours, or tcpdump's of HART-IP).
     #[command(subcommand)]
     Capture(CaptureCmd),
@@ -722,6 +726,121 @@ struct TargetArgs {
     unique_id: Option<String>,
 }
 
+/// `hartkit conform`.
+#[derive(Args)]
+struct ConformCli {
+    #[command(subcommand)]
+    cmd: Option<ConformCmd>,
+    /// Where the device is: any target the host commands take (/dev/ttyUSB0,
+    /// rs485:PATH, sim, sim:PLANT.toml?virtual, udp://HOST[:PORT], tcp://..., tls://...).
+    #[arg(long, short = 'p', value_name = "TARGET")]
+    port: Option<String>,
+    /// JSON instead of the summary: one object per test per line.
+    #[arg(long)]
+    json: bool,
+    /// Pre-shared key for tls:// and dtls:// targets (HART-IP version 2).
+    #[arg(long, value_name = "IDENTITY:HEXKEY", conflicts_with = "psk_file")]
+    psk: Option<String>,
+    /// File with the pre-shared key for tls:// and dtls:// targets.
+    #[arg(long, value_name = "FILE")]
+    psk_file: Option<std::path::PathBuf>,
+    /// The device at this polling address (default 0).
+    #[arg(long, conflicts_with = "unique_id")]
+    poll: Option<u8>,
+    /// The device with this unique ID (10 hex digits).
+    #[arg(long, value_name = "HEX")]
+    unique_id: Option<String>,
+    /// Only these groups: link, commands, burst (comma-separated).
+    #[arg(long, value_name = "GROUPS")]
+    only: Option<String>,
+    /// What the device should be: a profile file like the simulated devices' (its
+    /// identity and device-specific commands are checked).
+    #[arg(long, value_name = "DEVICE.toml")]
+    expect: Option<std::path::PathBuf>,
+    /// Write a self-contained HTML report to FILE.
+    #[arg(long, value_name = "FILE.html")]
+    report: Option<std::path::PathBuf>,
+    /// Allow the tests that write (each restores what it changes).
+    #[arg(long)]
+    allow_writes: bool,
+}
+
+#[derive(Subcommand)]
+enum ConformCmd {
+    /// The physical-layer tests on a recording of the device's signal.
+    Phy {
+        /// The recording (WAV).
+        file: std::path::PathBuf,
+        /// JSON, one object per test per line.
+        #[arg(long)]
+        json: bool,
+        /// Write a self-contained HTML report to FILE.
+        #[arg(long, value_name = "FILE.html")]
+        report: Option<std::path::PathBuf>,
+    },
+}
+
+/// `hartkit conform`: opens the target like the other host commands and hands over to
+/// `hart_conform::cli`.
+fn conform(a: &ConformCli) -> Result<String, (String, u8)> {
+    let (report, text) = match &a.cmd {
+        Some(ConformCmd::Phy { file, json, report }) => {
+            hart_conform::cli::phy(file, *json, report.as_deref()).map_err(|e| (e, 2))?
+        }
+        None => {
+            let Some(port) = a.port.clone() else {
+                return Err((
+                    "give the device's port: hartkit conform -p TARGET (or conform phy FILE.wav)"
+                        .into(),
+                    2,
+                ));
+            };
+            // The host commands' options, to open the target as they do.
+            let h = &HostArgs {
+                port,
+                json: a.json,
+                trace: None,
+                secondary: false,
+                psk: a.psk.clone(),
+                psk_file: a.psk_file.clone(),
+            };
+            let args = hart_conform::cli::Args {
+                target: h.port.clone(),
+                poll: a.poll,
+                unique_id: a.unique_id.clone(),
+                only: a.only.clone(),
+                expect: a.expect.clone(),
+                json: h.json,
+                report: a.report.clone(),
+                allow_writes: a.allow_writes,
+            };
+            hart_conform::cli::options(&args).map_err(|e| (e, 2))?;
+            hartkit::host::block_on(async {
+                let psk = h.key()?;
+                let mut t = hart_host::target::open_async_with(&h.port, psk.as_ref())
+                    .await
+                    .map_err(|e| (e, 2))?;
+                hart_conform::cli::run(&mut t, &args)
+                    .await
+                    .map_err(|e| (e, 2))
+            })?
+        }
+    };
+    use std::io::Write as _;
+    let _ = write!(std::io::stdout(), "{text}");
+    match hart_conform::cli::exit_code(&report) {
+        0 => Ok(String::new()),
+        1 => Err((
+            format!(
+                "{} conformance test(s) failed",
+                report.count(hart_conform::Verdict::Fail)
+            ),
+            1,
+        )),
+        code => Err(("no test could run; see the reasons above".into(), code)),
+    }
+}
+
 #[derive(Subcommand, Clone)]
 enum BurstCmd {
     /// Configure a burst message.
@@ -806,6 +925,11 @@ struct ServeArgs {
     /// Stop after this many seconds (default: run until killed).
     #[arg(long, value_name = "SECONDS")]
     run_for: Option<f64>,
+    /// Make every device break this rule on purpose, to test a conformance tester
+    /// (`hartkit conform`): late-reply, gap-in-reply, bad-reply-check-byte, ... (the
+    /// list is in docs/conform.md). Repeat for several.
+    #[arg(long = "fault", value_name = "NAME")]
+    faults: Vec<String>,
 }
 
 #[derive(Args)]
@@ -1107,6 +1231,11 @@ fn sim_serve(a: &ServeArgs) -> Result<String, String> {
         state_dir: a.state_dir.clone(),
         write_protect: a.write_protect,
         run_for: a.run_for.map(std::time::Duration::from_secs_f64),
+        faults: a
+            .faults
+            .iter()
+            .map(|f| hart_device::faults::Fault::parse(f).map_err(|e| format!("--fault: {e}")))
+            .collect::<Result<_, _>>()?,
     };
     hartkit::serve::serve(&opts, |line| {
         use std::io::Write as _;
@@ -1252,6 +1381,7 @@ fn run_host(top: &Top) -> Option<Result<String, (String, u8)>> {
                 run_for: a.run_for,
             },
         ),
+        Top::Conform(a) => conform(a),
         Top::HartIp(HartIpCmd::Bench(a)) => hart_ip_bench(a),
         Top::Modbus(ModbusCmd::Bench(a)) => modbus_bench(a),
         Top::Opcua(OpcUaCmd::Trust(a)) => hartkit::gateway::opcua_trust(

@@ -41,6 +41,9 @@ pub struct ServeOptions {
     pub write_protect: bool,
     /// Stop after this long (for tests); run until killed otherwise.
     pub run_for: Option<Duration>,
+    /// Rules every device breaks on purpose (`--fault`, for testing conformance
+    /// testers; see `hart_device::faults`).
+    pub faults: Vec<hart_device::faults::Fault>,
 }
 
 /// Opens the port: the port to use, and for a PTY the path for the host and the slave
@@ -94,6 +97,7 @@ pub fn build_nodes(opts: &ServeOptions, profile: TimingProfile) -> Result<Vec<(N
         let mut device = Device::new(cfg);
         device.set_write_protect(opts.write_protect);
         let mut node = Node::new(device, profile, 0);
+        node.set_faults(&opts.faults);
         if let Some(p) = state {
             if !p.exists() {
                 persist::save(&p, node.device.config())
