@@ -603,7 +603,7 @@ fn a_loop_test_is_released_by_itself() {
             device: vec![hart_host::transport::PlantDevice {
                 profile: "pressure".into(),
                 poll: 0,
-                burst: None,
+                ..Default::default()
             }],
         };
         let s = server_on(plant, "looptest", true, false).await;
