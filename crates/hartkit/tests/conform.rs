@@ -241,9 +241,9 @@ impl Drop for Served {
     }
 }
 
-/// The whole suite against a device on a pseudo-terminal at 1200 bit/s, in real time.
-#[test]
-fn over_a_pseudo_terminal_at_1200_bit_s() {
+/// `hartkit sim serve --pty --profile pressure --poll 0 EXTRA`: the process and its
+/// pseudo-terminal (the path it prints first).
+fn served(extra: &[&str]) -> Served {
     let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
         .args([
             "sim",
@@ -254,6 +254,7 @@ fn over_a_pseudo_terminal_at_1200_bit_s() {
             "--poll",
             "0",
         ])
+        .args(extra)
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
@@ -262,7 +263,13 @@ fn over_a_pseudo_terminal_at_1200_bit_s() {
         .read_line(&mut first)
         .unwrap();
     let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
-    let s = Served(child, pty);
+    Served(child, pty)
+}
+
+/// The whole suite against a device on a pseudo-terminal at 1200 bit/s, in real time.
+#[test]
+fn over_a_pseudo_terminal_at_1200_bit_s() {
+    let s = served(&[]);
     let (code, out, err) = hartkit(&["conform", "-p", &s.1, "--poll", "0", "--json"]);
     let r = results(&out);
     assert_eq!(code, 0, "{err} {:?}\n{out}", with("fail", &r));
@@ -273,27 +280,7 @@ fn over_a_pseudo_terminal_at_1200_bit_s() {
 /// through a real serial port, and nothing else fails.
 #[test]
 fn a_faulty_device_on_a_pseudo_terminal() {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args([
-            "sim",
-            "serve",
-            "--pty",
-            "--profile",
-            "pressure",
-            "--poll",
-            "0",
-            "--fault",
-            "master-bit-not-echoed",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.as_mut().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
-    let s = Served(child, pty);
+    let s = served(&["--fault", "master-bit-not-echoed"]);
     let (code, out, err) = hartkit(&[
         "conform", "-p", &s.1, "--poll", "0", "--only", "link", "--json",
     ]);
@@ -309,26 +296,7 @@ fn a_faulty_device_on_a_pseudo_terminal() {
 /// protection; the other writing tests say they need a writable device.
 #[test]
 fn a_write_protected_device() {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args([
-            "sim",
-            "serve",
-            "--pty",
-            "--profile",
-            "pressure",
-            "--poll",
-            "0",
-            "--write-protect",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.as_mut().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
-    let s = Served(child, pty);
+    let s = served(&["--write-protect"]);
     let (code, out, err) = hartkit(&[
         "conform",
         "-p",
