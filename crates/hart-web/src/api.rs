@@ -553,7 +553,7 @@ async fn write(
         "read_back": read_back,
     });
     if let (WriteOp::FixedCurrent(_), Some(after)) = (&op, planned.release_after) {
-        let at = SystemTime::now() + after;
+        let at = state.engine.clock().wall() + after;
         out["release_at"] = json!(humantime::format_rfc3339_seconds(at).to_string());
         message.push_str(&format!(
             "; released automatically in {} s",
@@ -675,7 +675,7 @@ async fn api_burst(
 /// historian when one runs (falling back to memory if it cannot be read), from
 /// memory otherwise.
 async fn history(state: &AppState, position: usize, window: Duration) -> Value {
-    let to = SystemTime::now();
+    let to = state.engine.clock().wall();
     let from = to - window;
     let uid = state
         .engine
@@ -795,7 +795,7 @@ async fn trend_svg(State(state): St, Path(id): Path<String>, Query(q): Q) -> Res
     let from = h["from"]
         .as_str()
         .and_then(|s| humantime::parse_rfc3339(s).ok())
-        .unwrap_or(SystemTime::now());
+        .unwrap_or_else(|| state.engine.clock().wall());
     let secs = |p: &Value| {
         p["time"]
             .as_str()
