@@ -9,10 +9,18 @@
 //!
 //! * at most `max_connections` at once and at most `max_per_address` from one address
 //!   (priority addresses are exempt from both the per-address limit and eviction);
-//! * a full pool evicts one connection to admit the new one: the one the front end
-//!   ranks lowest (its `rank` function: a class, then the time it has been so, oldest
-//!   first; `None` for a connection that must not be closed, such as one being
-//!   answered); with none to evict, the new one is refused.
+//! * a full pool evicts one connection to admit the new one: of the class the front
+//!   end ranks lowest (its `rank` function: a class, then the time it has been so;
+//!   `None` for a connection that must not be closed, such as one being answered),
+//!   one from the host that holds the most connections, its oldest first; with none
+//!   to evict, the new one is refused.
+//!
+//! Taking from the heaviest host first is a fair share of the pool: a flood of
+//! connections from a few hosts reopening as fast as they are closed turns the
+//! lowest class over in milliseconds, and a client whose connection is briefly in
+//! that class (a SCADA between its connect and its first request, on a loaded
+//! machine) would otherwise be closed with the flood. It is closed only once no host
+//! holds more connections in that class than its own.
 //!
 //! Each front end keeps its own per-connection state in the pool (`S`), ranks it, and
 //! logs refusals and evictions through a [`LogLimit`].
@@ -98,13 +106,7 @@ impl<S> Pool<S> {
         }
         let mut evicted = None;
         if self.entries.len() >= limits.max_connections {
-            let victim = self
-                .entries
-                .iter()
-                .filter(|(_, e)| !e.priority)
-                .filter_map(|(id, e)| rank(e).map(|r| (r, *id)))
-                .min()
-                .map(|(_, id)| id);
+            let victim = self.victim(rank);
             let Some(id) = victim else {
                 return Err(Refused::Full(self.entries.len()));
             };
@@ -122,6 +124,28 @@ impl<S> Pool<S> {
             },
         );
         Ok((id, evicted))
+    }
+
+    /// The connection to close for a new one: of the lowest class, from the host with
+    /// the most connections in it, the oldest; never a priority one nor one `rank`
+    /// spares.
+    fn victim(&self, rank: impl Fn(&Entry<S>) -> Option<(u8, Instant)>) -> Option<u64> {
+        let candidates: Vec<(u64, IpAddr, u8, Instant)> = self
+            .entries
+            .iter()
+            .filter(|(_, e)| !e.priority)
+            .filter_map(|(id, e)| rank(e).map(|(class, t)| (*id, host(e.peer.ip()), class, t)))
+            .collect();
+        let lowest = candidates.iter().map(|c| c.2).min()?;
+        let mut per_host: HashMap<IpAddr, usize> = HashMap::new();
+        for c in candidates.iter().filter(|c| c.2 == lowest) {
+            *per_host.entry(c.1).or_default() += 1;
+        }
+        candidates
+            .iter()
+            .filter(|c| c.2 == lowest)
+            .min_by_key(|c| (std::cmp::Reverse(per_host[&c.1]), c.3, c.0))
+            .map(|c| c.0)
     }
 
     /// Connection `id`, while it is in the pool.
@@ -153,11 +177,15 @@ impl<S> Pool<S> {
 /// Whether two addresses are the same host (an IPv4 client seen as `::ffff:a.b.c.d`
 /// counts as its IPv4 address).
 pub fn same_host(a: IpAddr, b: IpAddr) -> bool {
-    let v4 = |ip: IpAddr| match ip {
+    host(a) == host(b)
+}
+
+/// The host an address names (an IPv4-mapped IPv6 address as its IPv4 address).
+fn host(ip: IpAddr) -> IpAddr {
+    match ip {
         IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
         v4 => v4,
-    };
-    v4(a) == v4(b)
+    }
 }
 
 /// Lines about connections logged per second at most; the rest are counted and the
@@ -270,6 +298,58 @@ mod tests {
             .admit(addr("10.0.0.1:1001"), &limits, at(7), None, rank)
             .is_ok());
         assert_eq!(pool.len(), 3);
+    }
+
+    #[test]
+    fn a_flood_from_a_few_hosts_is_closed_before_a_single_client_of_the_same_class() {
+        let none = NetList::empty();
+        let limits = Admission {
+            max_connections: 4,
+            max_per_address: 16,
+            priority: &none,
+        };
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        // Every connection is of one class, ranked by when it opened.
+        let rank = |e: &Entry<()>| Some((0, e.opened));
+        let mut pool: Pool<()> = Pool::default();
+        // The SCADA connects first: the oldest of its class.
+        let (scada, _) = pool
+            .admit(addr("10.0.0.1:1000"), &limits, at(0), (), rank)
+            .unwrap();
+        let (f1, _) = pool
+            .admit(addr("10.0.0.7:1"), &limits, at(1), (), rank)
+            .unwrap();
+        pool.admit(addr("10.0.0.7:2"), &limits, at(2), (), rank)
+            .unwrap();
+        pool.admit(addr("10.0.0.8:1"), &limits, at(3), (), rank)
+            .unwrap();
+        // Full: 10.0.0.7 holds the most; its oldest goes, not the SCADA's.
+        let (_, ev) = pool
+            .admit(addr("10.0.0.8:2"), &limits, at(4), (), rank)
+            .unwrap();
+        assert_eq!(ev.map(|(id, _)| id), Some(f1));
+        // A hundred more from the flood: the SCADA's stays throughout.
+        for n in 0..100u16 {
+            let host = if n % 2 == 0 { "10.0.0.7" } else { "10.0.0.8" };
+            let peer = addr(&format!("{host}:{}", 100 + n));
+            pool.admit(peer, &limits, at(5 + u64::from(n)), (), rank)
+                .unwrap();
+            assert!(pool.get(scada).is_some(), "after {n}");
+        }
+        // Once every host holds one, the oldest goes: the SCADA's.
+        let mut pool: Pool<()> = Pool::default();
+        let (scada, _) = pool
+            .admit(addr("10.0.0.1:1000"), &limits, at(0), (), rank)
+            .unwrap();
+        for h in 2..=4 {
+            pool.admit(addr(&format!("10.0.0.{h}:1")), &limits, at(h), (), rank)
+                .unwrap();
+        }
+        let (_, ev) = pool
+            .admit(addr("10.0.0.5:1"), &limits, at(9), (), rank)
+            .unwrap();
+        assert_eq!(ev.map(|(id, _)| id), Some(scada));
     }
 
     #[test]

@@ -119,8 +119,8 @@ pub struct ModbusSection {
     /// A custom register map (`[[modbus.register]]`), replacing the default one.
     #[serde(default)]
     pub register: Vec<Entry>,
-    /// Most TCP connections at once (default 64); a full pool closes its oldest idle
-    /// connection to admit a new one.
+    /// Most TCP connections at once (default 64); a full pool closes one not in use
+    /// (from the host holding the most) to admit a new one.
     #[serde(default)]
     pub max_connections: Option<usize>,
     /// Most TCP connections from one address (default 16; priority hosts aside).

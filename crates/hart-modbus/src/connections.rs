@@ -10,9 +10,10 @@
 //! * a new connection must complete a request within [`Limits::first_request`], and a
 //!   request whose bytes have started must be whole within [`Limits::request`];
 //! * a full pool evicts a connection to admit a new one: first one that never
-//!   completed a request, then one stuck in a request, then the oldest idle one; never
-//!   a priority address's, never one being answered; with none to evict, the new one
-//!   is refused.
+//!   completed a request, then one stuck in a request, then the oldest idle one, each
+//!   time from the host holding the most such connections (the shared pool's fair
+//!   share); never a priority address's, never one being answered; with none to
+//!   evict, the new one is refused.
 //!
 //! Every refusal, eviction and time-out is logged with the peer and the reason.
 
