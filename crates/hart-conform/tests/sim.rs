@@ -140,7 +140,7 @@ struct Faulty {
     inner: SimTransport,
     sends: usize,
     good: usize,
-    garbage: Option<u64>,
+    garbage: Option<hart_rng::Rng>,
     now: u64,
 }
 
@@ -157,20 +157,14 @@ impl hart_host::transport::Transport for Faulty {
     }
     async fn recv(&mut self, deadline: u64) -> std::io::Result<Vec<(u8, u64)>> {
         let got = self.inner.recv(deadline).await?;
-        if let (Some(seed), true) = (&mut self.garbage, self.sends > self.good) {
+        if let (Some(rng), true) = (&mut self.garbage, self.sends > self.good) {
             // As many bytes as came, each replaced by noise (0xFF now and then, so
             // that some look like preambles).
             return Ok(got
                 .into_iter()
                 .map(|(_, at)| {
-                    *seed ^= *seed << 13;
-                    *seed ^= *seed >> 7;
-                    *seed ^= *seed << 17;
-                    let b = if *seed % 5 == 0 {
-                        0xFF
-                    } else {
-                        (*seed >> 8) as u8
-                    };
+                    let x = rng.next_u64();
+                    let b = if x % 5 == 0 { 0xFF } else { (x >> 8) as u8 };
                     (b, at)
                 })
                 .collect());
@@ -225,7 +219,7 @@ fn garbage_replies_end_in_a_clear_verdict() {
             inner,
             sends: 0,
             good: 0,
-            garbage: Some(seed * 0x9E37_79B9),
+            garbage: Some(hart_rng::Rng::new(seed)),
             now: 0,
         };
         let r = run_on(&mut t);
@@ -247,7 +241,7 @@ fn garbage_after_identification_fails_or_cannot_run_but_ends() {
             inner,
             sends: 0,
             good: 1,
-            garbage: Some(seed * 0x51_7CC1),
+            garbage: Some(hart_rng::Rng::new(seed * 0x51_7CC1)),
             now: 0,
         };
         let r = run_on(&mut t);

@@ -98,7 +98,8 @@ pub struct Device {
     filtered: Vec<f32>,
     walk: Vec<f32>,
     walk_next: Vec<Micros>,
-    rng: u64,
+    /// The random walks' generator, seeded from the device ID.
+    rng: hart_rng::Rng,
     simulated: Vec<Option<Simulation>>,
     fixed_current: Option<f32>,
     malfunction: bool,
@@ -130,7 +131,7 @@ impl Device {
                 _ => 0.0,
             })
             .collect();
-        let rng = 0x9E37_79B9_7F4A_7C15 ^ u64::from(cfg.identity.device_id);
+        let rng = hart_rng::Rng::new(u64::from(cfg.identity.device_id));
         let travel = cfg.valve.digital_setpoint;
         let burst = vec![BurstRuntime::default(); cfg.burst.len()];
         let mut d = Device {
@@ -247,11 +248,9 @@ impl Device {
         self.dirty = true;
     }
 
+    /// Uniform in [-1, 1).
     fn next_random(&mut self) -> f32 {
-        self.rng ^= self.rng << 13;
-        self.rng ^= self.rng >> 7;
-        self.rng ^= self.rng << 17;
-        (self.rng >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+        (self.rng.uniform() * 2.0 - 1.0) as f32
     }
 
     fn raw_value(&self, i: usize, now: Micros) -> f32 {

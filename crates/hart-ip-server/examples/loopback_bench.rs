@@ -101,13 +101,8 @@ async fn soak(seconds: f64) {
     let mut tasks = vec![];
     for k in 0..200u64 {
         tasks.push(tokio::task::spawn_local(async move {
-            let mut rng = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-            let mut next = || {
-                rng ^= rng << 13;
-                rng ^= rng >> 7;
-                rng ^= rng << 17;
-                rng
-            };
+            let mut rng = hart_rng::Rng::new(k);
+            let mut next = || rng.next_u64();
             let (mut ok, mut lost, mut sessions, mut publishes) = (0u64, 0u64, 0u64, 0u64);
             let pdu = [0x02u8, 0x81, 0x01, 0x00, 0x82];
             while Instant::now() < deadline {

@@ -7,68 +7,10 @@
 
 use core::f64::consts::PI;
 
-/// A seeded pseudo-random generator (xoshiro256**, seeded through splitmix64) with
-/// uniform and Gaussian outputs. Deterministic: the same seed gives the same noise.
-#[derive(Debug, Clone)]
-pub struct Rng {
-    s: [u64; 4],
-    /// Second Gaussian value of the last Box-Muller pair.
-    spare: Option<f64>,
-}
-
-impl Rng {
-    /// A generator from a seed (any value, 0 included).
-    pub fn new(seed: u64) -> Self {
-        let mut x = seed;
-        let mut next = || {
-            x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = x;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        };
-        Rng {
-            s: [next(), next(), next(), next()],
-            spare: None,
-        }
-    }
-
-    /// 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        let s = &mut self.s;
-        let out = s[1].wrapping_mul(5).rotate_left(7).wrapping_mul(9);
-        let t = s[1] << 17;
-        s[2] ^= s[0];
-        s[3] ^= s[1];
-        s[1] ^= s[2];
-        s[0] ^= s[3];
-        s[2] ^= t;
-        s[3] = s[3].rotate_left(45);
-        out
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Standard normal (mean 0, variance 1), by the polar Box-Muller method.
-    pub fn gaussian(&mut self) -> f64 {
-        if let Some(g) = self.spare.take() {
-            return g;
-        }
-        loop {
-            let u = 2.0 * self.uniform() - 1.0;
-            let v = 2.0 * self.uniform() - 1.0;
-            let s = u * u + v * v;
-            if s > 0.0 && s < 1.0 {
-                let k = libm::sqrt(-2.0 * libm::log(s) / s);
-                self.spare = Some(v * k);
-                return u * k;
-            }
-        }
-    }
-}
+/// The seeded generator of the noise: hartkit's one generator ([`hart_rng::Rng`],
+/// xoshiro256** seeded through splitmix64), here so that the channel's functions and
+/// their callers name it where they use it.
+pub use hart_rng::Rng;
 
 /// Noise standard deviation (volts) that gives `ebn0_db` for a tone of `peak_volts` at
 /// sample rate `fs`: Eb = A²/2·Tb and N0 = 2σ²/fs, so σ = A·sqrt(fs / (4·1200·Eb/N0)).

@@ -8,13 +8,8 @@ use hart_modem::demod::{decode, DemodConfig};
 use hart_modem::modulator::{modulate_frames, ModulatorConfig};
 
 fn frames(n: usize, seed: u64) -> Vec<(usize, Vec<u8>)> {
-    let mut x = seed;
-    let mut next = move || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        x
-    };
+    let mut rng = hart_modem::channel::Rng::new(seed);
+    let mut next = move || rng.next_u64();
     (0..n)
         .map(|_| {
             let len = (next() % 26) as usize;

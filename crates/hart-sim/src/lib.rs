@@ -5,7 +5,8 @@
 //! [`hart_link::Slave`]s with minimal responders ([`device::SimpleDevice`]), an optional
 //! burst device. Overlapping transmissions collide and every receiver sees damaged
 //! characters; bit errors are injected per receiver; devices can fall silent or answer
-//! slowly. A seeded generator makes every run reproducible bit for bit.
+//! slowly. A seeded generator ([`hart_rng::Rng`]) makes every run reproducible bit
+//! for bit.
 //!
 //! The masters run a fixed script ([`run`]): the primary discovers the devices with
 //! command 0 in short frames, then polls them round-robin with a chosen command in long
@@ -23,7 +24,6 @@
 mod analog;
 pub mod cable;
 pub mod device;
-pub mod rng;
 
 pub use hart_modem::channel::{AnalogProfile, LoopModel};
 pub use hart_modem::line::{AnalogDisturbance, LineOptions};
@@ -37,7 +37,7 @@ use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, MasterKind, Unique
 use hart_proto::wire::{Reader, Wire};
 
 use device::SimpleDevice;
-use rng::Rng;
+use hart_rng::Rng;
 
 /// Faults to inject.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -532,7 +532,7 @@ impl<'a> Sim<'a> {
                 })),
                 deadline: Some(0),
                 dirty: true,
-                bits_to_error: rng.bits_to_next_error(cfg.ber),
+                bits_to_error: rng.geometric(cfg.ber),
                 damaged_chars: 0,
             });
         }
@@ -588,7 +588,7 @@ impl<'a> Sim<'a> {
                 })),
                 deadline: Some(0),
                 dirty: true,
-                bits_to_error: rng.bits_to_next_error(cfg.ber),
+                bits_to_error: rng.geometric(cfg.ber),
                 damaged_chars: 0,
             });
         }
@@ -1125,9 +1125,7 @@ fn corrupt(
     let mut pos = *bits_to_error;
     while pos < 11 {
         word ^= 1 << pos;
-        pos = pos
-            .saturating_add(1)
-            .saturating_add(rng.bits_to_next_error(ber));
+        pos = pos.saturating_add(1).saturating_add(rng.geometric(ber));
     }
     *bits_to_error = pos - 11;
     let data = (word >> 1) as u8;

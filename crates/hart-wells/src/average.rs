@@ -673,12 +673,9 @@ mod tests {
                 .map(|(m, v)| rec(*m, Some(v.1), None))
                 .collect();
             let mut shuffled = sorted.clone();
-            let mut x = seed | 1;
+            let mut rng = hart_rng::Rng::new(seed);
             for i in (1..shuffled.len()).rev() {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                shuffled.swap(i, (x % (i as u64 + 1)) as usize);
+                shuffled.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
             }
             let a = averages(sorted, e);
             let b = averages(shuffled, e);

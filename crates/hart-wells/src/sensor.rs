@@ -8,7 +8,7 @@
 
 use std::collections::VecDeque;
 
-use hart_sim::rng::Rng;
+use hart_rng::Rng;
 
 use crate::calibration::{sensor_counts, Sensor, MAX_COUNT};
 use crate::proto::{
@@ -91,18 +91,12 @@ fn mix(a: u64, b: u64) -> u64 {
     r.next_u64()
 }
 
-fn gauss(r: &mut Rng) -> f64 {
-    let u1 = r.next_f64().max(1e-300);
-    let u2 = r.next_f64();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
-
 impl SimSensor {
     /// A sensor.
     pub fn new(cfg: SensorConfig) -> Self {
         let mut r = Rng::new(mix(cfg.seed, 0x5EED));
-        let offset = r.next_f64() - 0.5;
-        let phase = r.next_f64() * std::f64::consts::TAU;
+        let offset = r.uniform() - 0.5;
+        let phase = r.uniform() * std::f64::consts::TAU;
         SimSensor {
             cfg,
             cache: VecDeque::with_capacity(8),
@@ -160,9 +154,9 @@ impl SimSensor {
         let mut out = [0u32; READINGS_PER_MINUTE];
         for (i, o) in out.iter_mut().enumerate() {
             let t = minute as f64 * 60.0 + i as f64 * 0.6;
-            let mut x = self.truth(t) + sigma * gauss(&mut r);
+            let mut x = self.truth(t) + sigma * r.gaussian();
             if r.next_u64() % 500 == 0 {
-                x += spike * (0.2 + r.next_f64()) * if r.next_u64() & 1 == 0 { 1.0 } else { -1.0 };
+                x += spike * (0.2 + r.uniform()) * if r.next_u64() & 1 == 0 { 1.0 } else { -1.0 };
             }
             *o = sensor_counts(self.cfg.kind, x);
         }

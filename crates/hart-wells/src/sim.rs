@@ -8,7 +8,7 @@ use std::collections::{BinaryHeap, VecDeque};
 use std::path::PathBuf;
 use std::time::Instant;
 
-use hart_sim::rng::Rng;
+use hart_rng::Rng;
 
 use crate::archive::{Archive, Collector, PullLog, Step, Via};
 use crate::calibration::Sensor;
@@ -391,7 +391,7 @@ impl Sim {
         if rate <= 0.0 {
             return Millis::MAX / 2;
         }
-        let u = self.rng.next_f64().max(1e-12);
+        let u = self.rng.uniform().max(1e-12);
         self.now + (-u.ln() / rate * DAY as f64) as Millis
     }
 
@@ -430,7 +430,7 @@ impl Sim {
                     w.outage_since = self.now;
                     self.report.outages += 1;
                 }
-                let len = (-(self.rng.next_f64().max(1e-12)).ln()
+                let len = (-(self.rng.uniform().max(1e-12)).ln()
                     * self.cfg.outage_mean_days
                     * DAY as f64) as Millis;
                 self.at(self.now + len.max(MINUTE), Ev::OutageEnd(i));
@@ -457,7 +457,7 @@ impl Sim {
             Ev::SensorFails(i, k) => {
                 self.wells[i].silent[k] = true;
                 self.report.sensor_failures += 1;
-                let len = (-(self.rng.next_f64().max(1e-12)).ln() * 0.5 * DAY as f64) as Millis;
+                let len = (-(self.rng.uniform().max(1e-12)).ln() * 0.5 * DAY as f64) as Millis;
                 self.at(self.now + len.max(MINUTE), Ev::SensorBack(i, k));
             }
             Ev::SensorBack(i, k) => {
@@ -542,8 +542,8 @@ impl Sim {
         let lost = match line {
             Line::Phone(i) => {
                 !self.wells[i].phone_up
-                    || self.rng.next_f64() < self.cfg.frame_loss
-                    || self.rng.next_f64() < self.cfg.frame_loss
+                    || self.rng.uniform() < self.cfg.frame_loss
+                    || self.rng.uniform() < self.cfg.frame_loss
             }
             Line::Direct => false,
         };

@@ -115,13 +115,8 @@ fn flood(ip: &'static str, server: String, stop: Arc<AtomicBool>) -> std::thread
             let _ = s.set_nonblocking(true);
         }
         let mut sent = 0u64;
-        let mut x: u32 = 0x1234_5678;
-        let mut rnd = || {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            x
-        };
+        let mut rng = hart_rng::Rng::new(0x1234_5678);
+        let mut rnd = || rng.next_u64() as u32;
         let pass_through = tp(2, &pdu_with_checksum(&PV_AT_1));
         let mut buf = [0u8; 512];
         while !stop.load(Ordering::Relaxed) {
