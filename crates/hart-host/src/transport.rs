@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use hart_device::{profiles, Device, Node};
 use hart_link::{Micros, TimingProfile};
 use hart_proto::deframer::UartFlags;
+use hart_sim::bus::{Attach, Bus, BusEvent, Station};
 use tokio::io::unix::AsyncFd;
 
 /// A line to talk HART on.
@@ -492,49 +493,112 @@ struct Secondary {
     done: u64,
 }
 
-/// An in-process plant on a simulated line.
+impl Secondary {
+    /// Lets the master act at `t`; returns the bytes it sends, if any.
+    fn poll(&mut self, t: Micros) -> Option<Vec<u8>> {
+        if !self.master.is_busy() && t >= self.next_at && !self.polls.is_empty() {
+            let poll = self.polls[self.next % self.polls.len()];
+            self.next += 1;
+            let _ = self.master.request(
+                &hart_proto::FrameSpec::request(hart_proto::Address::short(poll), 1, &[]),
+                t,
+            );
+        }
+        while let Some(out) = self.master.poll(t) {
+            match out {
+                hart_link::MasterOutput::Transmit(f, pre) => {
+                    let mut bytes = vec![0xFF; pre];
+                    bytes.extend_from_slice(f.as_slice());
+                    return Some(bytes);
+                }
+                hart_link::MasterOutput::Done(r) => {
+                    if r.is_ok() {
+                        self.done += 1;
+                    }
+                    self.next_at = t + self.every;
+                }
+                hart_link::MasterOutput::Burst(_) => {}
+            }
+        }
+        None
+    }
+}
+
+/// A station of the simulated plant's line: a field device, or the in-plant
+/// secondary master.
+enum PlantStation {
+    Device(Box<Node>),
+    Secondary(Box<Secondary>),
+}
+
+impl Station for PlantStation {
+    fn receive(&mut self, byte: u8, flags: UartFlags, now: Micros) {
+        match self {
+            PlantStation::Device(n) => n.receive(byte, flags, now),
+            PlantStation::Secondary(s) => s.master.receive(byte, flags, now),
+        }
+    }
+    fn carrier(&mut self, on: bool) {
+        match self {
+            PlantStation::Device(n) => n.carrier(on),
+            PlantStation::Secondary(s) => s.master.carrier(on),
+        }
+    }
+    fn poll(&mut self, now: Micros) -> Option<Vec<u8>> {
+        match self {
+            PlantStation::Device(n) => n.poll(now),
+            PlantStation::Secondary(s) => s.poll(now),
+        }
+    }
+    fn transmitted(&mut self, now: Micros) {
+        match self {
+            PlantStation::Device(n) => n.transmitted(now),
+            PlantStation::Secondary(s) => s.master.transmitted(now),
+        }
+    }
+    fn next_deadline(&self, now: Micros) -> Option<Micros> {
+        match self {
+            PlantStation::Device(n) => n.next_deadline(now),
+            PlantStation::Secondary(s) if s.master.is_busy() => s.master.next_deadline(),
+            PlantStation::Secondary(s) => Some(s.next_at),
+        }
+    }
+}
+
+/// An in-process plant on a simulated line: the devices (and an optional handheld)
+/// are stations of [`hart_sim::bus::Bus`], the host is its outside.
 pub struct SimTransport {
-    secondary: Option<Secondary>,
-    nodes: Vec<Node>,
+    bus: Bus<PlantStation>,
     profile: TimingProfile,
     start: Instant,
     virtual_time: Option<Micros>,
-    /// How far the devices have been run.
-    dev_time: Micros,
     /// Characters on the way to the host, in order.
     pending: Vec<RxChar>,
-    /// The analog loop, when the plant is on one.
-    analog: Option<Box<AnalogPlant>>,
+    /// The plant is on the analog loop.
+    analog: bool,
 }
-
-/// A plant on the analog loop: the host's modem across the sense resistor, each
-/// device's (and the handheld's) at the field end of the cable.
-struct AnalogPlant {
-    line: hart_modem::line::AnalogLine,
-    host: hart_modem::line::PortId,
-    nodes: Vec<hart_modem::line::PortId>,
-    secondary: Option<hart_modem::line::PortId>,
-    /// The host's carrier detect.
-    carrier: bool,
-}
-
-/// Longest step of the analog loop between two looks at the devices, µs.
-const ANALOG_STEP_US: Micros = 1_000;
 
 impl SimTransport {
     /// A plant in real time (`virtual_time` false) or in virtual time, where waiting
     /// costs nothing.
     pub fn new(plant: &Plant, virtual_time: bool) -> Result<Self, String> {
         let profile = TimingProfile::fsk();
+        let mut bus = Bus::new(profile, 0, 0.0);
+        // The plant's digital line is ideal: it tests the devices and the host, not
+        // the line (the analog loop is the line as it is).
+        bus.set_ideal(true);
+        // The host's modem sits across the sense resistor.
+        bus.add_outside(Attach::CONTROL_ROOM);
+        for node in plant.nodes(profile)? {
+            bus.add(PlantStation::Device(Box::new(node)), Attach::DEVICE);
+        }
         Ok(SimTransport {
-            secondary: None,
-            nodes: plant.nodes(profile)?,
+            bus,
             profile,
             start: Instant::now(),
             virtual_time: virtual_time.then_some(0),
-            dev_time: 0,
             pending: vec![],
-            analog: None,
+            analog: false,
         })
     }
 
@@ -547,262 +611,81 @@ impl SimTransport {
         mut model: hart_modem::channel::LoopModel,
         options: hart_modem::line::LineOptions,
     ) {
-        use hart_modem::line::{AnalogLine, Drive, Place};
-        model.devices = self.nodes.len().max(1) as u32;
-        let mut line = AnalogLine::new(model, options);
-        let host = line.add_port(Place::ControlRoom, Drive::Voltage);
-        let nodes = self
-            .nodes
-            .iter()
-            .map(|_| line.add_port(Place::Field, Drive::Current))
-            .collect();
-        let secondary = self
-            .secondary
-            .as_ref()
-            .map(|_| line.add_port(Place::Field, Drive::Voltage));
-        self.analog = Some(Box::new(AnalogPlant {
-            line,
-            host,
-            nodes,
-            secondary,
-            carrier: false,
-        }));
+        model.devices = self.devices().max(1) as u32;
+        self.bus.set_analog(model, options);
+        self.analog = true;
     }
 
-    /// Runs the analog loop and the devices up to `until`.
-    fn run_analog(&mut self, until: Micros) {
-        use hart_modem::line::LineEvent;
-        let mut events = vec![];
-        while self.dev_time < until {
-            let t = self.dev_time;
-            let next = self
-                .nodes
-                .iter()
-                .filter_map(|n| n.next_deadline(t))
-                .chain(self.secondary_deadline())
-                .min()
-                .unwrap_or(Micros::MAX)
-                .max(t + 1);
-            let step = until.min(t + ANALOG_STEP_US).min(next);
-            let Some(a) = self.analog.as_mut() else {
-                return;
-            };
-            a.line.advance(step, |e| events.push(e));
-            for e in events.drain(..) {
-                let Some(a) = self.analog.as_mut() else {
-                    return;
-                };
-                let node = |p| a.nodes.iter().position(|n| *n == p);
-                match e {
-                    LineEvent::Char {
-                        port,
-                        byte,
-                        flags,
-                        t_us,
-                    } => {
-                        if port == a.host {
-                            self.pending.push(RxChar {
-                                byte,
-                                flags,
-                                at: t_us,
-                            });
-                        } else if let Some(k) = node(port) {
-                            self.nodes[k].receive(byte, flags, t_us);
-                        } else if let Some(s) = &mut self.secondary {
-                            s.master.receive(byte, flags, t_us);
-                        }
-                    }
-                    LineEvent::Carrier { port, on, .. } => {
-                        if port == a.host {
-                            a.carrier = on;
-                        } else if let Some(k) = node(port) {
-                            self.nodes[k].carrier(on);
-                        } else if let Some(s) = &mut self.secondary {
-                            s.master.carrier(on);
-                        }
-                    }
-                    LineEvent::TxDone { port, t_us } => {
-                        if let Some(k) = node(port) {
-                            self.nodes[k].transmitted(t_us);
-                        } else if Some(port) == a.secondary {
-                            if let Some(s) = &mut self.secondary {
-                                s.master.transmitted(t_us);
-                            }
-                        }
-                    }
-                    LineEvent::Frame { .. } => {}
-                }
-            }
-            self.dev_time = step;
-            for k in 0..self.nodes.len() {
-                if let Some(bytes) = self.nodes[k].poll(step) {
-                    if let Some(a) = self.analog.as_mut() {
-                        a.line.transmit(a.nodes[k], &bytes, step);
-                    }
-                }
-            }
-            if let Some(bytes) = self.run_secondary(step) {
-                if let Some(a) = self.analog.as_mut() {
-                    if let Some(p) = a.secondary {
-                        a.line.transmit(p, &bytes, step);
-                    }
-                }
-            }
-        }
+    /// The number of field devices.
+    fn devices(&self) -> usize {
+        self.bus
+            .stations()
+            .filter(|s| matches!(s, PlantStation::Device(_)))
+            .count()
     }
 
     /// Adds a secondary master that reads command 1 from each device in turn, one
     /// request every `every` µs (a handheld on the same loop).
     pub fn add_secondary(&mut self, every: Micros) {
         let polls = self
-            .nodes
-            .iter()
-            .map(|n| n.device.config().polling_address)
+            .bus
+            .stations()
+            .filter_map(|s| match s {
+                PlantStation::Device(n) => Some(n.device.config().polling_address),
+                PlantStation::Secondary(_) => None,
+            })
             .collect();
+        let now = self.bus.now();
         let master = hart_link::Master::new(
             hart_proto::MasterKind::Secondary,
             self.profile,
             hart_link::RetryPolicy::default(),
-            self.dev_time,
+            now,
         );
-        self.secondary = Some(Secondary {
+        let secondary = Secondary {
             master,
             polls,
             next: 0,
             every,
-            next_at: self.dev_time + every,
+            next_at: now + every,
             done: 0,
-        });
-        if let Some(a) = self.analog.as_mut() {
-            a.secondary = Some(a.line.add_port(
-                hart_modem::line::Place::Field,
-                hart_modem::line::Drive::Voltage,
-            ));
-        }
+        };
+        self.bus.add(
+            PlantStation::Secondary(Box::new(secondary)),
+            Attach::HANDHELD,
+        );
     }
 
     /// Transactions the in-plant secondary master completed.
     pub fn secondary_transactions(&self) -> u64 {
-        self.secondary.as_ref().map_or(0, |s| s.done)
-    }
-
-    fn secondary_deadline(&self) -> Option<Micros> {
-        let s = self.secondary.as_ref()?;
-        if s.master.is_busy() {
-            s.master.next_deadline()
-        } else {
-            Some(s.next_at)
-        }
-    }
-
-    /// Lets the secondary master act at `t`; returns the bytes it sends, if any.
-    fn run_secondary(&mut self, t: Micros) -> Option<Vec<u8>> {
-        let s = self.secondary.as_mut()?;
-        if !s.master.is_busy() && t >= s.next_at && !s.polls.is_empty() {
-            let poll = s.polls[s.next % s.polls.len()];
-            s.next += 1;
-            let _ = s.master.request(
-                &hart_proto::FrameSpec::request(hart_proto::Address::short(poll), 1, &[]),
-                t,
-            );
-        }
-        while let Some(out) = s.master.poll(t) {
-            match out {
-                hart_link::MasterOutput::Transmit(f, pre) => {
-                    let mut bytes = vec![0xFF; pre];
-                    bytes.extend_from_slice(f.as_slice());
-                    return Some(bytes);
-                }
-                hart_link::MasterOutput::Done(r) => {
-                    if r.is_ok() {
-                        s.done += 1;
-                    }
-                    s.next_at = t + s.every;
-                }
-                hart_link::MasterOutput::Burst(_) => {}
-            }
-        }
-        None
+        self.bus
+            .stations()
+            .map(|s| match s {
+                PlantStation::Secondary(s) => s.done,
+                PlantStation::Device(_) => 0,
+            })
+            .sum()
     }
 
     /// The simulated devices.
-    pub fn nodes_mut(&mut self) -> &mut [Node] {
-        &mut self.nodes
+    pub fn nodes_mut(&mut self) -> impl Iterator<Item = &mut Node> {
+        self.bus.stations_mut().filter_map(|s| match s {
+            PlantStation::Device(n) => Some(&mut **n),
+            PlantStation::Secondary(_) => None,
+        })
     }
 
-    /// Runs the devices up to `until`; what they send goes to the host and to the
-    /// other devices.
+    /// Runs the line up to `until`; what the stations send reaches the host (and the
+    /// other stations).
     fn run_devices(&mut self, until: Micros) {
-        if self.analog.is_some() {
-            self.run_analog(until);
-            return;
-        }
-        let ct = self.profile.char_time;
-        loop {
-            let t = self.dev_time;
-            let Some(d) = self
-                .nodes
-                .iter()
-                .filter_map(|n| n.next_deadline(t))
-                .chain(self.secondary_deadline())
-                .min()
-            else {
-                break;
-            };
-            if d > until {
-                break;
+        let pending = &mut self.pending;
+        self.bus.run_until(until, |e| {
+            if let BusEvent::Heard { byte, flags, at } = e {
+                pending.push(RxChar { byte, flags, at });
             }
-            let t = d.max(t);
-            self.dev_time = t;
-            let mut sent: Option<(Option<usize>, Vec<u8>)> = None;
-            for k in 0..self.nodes.len() {
-                if let Some(bytes) = self.nodes[k].poll(t) {
-                    sent = Some((Some(k), bytes));
-                    break;
-                }
-            }
-            if sent.is_none() {
-                sent = self.run_secondary(t).map(|b| (None, b));
-            }
-            match sent {
-                Some((from, bytes)) => {
-                    for (i, &b) in bytes.iter().enumerate() {
-                        let at = t + (i as Micros + 1) * ct;
-                        self.pending.push(RxChar {
-                            byte: b,
-                            flags: UartFlags::OK,
-                            at,
-                        });
-                        for (j, other) in self.nodes.iter_mut().enumerate() {
-                            if Some(j) != from {
-                                other.receive(b, UartFlags::OK, at);
-                            }
-                        }
-                        if from.is_some() {
-                            if let Some(s) = &mut self.secondary {
-                                s.master.receive(b, UartFlags::OK, at);
-                            }
-                        }
-                    }
-                    let end = t + bytes.len() as Micros * ct;
-                    match from {
-                        Some(k) => self.nodes[k].transmitted(end),
-                        None => {
-                            if let Some(s) = &mut self.secondary {
-                                s.master.transmitted(end);
-                            }
-                        }
-                    }
-                    self.dev_time = end;
-                }
-                None => self.dev_time = t + 1,
-            }
-        }
-        self.dev_time = self.dev_time.max(until);
+        });
     }
-}
 
-impl SimTransport {
     /// Lets the clock reach `end`: at once in virtual time, by sleeping in real time.
     async fn pass_time(&mut self, end: Micros) {
         match &mut self.virtual_time {
@@ -828,27 +711,20 @@ impl Transport for SimTransport {
     }
 
     async fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
-        let ct = self.profile.char_time;
-        let t0 = self.now().max(self.dev_time);
+        let mut t0 = self.now().max(self.bus.now());
         self.run_devices(t0);
-        if let Some(a) = self.analog.as_mut() {
-            // The host's modem sends; the devices hear it through the loop.
-            let end = a.line.transmit(a.host, bytes, t0);
-            self.run_analog(end);
-            self.pass_time(end).await;
-            return Ok(());
-        }
-        for (i, &b) in bytes.iter().enumerate() {
-            let at = t0 + (i as Micros + 1) * ct;
-            for n in &mut self.nodes {
-                n.receive(b, UartFlags::OK, at);
-            }
-            if let Some(s) = &mut self.secondary {
-                s.master.receive(b, UartFlags::OK, at);
+        if !self.analog {
+            // The ideal line: the host's modem waits for what a station is sending to
+            // end, as a master that senses the carrier would (on the analog loop the
+            // host sees the carrier itself).
+            while self.bus.quiet_at() > t0 {
+                t0 = self.bus.quiet_at();
+                self.run_devices(t0);
             }
         }
-        let end = t0 + bytes.len() as Micros * ct;
-        self.dev_time = end;
+        // The host's modem sends; the stations hear it as the line runs on.
+        let end = self.bus.transmit(bytes, t0);
+        self.run_devices(end);
         self.pass_time(end).await;
         Ok(())
     }
@@ -863,7 +739,7 @@ impl Transport for SimTransport {
     }
 
     fn carrier(&mut self) -> Option<bool> {
-        self.analog.as_ref().map(|a| a.carrier)
+        self.analog.then(|| self.bus.outside_carrier())
     }
 
     async fn recv_flagged(&mut self, deadline: Micros) -> io::Result<Vec<RxChar>> {
@@ -891,10 +767,8 @@ impl Transport for SimTransport {
                 return Ok(vec![]);
             }
             let next = self
-                .nodes
-                .iter()
-                .filter_map(|n| n.next_deadline(now))
-                .min()
+                .bus
+                .next_event()
                 .unwrap_or(deadline)
                 .min(deadline)
                 .min(now + 20_000);
@@ -905,12 +779,9 @@ impl Transport for SimTransport {
     fn describe(&self) -> String {
         format!(
             "simulated plant of {} device(s){}{}",
-            self.nodes.len(),
-            match &self.analog {
-                Some(a) => format!(
-                    " on an analog loop ({} m of cable)",
-                    a.line.model().cable_length_m
-                ),
+            self.devices(),
+            match self.bus.analog_model() {
+                Some(m) => format!(" on an analog loop ({} m of cable)", m.cable_length_m),
                 None => String::new(),
             },
             if self.virtual_time.is_some() {

@@ -22,13 +22,14 @@
 //! through the signal.
 
 mod analog;
+pub mod bus;
 pub mod cable;
 pub mod device;
 
 pub use hart_modem::channel::{AnalogProfile, LoopModel};
 pub use hart_modem::line::{AnalogDisturbance, LineOptions};
 
-use hart_link::master::{MasterOutput, RetryPolicy, MAX_TX_LEN};
+use hart_link::master::{MasterOutput, RetryPolicy};
 use hart_link::slave::{BurstConfig, Slave, SlaveConfig};
 use hart_link::{LinkError, Master, Micros, TimingProfile};
 use hart_proto::command::Identity;
@@ -36,8 +37,8 @@ use hart_proto::deframer::UartFlags;
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, MasterKind, UniqueId};
 use hart_proto::wire::{Reader, Wire};
 
+use bus::{Attach, Bus, BusEvent, Sender};
 use device::SimpleDevice;
-use hart_rng::Rng;
 
 /// Faults to inject.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -305,6 +306,12 @@ struct MasterStation {
     directory: Vec<(u8, UniqueId)>,
     /// Device addressed by the transaction in progress, and when it started.
     current: (u8, Micros),
+    /// Replies accepted since the simulation last looked, to check against what the
+    /// devices sent.
+    replies: Vec<Vec<u8>>,
+    /// Failures and outcomes since the simulation last looked.
+    failures: Vec<Failure>,
+    outcomes: Vec<Outcome>,
 }
 
 impl MasterStation {
@@ -316,12 +323,74 @@ impl MasterStation {
             Phase::Scan(_) | Phase::Poll(_) => Some(now + 1),
         }
     }
+
+    /// Outcomes first (they advance the script), then the next request, then whatever
+    /// the master wants to send now.
+    fn poll(&mut self, now: Micros) -> Option<Vec<u8>> {
+        for _ in 0..2 {
+            while let Some(out) = self.m.poll(now) {
+                match out {
+                    MasterOutput::Transmit(frame, preambles) => {
+                        let mut buf = vec![0xFF; preambles];
+                        buf.extend_from_slice(frame.as_slice());
+                        return Some(buf);
+                    }
+                    MasterOutput::Done(result) => {
+                        let (device, started_us) = self.current;
+                        match &result {
+                            Ok(r) => {
+                                self.completed += 1;
+                                self.replies.push(r.as_slice().to_vec());
+                            }
+                            // An empty polling address during the scan is no failure.
+                            Err(_) if matches!(self.phase, Phase::Scan(_)) => {}
+                            Err(error) => {
+                                self.failed += 1;
+                                self.failures.push(Failure {
+                                    t_us: now,
+                                    master: self.role,
+                                    device,
+                                    error: *error,
+                                });
+                            }
+                        }
+                        if let Phase::Scheduled(index) = self.phase {
+                            self.outcomes.push(Outcome {
+                                master: self.role,
+                                index,
+                                started_us,
+                                ended_us: now,
+                                result: match &result {
+                                    Ok(r) => Ok(Frame::parse_pdu(r.as_slice())
+                                        .ok()
+                                        .and_then(|f| f.response_code)
+                                        .unwrap_or(0)),
+                                    Err(e) => Err(*e),
+                                },
+                            });
+                        }
+                        let reply = result.ok();
+                        request_done(self, reply.as_ref().map(|r| r.as_slice()), now);
+                    }
+                    MasterOutput::Burst(_) => {}
+                }
+            }
+            if self.m.is_busy() {
+                break;
+            }
+            next_request(self, now);
+        }
+        None
+    }
 }
 
 struct SlaveStation {
     link: SlaveLink,
     poll: u8,
     last_reply: Vec<u8>,
+    /// The faults of the run (silence and late replies concern this device when they
+    /// name its polling address).
+    faults: Faults,
 }
 
 /// A minimal responder behind its own slave, or a full field device (node).
@@ -338,7 +407,16 @@ impl SlaveStation {
         }
     }
 
+    /// A character arrives: a silent device hears nothing; a late device learns the
+    /// delay of the request this character may end.
     fn receive(&mut self, b: u8, flags: UartFlags, now: Micros) {
+        if is_silent(&self.faults, self.poll, now) {
+            return;
+        }
+        if self.faults.late_device.is_some_and(|l| l.poll == self.poll) {
+            let delay = reply_delay(&self.faults, self.poll, now);
+            self.set_reply_delay(delay);
+        }
         match &mut self.link {
             SlaveLink::Simple(sd) => {
                 let (s, d) = &mut **sd;
@@ -348,18 +426,27 @@ impl SlaveStation {
         }
     }
 
-    /// Bytes to send now, and whether they are a burst frame.
-    fn poll(&mut self, now: Micros) -> Option<(Vec<u8>, bool)> {
-        match &mut self.link {
+    /// Bytes to send now (a silent device sends nothing); a reply is kept to check
+    /// what the master accepts.
+    fn poll(&mut self, now: Micros) -> Option<Vec<u8>> {
+        if is_silent(&self.faults, self.poll, now) {
+            return None;
+        }
+        let (bytes, burst) = match &mut self.link {
             SlaveLink::Simple(sd) => {
                 let (s, d) = &mut **sd;
-                s.poll(now, d).map(|t| (t.bytes.to_vec(), t.burst))
+                s.poll(now, d).map(|t| (t.bytes.to_vec(), t.burst))?
             }
             SlaveLink::Full(n) => n.poll(now).map(|b| {
                 let burst = Frame::parse(&b).is_ok_and(|f| f.frame_type() == FrameType::Back);
                 (b, burst)
-            }),
+            })?,
+        };
+        if !burst {
+            let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
+            self.last_reply = bytes[pre..].to_vec();
         }
+        Some(bytes)
     }
 
     fn set_reply_delay(&mut self, delay: Option<Micros>) {
@@ -368,40 +455,64 @@ impl SlaveStation {
             SlaveLink::Full(n) => n.slave.set_reply_delay(delay),
         }
     }
-
-    fn transmitted(&mut self, now: Micros) {
-        match &mut self.link {
-            SlaveLink::Simple(sd) => sd.0.transmitted(now),
-            SlaveLink::Full(n) => n.transmitted(now),
-        }
-    }
-
-    fn next_deadline(&self, now: Micros) -> Option<Micros> {
-        match &self.link {
-            SlaveLink::Simple(sd) => sd.0.next_deadline(),
-            SlaveLink::Full(n) => n.next_deadline(now),
-        }
-    }
-
-    fn carrier(&mut self, on: bool) {
-        match &mut self.link {
-            SlaveLink::Simple(sd) => sd.0.carrier(on),
-            SlaveLink::Full(n) => n.carrier(on),
-        }
-    }
 }
 
+/// A station of the simulation: a scripted master or a device.
 enum Kind {
     Master(Box<MasterStation>),
     Slave(Box<SlaveStation>),
 }
 
-struct Station {
-    kind: Kind,
-    deadline: Option<Micros>,
-    dirty: bool,
-    bits_to_error: u64,
-    damaged_chars: u64,
+impl bus::Station for Kind {
+    fn receive(&mut self, byte: u8, flags: UartFlags, now: Micros) {
+        match self {
+            Kind::Master(m) => m.m.receive(byte, flags, now),
+            Kind::Slave(s) => s.receive(byte, flags, now),
+        }
+    }
+
+    fn carrier(&mut self, on: bool) {
+        match self {
+            Kind::Master(m) => m.m.carrier(on),
+            Kind::Slave(s) => match &mut s.link {
+                SlaveLink::Simple(sd) => sd.0.carrier(on),
+                SlaveLink::Full(n) => n.carrier(on),
+            },
+        }
+    }
+
+    fn poll(&mut self, now: Micros) -> Option<Vec<u8>> {
+        match self {
+            Kind::Master(m) => m.poll(now),
+            Kind::Slave(s) => s.poll(now),
+        }
+    }
+
+    fn transmitted(&mut self, now: Micros) {
+        match self {
+            Kind::Master(m) => m.m.transmitted(now),
+            Kind::Slave(s) => match &mut s.link {
+                SlaveLink::Simple(sd) => sd.0.transmitted(now),
+                SlaveLink::Full(n) => n.transmitted(now),
+            },
+        }
+    }
+
+    fn next_deadline(&self, now: Micros) -> Option<Micros> {
+        match self {
+            Kind::Master(m) => {
+                let d = m.m.next_deadline();
+                match m.wake_at(now).filter(|_| !m.m.is_busy()) {
+                    Some(wake) => Some(d.map_or(wake, |d| d.min(wake))),
+                    None => d,
+                }
+            }
+            Kind::Slave(s) => match &s.link {
+                SlaveLink::Simple(sd) => sd.0.next_deadline(),
+                SlaveLink::Full(n) => n.next_deadline(now),
+            },
+        }
+    }
 }
 
 /// A transmission as the access rules see it.
@@ -415,16 +526,6 @@ pub enum FrameKind {
     Back(MasterKind),
     /// Anything else.
     Other,
-}
-
-struct Tx {
-    src: usize,
-    t0: Micros,
-    bytes: [u8; MAX_TX_LEN],
-    len: usize,
-    next: usize,
-    overlaps: Vec<(Micros, Micros)>,
-    kind: FrameKind,
 }
 
 struct Sent {
@@ -449,15 +550,15 @@ pub fn run_schedule(
 ) -> SimReport {
     let mut sim = Sim::new(config);
     let directory: Vec<(u8, UniqueId)> = sim
-        .stations
-        .iter()
-        .filter_map(|st| match &st.kind {
+        .bus
+        .stations()
+        .filter_map(|st| match st {
             Kind::Slave(s) => Some((s.poll, s.unique_id())),
             Kind::Master(_) => None,
         })
         .collect();
-    for st in &mut sim.stations {
-        if let Kind::Master(ms) = &mut st.kind {
+    for st in sim.bus.stations_mut() {
+        if let Kind::Master(ms) = st {
             ms.schedule = match ms.role {
                 Source::Secondary => secondary.to_vec(),
                 _ => primary.to_vec(),
@@ -470,17 +571,28 @@ pub fn run_schedule(
     sim.run()
 }
 
+/// Who each station is, for telling whom a frame is for.
+#[derive(Clone, Copy)]
+enum Whom {
+    Master(Source),
+    Device(u8, UniqueId),
+}
+
+/// What the line reported, kept until the step is over.
+enum Seen {
+    Started(usize, Micros, Micros, Vec<u8>),
+    Frame(usize, Vec<u8>),
+    Ended(usize, Micros, Micros, Vec<u8>, bool),
+}
+
 struct Sim<'a> {
     cfg: &'a SimConfig,
-    stations: Vec<Station>,
-    txs: Vec<Tx>,
-    rng: Rng,
+    bus: Bus<Kind>,
+    whom: Vec<Whom>,
     report: SimReport,
     sent: Vec<Sent>,
-    carrier_until: Micros,
-    carrier_time: Micros,
     backs: Vec<(Micros, MasterKind)>,
-    /// The analog medium, when it is the one.
+    /// The analog medium's frames, to count those heard.
     air: Option<analog::Air>,
 }
 
@@ -497,9 +609,8 @@ fn frame_kind(bytes: &[u8]) -> FrameKind {
 
 impl<'a> Sim<'a> {
     fn new(cfg: &'a SimConfig) -> Self {
-        let mut rng = Rng::new(cfg.seed);
         let p = cfg.profile;
-        let mut stations = vec![];
+        let mut bus = Bus::new(p, cfg.seed, cfg.ber);
         let scan_last = if cfg.devices > 15 { 63 } else { 15 };
         let mut masters = vec![(MasterKind::Primary, Source::Primary, cfg.command)];
         if cfg.secondary {
@@ -516,28 +627,30 @@ impl<'a> Sim<'a> {
                 },
                 0,
             );
-            stations.push(Station {
-                kind: Kind::Master(Box::new(MasterStation {
-                    m,
-                    role,
-                    command,
-                    scan_last,
-                    phase: Phase::Scan(0),
-                    found: vec![],
-                    completed: 0,
-                    failed: 0,
-                    schedule: vec![],
-                    directory: vec![],
-                    current: (0, 0),
-                })),
-                deadline: Some(0),
-                dirty: true,
-                bits_to_error: rng.geometric(cfg.ber),
-                damaged_chars: 0,
-            });
+            let station = Kind::Master(Box::new(MasterStation {
+                m,
+                role,
+                command,
+                scan_last,
+                phase: Phase::Scan(0),
+                found: vec![],
+                completed: 0,
+                failed: 0,
+                schedule: vec![],
+                directory: vec![],
+                current: (0, 0),
+                replies: vec![],
+                failures: vec![],
+                outcomes: vec![],
+            }));
+            let attach = match role {
+                Source::Primary => Attach::CONTROL_ROOM,
+                _ => Attach::HANDHELD,
+            };
+            bus.add(station, attach);
         }
         for poll in 1..=cfg.devices.min(63) {
-            let reply_delay = reply_delay(cfg, poll, 0);
+            let reply_delay = reply_delay(&cfg.faults, poll, 0);
             let link = match cfg.device_profile {
                 None => {
                     let dev = SimpleDevice::new(poll);
@@ -580,148 +693,105 @@ impl<'a> Sim<'a> {
                     SlaveLink::Full(Box::new(node))
                 }
             };
-            stations.push(Station {
-                kind: Kind::Slave(Box::new(SlaveStation {
-                    link,
-                    poll,
-                    last_reply: vec![],
-                })),
-                deadline: Some(0),
-                dirty: true,
-                bits_to_error: rng.geometric(cfg.ber),
-                damaged_chars: 0,
-            });
+            let station = Kind::Slave(Box::new(SlaveStation {
+                link,
+                poll,
+                last_reply: vec![],
+                faults: cfg.faults,
+            }));
+            bus.add(station, Attach::DEVICE);
+        }
+        let whom = bus
+            .stations()
+            .map(|st| match st {
+                Kind::Master(m) => Whom::Master(m.role),
+                Kind::Slave(s) => Whom::Device(s.poll, s.unique_id()),
+            })
+            .collect();
+        let mut air = None;
+        if let Medium::Analog { mut model, options } = cfg.medium {
+            model.devices = u32::from(cfg.devices.clamp(1, 63));
+            bus.set_analog(model, options);
+            air = Some(analog::Air::default());
         }
         Sim {
             cfg,
-            stations,
-            txs: vec![],
-            rng,
+            bus,
+            whom,
             report: SimReport::default(),
             sent: vec![],
-            carrier_until: 0,
-            carrier_time: 0,
             backs: vec![],
-            air: None,
+            air,
         }
-        .with_medium()
     }
 
     fn run(mut self) -> SimReport {
-        if self.air.is_some() {
-            return self.run_analog();
-        }
-        let ct = self.cfg.profile.char_time;
         let end = self.cfg.duration;
-        loop {
-            let t_char = self
-                .txs
-                .iter()
-                .map(|t| t.t0 + (t.next as Micros + 1) * ct)
-                .min();
-            let t_station = self.stations.iter().filter_map(|s| s.deadline).min();
-            let now = match (t_char, t_station) {
-                (Some(a), Some(b)) => a.min(b),
-                (a, b) => match a.or(b) {
-                    Some(t) => t,
-                    None => break,
-                },
-            };
-            if now > end {
+        let mut seen = vec![];
+        while let Some(t) = self.bus.next_event() {
+            if t > end {
                 break;
             }
-            self.deliver(now);
-            self.poll_stations(now);
+            self.step(t, &mut seen);
         }
+        self.step(end, &mut seen);
         self.finish(end)
     }
 
-    /// Delivers every character that finishes at `now`.
-    fn deliver(&mut self, now: Micros) {
-        let ct = self.cfg.profile.char_time;
-        let mut i = 0;
-        while i < self.txs.len() {
-            let tx = &self.txs[i];
-            let char_end = tx.t0 + (tx.next as Micros + 1) * ct;
-            if char_end != now {
-                i += 1;
-                continue;
+    /// Runs the line to `t`, then takes in what it reported and what the masters did.
+    fn step(&mut self, t: Micros, seen: &mut Vec<Seen>) {
+        let station = |s: Sender| match s {
+            Sender::Station(k) => k,
+            Sender::Outside => usize::MAX,
+        };
+        self.bus.run_until(t, |e| match e {
+            BusEvent::Started { src, t0, t1, bytes } => {
+                seen.push(Seen::Started(station(src), t0, t1, bytes.to_vec()))
             }
-            let start = char_end - ct;
-            let collided = tx.overlaps.iter().any(|&(a, b)| a < char_end && b > start);
-            let byte = tx.bytes[tx.next];
-            let src = tx.src;
-            for (k, st) in self.stations.iter_mut().enumerate() {
-                if k == src {
-                    continue;
+            BusEvent::Frame { to, pdu, .. } => seen.push(Seen::Frame(station(to), pdu.to_vec())),
+            BusEvent::Ended {
+                src,
+                t0,
+                t1,
+                bytes,
+                collided,
+            } => seen.push(Seen::Ended(station(src), t0, t1, bytes.to_vec(), collided)),
+            BusEvent::Heard { .. } => {}
+        });
+        for s in seen.drain(..) {
+            match s {
+                Seen::Started(k, t0, t1, bytes) => self.started(k, t0, t1, bytes),
+                Seen::Frame(k, pdu) => self.heard(k, &pdu),
+                Seen::Ended(k, t0, t1, bytes, collided) => {
+                    self.ended(k, t1);
+                    self.finished(k, t0, &bytes, collided, t1);
                 }
-                let (b, flags) = corrupt(
-                    byte,
-                    collided,
-                    &mut st.bits_to_error,
-                    &mut self.rng,
-                    self.cfg.ber,
-                );
-                if b != byte || flags != UartFlags::OK {
-                    st.damaged_chars += 1;
-                }
-                match &mut st.kind {
-                    Kind::Master(m) => m.m.receive(b, flags, now),
-                    Kind::Slave(s) => {
-                        if !is_silent(self.cfg, s.poll, now) {
-                            if let Some(late) = self.cfg.faults.late_device {
-                                if late.poll == s.poll {
-                                    s.set_reply_delay(reply_delay(self.cfg, s.poll, now));
-                                }
-                            }
-                            s.receive(b, flags, now)
-                        }
-                    }
-                }
-                st.dirty = true;
             }
-            let tx = &mut self.txs[i];
-            tx.next += 1;
-            if tx.next == tx.len {
-                let tx = self.txs.swap_remove(i);
-                if self.txs.is_empty() {
-                    for st in &mut self.stations {
-                        set_carrier(st, false);
-                        st.dirty = true;
-                    }
-                }
-                let collided = !tx.overlaps.is_empty();
-                self.finished(tx.src, tx.t0, &tx.bytes[..tx.len], tx.kind, collided, now);
-            } else {
-                i += 1;
+        }
+        let mut replies = vec![];
+        for st in self.bus.stations_mut() {
+            if let Kind::Master(ms) = st {
+                replies.append(&mut ms.replies);
+                self.report.failures.append(&mut ms.failures);
+                self.report.outcomes.append(&mut ms.outcomes);
+            }
+        }
+        for r in replies {
+            if !self.reply_matches_device(&r) {
+                self.report.wrong_data += 1;
             }
         }
     }
 
     /// A transmission by station `src` that started at `t0` ended at `now`.
-    fn finished(
-        &mut self,
-        src: usize,
-        t0: Micros,
-        bytes: &[u8],
-        kind: FrameKind,
-        collided: bool,
-        now: Micros,
-    ) {
-        let st = &mut self.stations[src];
-        st.dirty = true;
+    fn finished(&mut self, src: usize, t0: Micros, bytes: &[u8], collided: bool, now: Micros) {
+        let kind = frame_kind(bytes);
         if collided {
             self.report.collisions += 1;
         }
-        let src = match &mut st.kind {
-            Kind::Master(m) => {
-                m.m.transmitted(now);
-                m.role
-            }
-            Kind::Slave(s) => {
-                s.transmitted(now);
-                Source::Device(s.poll)
-            }
+        let src = match self.whom[src] {
+            Whom::Master(role) => role,
+            Whom::Device(poll, _) => Source::Device(poll),
         };
         if let FrameKind::Back(to) = kind {
             self.report.burst_frames += 1;
@@ -739,166 +809,12 @@ impl<'a> Sim<'a> {
         }
     }
 
-    fn start_tx(&mut self, src: usize, bytes: &[u8], now: Micros) {
-        if self.air.is_some() {
-            self.start_analog_tx(src, bytes, now);
-            return;
-        }
-        let ct = self.cfg.profile.char_time;
-        let mut tx = Tx {
-            src,
-            t0: now,
-            bytes: [0; MAX_TX_LEN],
-            len: bytes.len().min(MAX_TX_LEN),
-            next: 0,
-            overlaps: vec![],
-            kind: FrameKind::Other,
-        };
-        tx.bytes[..tx.len].copy_from_slice(&bytes[..tx.len]);
-        tx.kind = frame_kind(&tx.bytes[..tx.len]);
-        let end = now + tx.len as Micros * ct;
-        for other in &mut self.txs {
-            let other_end = other.t0 + other.len as Micros * ct;
-            let overlap = (now, end.min(other_end));
-            other.overlaps.push(overlap);
-            tx.overlaps.push(overlap);
-        }
-        // Carrier time: union of transmissions (starts come in time order).
-        if now >= self.carrier_until {
-            self.carrier_time += end - now;
-        } else if end > self.carrier_until {
-            self.carrier_time += end - self.carrier_until;
-        }
-        self.carrier_until = self.carrier_until.max(end);
-        self.txs.push(tx);
-        // Carrier detect: every other station hears the carrier from the first bit.
-        for (k, st) in self.stations.iter_mut().enumerate() {
-            if k != src {
-                set_carrier(st, true);
-                st.dirty = true;
-            }
-        }
-    }
-
-    fn poll_stations(&mut self, now: Micros) {
-        for i in 0..self.stations.len() {
-            let due = self.stations[i].deadline.is_some_and(|d| d <= now);
-            if !(due || self.stations[i].dirty) {
-                continue;
-            }
-            self.stations[i].dirty = false;
-            self.poll_station(i, now);
-            let st = &mut self.stations[i];
-            st.deadline = match &st.kind {
-                Kind::Master(m) => m.m.next_deadline(),
-                Kind::Slave(s) => s.next_deadline(now),
-            }
-            .map(|d| d.max(now + 1));
-            if let Kind::Master(m) = &st.kind {
-                if !m.m.is_busy() {
-                    if let Some(wake) = m.wake_at(now) {
-                        st.deadline = Some(st.deadline.map_or(wake, |d| d.min(wake)));
-                    }
-                }
-            }
-        }
-    }
-
-    fn poll_station(&mut self, i: usize, now: Micros) {
-        let cfg = self.cfg;
-        let mut to_send: Option<Vec<u8>> = None;
-        let mut replies: Vec<Vec<u8>> = vec![];
-        let mut failures: Vec<Failure> = vec![];
-        let mut outcomes: Vec<Outcome> = vec![];
-        match &mut self.stations[i].kind {
-            Kind::Master(ms) => {
-                // Outcomes first (they advance the script), then the next request, then
-                // whatever the master wants to send now.
-                'outer: for _ in 0..2 {
-                    while let Some(out) = ms.m.poll(now) {
-                        match out {
-                            MasterOutput::Transmit(frame, preambles) => {
-                                let mut buf = vec![0xFF; preambles];
-                                buf.extend_from_slice(frame.as_slice());
-                                to_send = Some(buf);
-                                break 'outer;
-                            }
-                            MasterOutput::Done(result) => {
-                                let (device, started_us) = ms.current;
-                                match &result {
-                                    Ok(r) => {
-                                        ms.completed += 1;
-                                        replies.push(r.as_slice().to_vec());
-                                    }
-                                    // An empty polling address during the scan is no failure.
-                                    Err(_) if matches!(ms.phase, Phase::Scan(_)) => {}
-                                    Err(error) => {
-                                        ms.failed += 1;
-                                        failures.push(Failure {
-                                            t_us: now,
-                                            master: ms.role,
-                                            device,
-                                            error: *error,
-                                        });
-                                    }
-                                }
-                                if let Phase::Scheduled(index) = ms.phase {
-                                    outcomes.push(Outcome {
-                                        master: ms.role,
-                                        index,
-                                        started_us,
-                                        ended_us: now,
-                                        result: match &result {
-                                            Ok(r) => Ok(Frame::parse_pdu(r.as_slice())
-                                                .ok()
-                                                .and_then(|f| f.response_code)
-                                                .unwrap_or(0)),
-                                            Err(e) => Err(*e),
-                                        },
-                                    });
-                                }
-                                let reply = result.ok();
-                                request_done(ms, reply.as_ref().map(|r| r.as_slice()), now);
-                            }
-                            MasterOutput::Burst(_) => {}
-                        }
-                    }
-                    if ms.m.is_busy() {
-                        break;
-                    }
-                    next_request(ms, now);
-                }
-            }
-            Kind::Slave(ss) => {
-                if !is_silent(cfg, ss.poll, now) {
-                    if let Some((bytes, burst)) = ss.poll(now) {
-                        if !burst {
-                            let pre = bytes.iter().take_while(|&&b| b == 0xFF).count();
-                            ss.last_reply = bytes[pre..].to_vec();
-                        }
-                        to_send = Some(bytes);
-                    }
-                }
-            }
-        }
-        for r in replies {
-            if !self.reply_matches_device(&r) {
-                self.report.wrong_data += 1;
-            }
-        }
-        self.report.failures.extend(failures);
-        self.report.outcomes.extend(outcomes);
-        if let Some(bytes) = to_send {
-            self.start_tx(i, &bytes, now);
-        }
-    }
-
     /// True when a reply a master accepted is byte for byte what the device sent.
     fn reply_matches_device(&self, pdu: &[u8]) -> bool {
         let Ok(f) = Frame::parse_pdu(pdu) else {
             return false;
         };
-        self.stations.iter().any(|st| match &st.kind {
+        self.bus.stations().any(|st| match st {
             Kind::Slave(s) => {
                 let me = match f.address {
                     Address::Short(a) => a.polling_address == s.poll,
@@ -915,13 +831,13 @@ impl<'a> Sim<'a> {
         self.finish_analog(end);
         let mut r = std::mem::take(&mut self.report);
         r.virtual_seconds = end as f64 / 1e6;
-        for st in &self.stations {
-            let src = match &st.kind {
+        for (k, st) in self.bus.stations().enumerate() {
+            let src = match st {
                 Kind::Master(m) => m.role,
                 Kind::Slave(s) => Source::Device(s.poll),
             };
-            r.damaged_chars.push((src, st.damaged_chars));
-            if let Kind::Master(m) = &st.kind {
+            r.damaged_chars.push((src, self.bus.damaged_chars(k)));
+            if let Kind::Master(m) = st {
                 match m.role {
                     Source::Secondary => r.transactions_secondary = m.completed,
                     _ => {
@@ -933,11 +849,7 @@ impl<'a> Sim<'a> {
                 r.retries += m.m.stats().retries;
             }
         }
-        let carrier = self.carrier_time
-            - self
-                .carrier_until
-                .saturating_sub(end)
-                .min(self.carrier_time);
+        let carrier = self.bus.carrier_time(end);
         r.line_utilization = carrier as f64 / end.max(1) as f64;
         // Mandatory time: every frame, plus the silences the rules require between
         // consecutive frames (capped at the silence actually there).
@@ -980,27 +892,19 @@ pub fn required_gap(p: &TimingProfile, prev: FrameKind, next: FrameKind) -> Micr
     }
 }
 
-fn set_carrier(st: &mut Station, on: bool) {
-    match &mut st.kind {
-        Kind::Master(m) => m.m.carrier(on),
-        Kind::Slave(s) => s.carrier(on),
-    }
-}
-
 /// The reply delay of the device at `poll` for a request ending at `now` (`None`: HOLD).
-fn reply_delay(cfg: &SimConfig, poll: u8, now: Micros) -> Option<Micros> {
-    match cfg.faults.late_device {
+fn reply_delay(faults: &Faults, poll: u8, now: Micros) -> Option<Micros> {
+    match faults.late_device {
         Some(l) if l.poll == poll && (l.from..l.until).contains(&now) => Some(l.delay),
-        _ => cfg
-            .faults
+        _ => faults
             .slow_device
             .filter(|(a, _)| *a == poll)
             .map(|(_, d)| d),
     }
 }
 
-fn is_silent(cfg: &SimConfig, poll: u8, now: Micros) -> bool {
-    cfg.faults
+fn is_silent(faults: &Faults, poll: u8, now: Micros) -> bool {
+    faults
         .silent_device
         .is_some_and(|(a, from)| a == poll && now >= from)
 }
@@ -1094,50 +998,4 @@ fn identity_of(pdu: &[u8]) -> Option<UniqueId> {
     Identity::decode(&mut Reader::new(f.data))
         .ok()
         .map(|i| i.unique_id())
-}
-
-/// What a receiver makes of one character: collisions garble it with a framing error;
-/// bit errors flip bits of the 11-bit character (start, 8 data, odd parity, stop).
-fn corrupt(
-    byte: u8,
-    collided: bool,
-    bits_to_error: &mut u64,
-    rng: &mut Rng,
-    ber: f64,
-) -> (u8, UartFlags) {
-    if collided {
-        return (
-            byte ^ (rng.next_u64() as u8 | 1),
-            UartFlags {
-                framing: true,
-                ..UartFlags::OK
-            },
-        );
-    }
-    if *bits_to_error >= 11 {
-        if *bits_to_error != u64::MAX {
-            *bits_to_error -= 11;
-        }
-        return (byte, UartFlags::OK);
-    }
-    let parity = u16::from(byte.count_ones() % 2 == 0);
-    let mut word: u16 = (u16::from(byte) << 1) | (parity << 9) | (1 << 10);
-    let mut pos = *bits_to_error;
-    while pos < 11 {
-        word ^= 1 << pos;
-        pos = pos.saturating_add(1).saturating_add(rng.geometric(ber));
-    }
-    *bits_to_error = pos - 11;
-    let data = (word >> 1) as u8;
-    let par = (word >> 9) & 1;
-    let parity_error = (data.count_ones() + u32::from(par)) % 2 == 0;
-    let framing = word & 1 != 0 || (word >> 10) & 1 == 0;
-    (
-        data,
-        UartFlags {
-            parity: parity_error,
-            framing,
-            overrun: false,
-        },
-    )
 }

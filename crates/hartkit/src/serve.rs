@@ -1,6 +1,7 @@
 //! `hartkit sim serve`: simulated field devices on a serial port or a pseudo-terminal,
 //! in real time. All devices share the line (multidrop): each hears the requests and
-//! the other devices' replies, as on a real loop.
+//! the other devices' replies, as on a real loop. The line is `hart_sim::bus`, run on
+//! the real clock; this module only opens the port and moves bytes between the two.
 
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
@@ -8,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use hart_device::{persist, profiles, Device, Node};
 use hart_link::{Micros, TimingProfile};
-use hart_proto::deframer::UartFlags;
+use hart_sim::bus::{Attach, Bus, BusEvent};
 
 /// One device to run.
 #[derive(Debug, Clone)]
@@ -117,7 +118,7 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
         Port::Serial(_, baud) if *baud > 1200 => TimingProfile::rs485(*baud),
         _ => TimingProfile::fsk(),
     };
-    let mut nodes = build_nodes(opts, profile)?;
+    let nodes = build_nodes(opts, profile)?;
     let (port, pty) = open(&opts.port)?;
     let mut reader = hart_serial::ErrorReader::new(&port);
     if let Some((path, _)) = &pty {
@@ -138,47 +139,37 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
             }
         ));
     }
+    let mut bus = Bus::new(profile, 0, 0.0);
+    // The timing of the line is the port's: one device sends at a time, and the others
+    // hear its reply when it goes out, as the host does.
+    bus.set_ideal(true);
+    for (node, _) in nodes {
+        bus.add(node, Attach::DEVICE);
+    }
     let start = Instant::now();
     let now_us = || start.elapsed().as_micros() as Micros;
     let ct = profile.char_time;
     let mut last_rx: Micros = 0;
     let mut buf = [0u8; 512];
-    // A transmission in progress: who sent it and when its last character leaves.
-    let mut sending: Option<(usize, Micros)> = None;
     loop {
         if opts.run_for.is_some_and(|d| start.elapsed() >= d) {
             return Ok(());
         }
         let now = now_us();
-        if let Some((k, end)) = sending {
-            if now >= end {
-                nodes[k].0.transmitted(end);
-                sending = None;
-            }
-        }
-        if sending.is_none() {
-            for k in 0..nodes.len() {
-                if let Some(bytes) = nodes[k].0.poll(now) {
-                    port.write_all(&bytes).map_err(|e| e.to_string())?;
-                    // The other devices on the line hear it, one character at a time.
-                    for (j, (other, _)) in nodes.iter_mut().enumerate() {
-                        if j != k {
-                            for (i, &b) in bytes.iter().enumerate() {
-                                other.receive(b, UartFlags::OK, now + (i as Micros + 1) * ct);
-                            }
-                        }
-                    }
-                    sending = Some((k, now + bytes.len() as Micros * ct));
-                    break;
+        // The line in real time: what a device starts to send goes out on the port at
+        // once; the other devices hear it character by character.
+        let mut written = Ok(());
+        bus.run_until(now, |e| {
+            if let BusEvent::Started { bytes, .. } = e {
+                if written.is_ok() {
+                    written = port.write_all(bytes);
                 }
             }
-        }
-        let deadline = nodes.iter().filter_map(|(n, _)| n.next_deadline(now)).min();
-        let deadline = match sending {
-            Some((_, end)) => Some(deadline.map_or(end, |d| d.min(end))),
-            None => deadline,
-        };
-        let wait_ms = deadline.map_or(100, |d| (d.saturating_sub(now) / 1000).clamp(1, 100));
+        });
+        written.map_err(|e| e.to_string())?;
+        let wait_ms = bus
+            .next_event()
+            .map_or(100, |d| (d.saturating_sub(now) / 1000).clamp(1, 100));
         match port
             .wait(Duration::from_millis(wait_ms))
             .map_err(|e| e.to_string())?
@@ -206,9 +197,7 @@ pub fn serve(opts: &ServeOptions, mut announce: impl FnMut(&str)) -> Result<(), 
                     .max(last_rx + 1);
                 for (i, &(b, flags)) in chars.iter().enumerate() {
                     let at = first + i as Micros * ct;
-                    for (node, _) in &mut nodes {
-                        node.receive(b, flags, at);
-                    }
+                    bus.receive_outside(b, flags, at);
                     last_rx = at;
                 }
             }
