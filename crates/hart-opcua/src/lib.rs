@@ -37,6 +37,7 @@ pub mod access;
 pub mod connections;
 mod front;
 mod nodes;
+pub mod sessions;
 pub mod trust;
 pub mod units;
 

@@ -453,7 +453,9 @@ fn modbus_writes_follow_the_allow_list_and_read_only() {
         assert_eq!(r["after"], r["before"], "{why}: {r}");
         drop(gw);
         assert!(
-            std::fs::read_to_string(&audit).unwrap_or_default().is_empty(),
+            std::fs::read_to_string(&audit)
+                .unwrap_or_default()
+                .is_empty(),
             "{why}: nothing audited"
         );
         let _ = std::fs::remove_file(&audit);
