@@ -32,7 +32,6 @@ fn gateway() -> (SocketAddr, SocketAddr) {
                     users: vec![],
                     pki_dir: pki,
                     read_only: false,
-                    audit: Default::default(),
                     limits: Default::default(),
                 },
             )

@@ -22,7 +22,7 @@ fn node() -> EdgeNode {
         primary_host: Some("H".into()),
         backlog: 16,
         read_only: false,
-        allow: None,
+        gateway: Default::default(),
     });
     let now = UNIX_EPOCH + Duration::from_secs(1_700_000_000);
     let bytes = [254, 0x26, 0x01, 5, 5, 1, 1, 0x08, 0, 0x10, 0x20, 0x30];

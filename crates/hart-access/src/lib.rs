@@ -14,6 +14,8 @@
 //! * [`Audit`]: one line for every write let through, naming the front end, the
 //!   session's identity and peer, and the innermost device and command.
 //! * [`NetList`]: client addresses as networks (`10.0.0.0/24`), for Modbus writes.
+//! * [`WritePolicy`]: the gateway-wide rule (`--read-only`, `--allow-commands`) for
+//!   the typed writes front ends make through the polling engine, and their audit.
 //! * [`pool`]: the connection pool of the TCP front ends: limits, priority hosts, which
 //!   connection a full pool closes, and a budget of log lines.
 //!
@@ -26,11 +28,13 @@ mod audit;
 pub mod devices;
 mod nets;
 pub mod pool;
+mod writes;
 
 pub use allow::CommandAllowList;
 pub use audit::{json_line, Audit, WriteRecord};
 pub use devices::DeviceCommands;
 pub use nets::NetList;
+pub use writes::{NotPermitted, WritePolicy};
 
 use hart_proto::command::Access;
 use hart_proto::frame::{checksum, Address, Frame};

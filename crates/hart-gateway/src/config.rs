@@ -481,7 +481,6 @@ fn opcua_config(
         users,
         pki_dir,
         read_only: opts.read_only,
-        audit: hart_access::Audit::new(opts.audit_file.clone()),
         limits: {
             let d = hart_opcua::connections::Limits::default();
             let max_message_size = section.max_message_size.unwrap_or(d.max_message_size);
@@ -584,7 +583,6 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
     Ok(hart_modbus::Config {
         map,
         float_order: opts.float_order.or(section.float_order).unwrap_or_default(),
-        read_only: opts.read_only,
         limits: hart_modbus::connections::Limits {
             max_connections: section.max_connections.unwrap_or(d.max_connections).max(1),
             max_per_address: section.max_per_address.unwrap_or(d.max_per_address).max(1),
@@ -601,7 +599,6 @@ fn modbus_config(file: &GatewayFile, opts: &ServeOptions) -> Result<hart_modbus:
                 .map_err(|e| Error::config(format!("--config: [modbus] write_from: {e}")))?,
             (true, None) => hart_access::NetList::loopback(),
         },
-        audit: hart_access::Audit::new(opts.audit_file.clone()),
     })
 }
 

@@ -147,6 +147,11 @@ async fn start_engine(
         specs,
         StartOptions {
             queue,
+            write_policy: hart_access::WritePolicy {
+                read_only: config.read_only,
+                allow: config.allow_commands.clone(),
+                audit: hart_access::Audit::new(config.audit_file.clone()),
+            },
             ..StartOptions::default()
         },
     ))
@@ -263,16 +268,10 @@ impl Gateway {
                 port.ident_number,
                 if read_only { " (read only)" } else { "" }
             ));
-            let access = hart_profibus::serve::Access {
-                read_only,
-                allow: config.allow_commands.clone(),
-                audit: hart_access::Audit::new(config.audit_file.clone()),
-            };
             self.tasks
                 .push(tokio::spawn(hart_profibus::serve::serve_forever(
                     engine.clone(),
                     port,
-                    access,
                 )));
         }
         if let Some(cfg) = config.opcua {
@@ -306,15 +305,10 @@ impl Gateway {
             self.history = Some(handle);
         }
         if let Some(m) = config.mqtt {
-            let access = hart_sparkplug::Access {
-                audit: hart_access::Audit::new(config.audit_file.clone()),
-                allow: config.allow_commands.clone(),
-                read_only,
-                backfill: history_db.map(|db| {
-                    std::sync::Arc::new(backfill::HistoryBackfill::new(db, engine.clone()))
-                        as std::sync::Arc<dyn hart_sparkplug::Backfill>
-                }),
-            };
+            let backfill = history_db.map(|db| {
+                std::sync::Arc::new(backfill::HistoryBackfill::new(db, engine.clone()))
+                    as std::sync::Arc<dyn hart_sparkplug::Backfill>
+            });
             let what = format!(
                 "mqtt: {} as spBv1.0/{}/+/{}{}{}",
                 m.url,
@@ -329,7 +323,7 @@ impl Gateway {
                     ""
                 }
             );
-            let handle = hart_sparkplug::run(engine.clone(), m, access)
+            let handle = hart_sparkplug::run(engine.clone(), m, backfill)
                 .await
                 .map_err(|e| match e {
                     hart_sparkplug::Error::Config(m) => Error::config(format!("--mqtt: {m}")),
@@ -339,11 +333,6 @@ impl Gateway {
             self.mqtt = Some(handle);
         }
         if let Some(w) = config.web {
-            let access = hart_web::Access {
-                audit: hart_access::Audit::new(config.audit_file.clone()),
-                allow: config.allow_commands.clone(),
-                read_only,
-            };
             let mode = if read_only {
                 "read only"
             } else if w.admin_password_file.is_some() || !w.psk_logins.is_empty() {
@@ -351,7 +340,7 @@ impl Gateway {
             } else {
                 "read only: no --web-admin-password-file"
             };
-            let server = hart_web::start(engine.clone(), w, access)
+            let server = hart_web::start(engine.clone(), w)
                 .await
                 .map_err(|e| match e {
                     hart_web::Error::Config(m) => Error::config(format!("--web: {m}")),

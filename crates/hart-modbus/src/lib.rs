@@ -37,16 +37,13 @@ pub struct Config {
     pub map: RegisterMap,
     /// Layout of floats and 32-bit integers.
     pub float_order: FloatOrder,
-    /// Refuse writes ("illegal function").
-    pub read_only: bool,
     /// The TCP server's connection limits and priority hosts.
     pub limits: connections::Limits,
     /// Modbus TCP clients that may write (loopback only by default); others' writes
-    /// are answered "illegal function". The RTU slave's master writes unless
-    /// `read_only`: whoever is wired to its port.
+    /// are answered "illegal function". The RTU slave's master writes: whoever is
+    /// wired to its port. Beyond this, every write follows the engine's write policy
+    /// (`--read-only`, `--allow-commands`) and is recorded in its audit.
     pub write_from: hart_access::NetList,
-    /// Where writes let through are recorded.
-    pub audit: hart_access::Audit,
 }
 
 impl Default for Config {
@@ -54,10 +51,8 @@ impl Default for Config {
         Config {
             map: RegisterMap::default(),
             float_order: FloatOrder::default(),
-            read_only: false,
             limits: connections::Limits::default(),
             write_from: hart_access::NetList::loopback(),
-            audit: hart_access::Audit::default(),
         }
     }
 }
@@ -260,12 +255,9 @@ impl Gateway {
         Ok(Some(response))
     }
 
-    /// Whether `peer` may write: not on a `read_only` gateway; over TCP only from
-    /// [`Config::write_from`]; over RTU, the port's master.
+    /// Whether `peer` may write here: over TCP only from [`Config::write_from`]; over
+    /// RTU, the port's master. (The gateway's own rule is the engine's.)
     fn may_write(&self, peer: &Peer) -> Result<(), String> {
-        if self.config.read_only {
-            return Err("the gateway is read-only (--read-only)".into());
-        }
         match peer {
             Peer::Tcp(a) if !self.config.write_from.contains(a.ip()) => Err(format!(
                 "{} is not among the clients that may write ({}; --modbus-write-from, \
@@ -296,25 +288,29 @@ impl Gateway {
             (false, None) => return Err(ExceptionCode::GatewayPathUnavailable),
         };
         let ops = operations(&values)?;
-        let origin = hart_poller::Origin {
-            audit: &self.config.audit,
-            record: hart_access::WriteRecord {
-                front_end: match peer.link() {
-                    Link::Tcp => "modbus-tcp",
-                    Link::Rtu => "modbus-rtu",
-                },
-                peer: peer.to_string(),
-                via: format!(
-                    "{}holding registers {}",
-                    if broadcast { "broadcast, " } else { "" },
-                    values
-                        .iter()
-                        .map(|(v, _)| v.name())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-                ..Default::default()
+        // One request is done whole or not at all: every write it carries is judged
+        // against the gateway's rule before the first goes.
+        let commands = ops.iter().map(WriteOp::command);
+        if let Err(why) = self.engine.write_policy().permits_all(commands) {
+            tracing::warn!("modbus: refused a write from {peer}: {why}");
+            return Err(ExceptionCode::IllegalFunction);
+        }
+        let origin = hart_access::WriteRecord {
+            front_end: match peer.link() {
+                Link::Tcp => "modbus-tcp",
+                Link::Rtu => "modbus-rtu",
             },
+            peer: peer.to_string(),
+            via: format!(
+                "{}holding registers {}",
+                if broadcast { "broadcast, " } else { "" },
+                values
+                    .iter()
+                    .map(|(v, _)| v.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            ..Default::default()
         };
         let mut result = Ok(());
         for p in targets {
@@ -395,6 +391,7 @@ fn operations(values: &[(Value, f32)]) -> Result<Vec<WriteOp>, ExceptionCode> {
 /// The Modbus answer to a typed write that was not done.
 fn exception(e: &WriteFailure) -> ExceptionCode {
     match e {
+        WriteFailure::NotPermitted(_) => ExceptionCode::IllegalFunction,
         WriteFailure::Invalid(_) => ExceptionCode::IllegalDataValue,
         // The range was never read (the device has not answered command 15).
         WriteFailure::NotReadYet(_) => ExceptionCode::GatewayTargetDevice,

@@ -2,7 +2,8 @@
 //! no number of connections): it accepts on the public address, admits or refuses each
 //! connection by [`connections::Pool`], and splices an admitted one to the library's
 //! listener on a loopback port (`copy` both ways), watching the server's side of the
-//! handshake until the secure channel is open.
+//! handshake until the secure channel is open, and the client's requests for sessions
+//! created and never activated ([`crate::sessions`]).
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -14,9 +15,12 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Notify;
 
 use crate::connections::{self, Handshake, HandshakeWatch, Limits, LogLimit, Pool};
+use crate::sessions::{Request, RequestWatch, SessionGuard, SessionRefused};
 
 /// BadTcpServerTooBusy.
 const TOO_BUSY: u32 = 0x807D_0000;
+/// BadTooManySessions.
+const TOO_MANY_SESSIONS: u32 = 0x8056_0000;
 
 /// Bytes read at once either way.
 const BUFFER: usize = 16 * 1024;
@@ -25,6 +29,7 @@ const BUFFER: usize = 16 * 1024;
 #[derive(Default)]
 pub(crate) struct Shared {
     pool: Mutex<(Pool, HashMap<u64, Arc<Notify>>)>,
+    sessions: Mutex<SessionGuard>,
     log: Mutex<LogLimit>,
 }
 
@@ -123,6 +128,7 @@ enum End {
     Timeout,
     Failed(&'static str),
     Evicted,
+    Sessions(SessionRefused),
     Backend(std::io::Error),
 }
 
@@ -136,7 +142,7 @@ async fn splice(
     shared: Arc<Shared>,
 ) {
     let end = match TcpStream::connect(backend).await {
-        Ok(server) => pump(client, server, id, &close, &limits, &shared).await,
+        Ok(server) => pump(client, server, peer, id, &close, &limits, &shared).await,
         Err(e) => End::Backend(e),
     };
     let line = match end {
@@ -146,6 +152,7 @@ async fn splice(
             limits.handshake.as_secs_f64()
         )),
         End::Failed(why) => Some(format!("the handshake failed: {why}")),
+        End::Sessions(why) => Some(format!("CreateSession refused: {why}")),
         End::Backend(e) => Some(format!(
             "the OPC UA server on {backend} (loopback) could not be reached: {e}"
         )),
@@ -155,6 +162,7 @@ async fn splice(
         g.0.remove(id);
         g.1.remove(&id);
     }
+    lock(&shared.sessions).closed(id);
     if let Some(line) = line {
         if shared.log() {
             tracing::warn!("opcua: closed the connection from {peer}: {line}");
@@ -165,6 +173,7 @@ async fn splice(
 async fn pump(
     mut client: TcpStream,
     mut server: TcpStream,
+    peer: SocketAddr,
     id: u64,
     close: &Notify,
     limits: &Limits,
@@ -177,6 +186,7 @@ async fn pump(
     let mut cbuf = vec![0u8; BUFFER];
     let mut sbuf = vec![0u8; BUFFER];
     let mut watch = HandshakeWatch::default();
+    let mut requests = RequestWatch::default();
     let mut open = false;
     let deadline = tokio::time::Instant::now() + limits.handshake;
     // The pool learns of the client's bytes at most once a second.
@@ -189,6 +199,14 @@ async fn pump(
                 if open && now.saturating_duration_since(told) >= Duration::from_secs(1) {
                     lock(&shared.pool).0.sent(id, now);
                     told = now;
+                }
+                if let Err(why) = follow(&mut requests, &cbuf[..n], shared, id, peer, limits, now) {
+                    // Not passed on: tell the client why, and close.
+                    let reason = format!("hartkit gateway: {why}");
+                    let _ = cw
+                        .write_all(&connections::err_message(TOO_MANY_SESSIONS, &reason))
+                        .await;
+                    return End::Sessions(why);
                 }
                 if sw.write_all(&cbuf[..n]).await.is_err() {
                     return End::Quiet;
@@ -218,4 +236,25 @@ async fn pump(
             _ = tokio::time::sleep_until(deadline), if !open => return End::Timeout,
         }
     }
+}
+
+/// Follows the sessions the client's `bytes` create and activate on connection `id`;
+/// an error when a CreateSession among them may not go on.
+fn follow(
+    requests: &mut RequestWatch,
+    bytes: &[u8],
+    shared: &Shared,
+    id: u64,
+    peer: SocketAddr,
+    limits: &Limits,
+    now: Instant,
+) -> Result<(), SessionRefused> {
+    let mut g = lock(&shared.sessions);
+    for r in requests.feed(bytes) {
+        match r {
+            Request::CreateSession => g.create(id, peer.ip(), limits, now)?,
+            Request::ActivateSession => g.activate(id),
+        }
+    }
+    Ok(())
 }

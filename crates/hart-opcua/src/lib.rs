@@ -37,6 +37,7 @@ pub mod access;
 pub mod connections;
 mod front;
 mod nodes;
+pub mod sessions;
 pub mod trust;
 pub mod units;
 
@@ -87,10 +88,10 @@ pub struct Config {
     /// Where the certificate and private key are kept (made at the first start), and
     /// the trust list of client certificates (`trusted`, `rejected`; see [`trust`]).
     pub pki_dir: PathBuf,
-    /// Refuse every method call (BadUserAccessDenied).
+    /// Refuse every method call (BadUserAccessDenied). An engine whose write policy
+    /// is read-only makes the server read-only too; the policy's allow-list and audit
+    /// apply to every call (they are the engine's, [`hart_poller::WritePolicy`]).
     pub read_only: bool,
-    /// Where method calls let through are recorded.
-    pub audit: hart_access::Audit,
     /// Connections, sessions and message sizes ([`connections`]).
     pub limits: connections::Limits,
 }
@@ -111,7 +112,6 @@ impl std::fmt::Debug for Config {
             )
             .field("pki_dir", &self.pki_dir)
             .field("read_only", &self.read_only)
-            .field("audit", &self.audit)
             .field("limits", &self.limits)
             .finish()
     }
@@ -258,7 +258,10 @@ fn chrono_of(t: SystemTime) -> opcua::types::date_time::DateTimeUtc {
 /// configuration [`Config::check`] refuses.
 pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
     config.check()?;
-    let rules = config.rules();
+    let rules = Rules {
+        read_only: config.read_only || !engine.write_policy().writes_possible(),
+        ..config.rules()
+    };
     let limits = Arc::new(config.limits.clone());
     // The public address is the front's (which bounds connections); the library
     // listens on a loopback port of its own, fed by the front ([`front`]).
@@ -301,7 +304,6 @@ pub fn start(engine: Engine, config: Config) -> Result<OpcUaServer, String> {
             NAMESPACE,
             engine.clone(),
             rules,
-            config.audit.clone(),
         )));
     // A SCADA watching every variable of a large plant: room for 50 000 monitored items
     // in one subscription (the library's default is 1 000).
@@ -778,6 +780,7 @@ async fn call(
 fn status_of(e: &WriteFailure) -> StatusCode {
     use hart_poller::{DeviceRefusal, WriteError};
     match e {
+        WriteFailure::NotPermitted(_) => StatusCode::BadUserAccessDenied,
         WriteFailure::Invalid(_) => StatusCode::BadInvalidArgument,
         WriteFailure::NotReadYet(_) => StatusCode::BadWaitingForInitialData,
         WriteFailure::Link(WriteError::UnknownDevice) => StatusCode::BadNodeIdUnknown,

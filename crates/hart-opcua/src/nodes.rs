@@ -33,7 +33,6 @@ pub(crate) struct MethodTarget {
 
 /// Who calls, for the audit.
 pub(crate) struct Caller<'a> {
-    audit: &'a hart_access::Audit,
     identity: String,
     device: &'a str,
 }
@@ -41,18 +40,15 @@ pub(crate) struct Caller<'a> {
 impl Caller<'_> {
     /// The origin of a call of `method` for the engine's typed write, which records it
     /// in the audit just before its command goes on the loop.
-    pub(crate) fn origin(&self, method: &str) -> hart_poller::Origin<'_> {
-        hart_poller::Origin {
-            audit: self.audit,
-            record: hart_access::WriteRecord {
-                front_end: "opcua",
-                session: None,
-                // async-opcua does not tell a session's peer address.
-                peer: "-".to_string(),
-                identity: Some(self.identity.clone()),
-                via: format!("method {method} of {}", self.device),
-                ..Default::default()
-            },
+    pub(crate) fn origin(&self, method: &str) -> hart_access::WriteRecord {
+        hart_access::WriteRecord {
+            front_end: "opcua",
+            session: None,
+            // async-opcua does not tell a session's peer address.
+            peer: "-".to_string(),
+            identity: Some(self.identity.clone()),
+            via: format!("method {method} of {}", self.device),
+            ..Default::default()
         }
     }
 }
@@ -62,7 +58,6 @@ pub(crate) struct HartNodes {
     namespaces: Vec<NamespaceMetadata>,
     engine: Engine,
     rules: Rules,
-    audit: hart_access::Audit,
     methods: RwLock<HashMap<NodeId, MethodTarget>>,
 }
 
@@ -72,7 +67,6 @@ impl HartNodes {
         namespace: &str,
         engine: Engine,
         rules: Rules,
-        audit: hart_access::Audit,
     ) -> impl FnOnce(ServerContext, &mut AddressSpace) -> HartNodes {
         let uri = namespace.to_string();
         move |context: ServerContext, space: &mut AddressSpace| {
@@ -90,7 +84,6 @@ impl HartNodes {
                 }],
                 engine,
                 rules,
-                audit,
                 methods: Default::default(),
             }
         }
@@ -173,7 +166,6 @@ impl InMemoryNodeManagerImpl for HartNodes {
                 continue;
             }
             let caller = Caller {
-                audit: &self.audit,
                 identity: identity.clone(),
                 device: &target.device,
             };

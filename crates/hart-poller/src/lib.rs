@@ -33,13 +33,14 @@ pub mod write;
 pub use clock::Clock;
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use disturbance::{Disturbance, LineCounters};
+pub use hart_access::{NotPermitted, WritePolicy, WriteRecord};
 pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
 pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
 };
-pub use write::{Applied, DeviceRefusal, Origin, WriteFailure, WriteOp};
+pub use write::{Applied, DeviceRefusal, WriteFailure, WriteOp};
 
 /// A device found on a loop, for routing requests to it. The engine's list of them
 /// is a registry: an entry keeps its place (its index for commands 84 and 102) for the
@@ -112,6 +113,8 @@ pub(crate) struct Shared {
     failures: std::sync::Mutex<Vec<Option<String>>>,
     /// Why each loop is disturbed, when it is.
     disturbed: std::sync::Mutex<Vec<Option<String>>>,
+    /// The rule for typed writes, and their audit.
+    write_policy: WritePolicy,
 }
 
 impl Shared {
@@ -197,13 +200,16 @@ pub struct WriteReply {
 }
 
 /// How an engine starts, besides its configuration and loops.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct StartOptions {
     /// Client requests queued per loop ([`LOOP_QUEUE`]; in-memory loops take more: no
     /// line time to wait for).
     pub queue: usize,
     /// Where the engine reads the time ([`Clock::system`] by default).
     pub clock: Clock,
+    /// The gateway-wide rule for typed writes ([`Engine::apply`]) and their audit
+    /// (by default every write may go, recorded on the log only).
+    pub write_policy: WritePolicy,
 }
 
 impl Default for StartOptions {
@@ -211,6 +217,7 @@ impl Default for StartOptions {
         StartOptions {
             queue: LOOP_QUEUE,
             clock: Clock::system(),
+            write_policy: WritePolicy::default(),
         }
     }
 }
@@ -260,7 +267,11 @@ impl Engine {
         loops: Vec<LoopSpec>,
         options: StartOptions,
     ) -> (Engine, Vec<tokio::task::JoinHandle<()>>) {
-        let StartOptions { queue, clock } = options;
+        let StartOptions {
+            queue,
+            clock,
+            write_policy,
+        } = options;
         let loop_names: Vec<String> = loops
             .iter()
             .enumerate()
@@ -297,6 +308,7 @@ impl Engine {
             ready: ready_tx,
             failures: std::sync::Mutex::new(vec![None; loops.len()]),
             disturbed: std::sync::Mutex::new(vec![None; loops.len()]),
+            write_policy,
         });
         let mut requests = vec![];
         let mut writes = vec![];
@@ -331,6 +343,11 @@ impl Engine {
     /// The current image.
     pub fn image(&self) -> &Arc<Image> {
         &self.shared.image
+    }
+
+    /// The rule its typed writes follow ([`Engine::apply`]), and their audit.
+    pub fn write_policy(&self) -> &WritePolicy {
+        &self.shared.write_policy
     }
 
     /// The engine's clock: "now" for the image's qualities and ages.

@@ -4,7 +4,7 @@
 //! of the device's response codes ([`DeviceRefusal`]) that every front end translates
 //! into its own words (Modbus exceptions, OPC UA status codes).
 
-use hart_access::{Audit, WriteRecord};
+use hart_access::{NotPermitted, WriteRecord};
 use hart_proto::tables::{rc, response_class, ResponseClass};
 use hart_proto::types::{Date, Latin1String, PackedString};
 
@@ -171,6 +171,9 @@ impl DeviceRefusal {
 /// Why a typed write was not done.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum WriteFailure {
+    /// The gateway does not let it through (`--read-only`, `--allow-commands`):
+    /// nothing was sent.
+    NotPermitted(NotPermitted),
     /// The value cannot be sent (checked before anything went on the loop).
     Invalid(String),
     /// What the write needs from the device is not known yet (its range before
@@ -192,6 +195,7 @@ pub enum WriteFailure {
 impl std::fmt::Display for WriteFailure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            WriteFailure::NotPermitted(why) => why.fmt(f),
             WriteFailure::Invalid(m) => f.write_str(m),
             WriteFailure::NotReadYet(what) => write!(
                 f,
@@ -213,29 +217,26 @@ impl std::error::Error for WriteFailure {}
 /// to nearest possible value").
 pub type Applied = WriteReply;
 
-/// Who asks for a write, for the audit: everything of a [`WriteRecord`] but the device
-/// and the command, which the engine fills in.
-#[derive(Debug, Clone)]
-pub struct Origin<'a> {
-    /// Where writes are recorded.
-    pub audit: &'a Audit,
-    /// The front end, its session, peer, identity and path (`via`).
-    pub record: WriteRecord,
-}
-
 impl Engine {
     /// Carries out `op` on the device at image `position`, ahead of the loop's polls:
-    /// checks the values, reads what the command keeps (the range's other value, the
-    /// tag's descriptor and date), records the write in `origin`'s audit just before it
-    /// goes on the loop, and judges the reply.
+    /// asks the engine's [`WritePolicy`](hart_access::WritePolicy) (`--read-only`,
+    /// `--allow-commands`), checks the values, reads what the command keeps (the
+    /// range's other value, the tag's descriptor and date), records the write in the
+    /// audit just before it goes on the loop, and judges the reply.
+    ///
+    /// `origin` says who asks: the front end, its session, peer, identity and path
+    /// (`via`); the engine fills in the device, the command and the operation.
     pub async fn apply(
         &self,
         position: usize,
         op: &WriteOp,
-        origin: &Origin<'_>,
+        origin: &WriteRecord,
     ) -> Result<Applied, WriteFailure> {
-        op.validate()?;
         let command = op.command();
+        self.write_policy()
+            .permits(command)
+            .map_err(WriteFailure::NotPermitted)?;
+        op.validate()?;
         let data = self.encode(position, op).await?;
         let device = self
             .image()
@@ -251,11 +252,11 @@ impl Engine {
                 )
             })
             .ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
-        origin.audit.record(&WriteRecord {
+        self.write_policy().audit.record(&WriteRecord {
             device,
             command,
             operation: Some(op.describe()),
-            ..origin.record.clone()
+            ..origin.clone()
         });
         let reply = self
             .write(position, command, &data)

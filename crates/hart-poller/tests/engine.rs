@@ -589,3 +589,80 @@ fn a_device_answering_every_address_disturbs_its_loop() {
         assert_eq!(engine.loop_disturbed(1), None);
     });
 }
+
+/// The write policy is the engine's: a read-only engine and an allow-list refuse a
+/// typed write before anything goes on the loop or into the audit, whichever front end
+/// asks; a write on the list is done and recorded once.
+#[test]
+fn the_write_policy_refuses_before_the_loop_and_the_audit() {
+    use hart_poller::{NotPermitted, WriteFailure, WriteOp, WritePolicy, WriteRecord};
+    local(async {
+        let dir = std::env::temp_dir().join(format!("hartkit-policy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let audit = dir.join("audit.jsonl");
+        let _ = std::fs::remove_file(&audit);
+        let engine_with = |policy: WritePolicy| {
+            let (engine, _) = Engine::start_with(
+                config(50, ReadCommand::Dynamic),
+                vec![LoopSpec {
+                    settings: LoopSettings::default(),
+                    line: Line::Memory(MemoryLoop::new(Plant::demo().devices().unwrap())),
+                }],
+                StartOptions {
+                    write_policy: policy,
+                    ..StartOptions::default()
+                },
+            );
+            engine
+        };
+        let who = WriteRecord {
+            front_end: "test",
+            peer: "-".into(),
+            via: "engine test".into(),
+            ..Default::default()
+        };
+        let engine = engine_with(WritePolicy {
+            allow: Some("0-33".parse().unwrap()),
+            audit: hart_access::Audit::new(Some(audit.clone())),
+            ..Default::default()
+        });
+        engine.ready().await;
+        let mut traffic = engine.traffic();
+        assert_eq!(
+            engine.apply(0, &WriteOp::Damping(2.0), &who).await,
+            Err(WriteFailure::NotPermitted(NotPermitted::NotAllowed(34)))
+        );
+        assert!(!audit.exists(), "nothing recorded");
+        engine
+            .apply(0, &WriteOp::Tag("PT-9".into()), &who)
+            .await
+            .unwrap();
+        let mut commands = vec![];
+        while let Ok(f) = traffic.try_recv() {
+            if let Ok(frame) = hart_proto::frame::Frame::parse_pdu(&f.pdu) {
+                commands.push(frame.command);
+            }
+        }
+        assert!(commands.contains(&18), "{commands:?}");
+        assert!(
+            !commands.contains(&34),
+            "the damping never went: {commands:?}"
+        );
+        let lines = std::fs::read_to_string(&audit).unwrap();
+        assert_eq!(lines.lines().count(), 1, "{lines}");
+        assert!(lines.contains("\"front_end\":\"test\""), "{lines}");
+
+        let read_only = engine_with(WritePolicy {
+            read_only: true,
+            ..Default::default()
+        });
+        read_only.ready().await;
+        let refused = read_only
+            .apply(0, &WriteOp::FixedCurrent(12.0), &who)
+            .await
+            .unwrap_err();
+        assert_eq!(refused, WriteFailure::NotPermitted(NotPermitted::ReadOnly));
+        assert!(refused.to_string().contains("--read-only"), "{refused}");
+        let _ = std::fs::remove_dir_all(&dir);
+    });
+}

@@ -53,17 +53,6 @@ impl ProfibusPort {
     }
 }
 
-/// Who may write through the output modules.
-#[derive(Debug, Clone, Default)]
-pub struct Access {
-    /// Refuse every write (`--read-only`).
-    pub read_only: bool,
-    /// Only these HART commands (`--allow-commands`).
-    pub allow: Option<hart_access::CommandAllowList>,
-    /// Where writes let through are recorded.
-    pub audit: hart_access::Audit,
-}
-
 /// A write an output module asks for.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WriteRequest {
@@ -296,6 +285,7 @@ impl Front {
 pub fn result_of(r: &Result<(), WriteFailure>) -> WriteResult {
     match r {
         Ok(()) => WriteResult::Done,
+        Err(WriteFailure::NotPermitted(_)) => WriteResult::Refused,
         Err(WriteFailure::Invalid(_)) => WriteResult::Invalid,
         Err(WriteFailure::NotReadYet(_)) | Err(WriteFailure::Link(_)) => WriteResult::NoReply,
         Err(WriteFailure::Refused { .. }) => WriteResult::DeviceRefused,
@@ -306,7 +296,6 @@ pub fn result_of(r: &Result<(), WriteFailure>) -> WriteResult {
 /// records its result for the input module.
 pub async fn carry_out(
     engine: Engine,
-    access: Arc<Access>,
     states: Arc<Mutex<Vec<WriteState>>>,
     path: String,
     w: WriteRequest,
@@ -321,45 +310,19 @@ pub async fn carry_out(
             }
         }
     };
-    let refused = if access.read_only {
-        Some("the gateway is read only (--read-only)".to_string())
-    } else if access
-        .allow
-        .as_ref()
-        .is_some_and(|a| !a.allows(w.op.command()))
-    {
-        Some(format!(
-            "command {} is not on the gateway's allow-list (--allow-commands)",
-            w.op.command()
-        ))
-    } else {
-        None
-    };
-    if let Some(why) = refused {
-        tracing::warn!(
-            "profibus: refused a write to device {} ({}): {why}",
-            w.position,
-            w.op.describe()
-        );
-        set(WriteResult::Refused);
-        return;
-    }
     set(WriteResult::Busy);
-    let origin = hart_poller::Origin {
-        audit: &access.audit,
-        record: hart_access::WriteRecord {
-            front_end: "profibus",
-            peer: match w.master {
-                Some(m) => format!("master {m} on {path}"),
-                None => format!("serial {path}"),
-            },
-            via: format!(
-                "output module {} (write counter {})",
-                w.position % DEVICES_PER_STATION + 1,
-                w.counter
-            ),
-            ..Default::default()
+    let origin = hart_access::WriteRecord {
+        front_end: "profibus",
+        peer: match w.master {
+            Some(m) => format!("master {m} on {path}"),
+            None => format!("serial {path}"),
         },
+        via: format!(
+            "output module {} (write counter {})",
+            w.position % DEVICES_PER_STATION + 1,
+            w.counter
+        ),
+        ..Default::default()
     };
     let r = engine.apply(w.position, &w.op, &origin).await.map(|_| ());
     if let Err(e) = &r {
@@ -381,13 +344,12 @@ pub const REFRESH: Duration = Duration::from_millis(100);
 
 /// Serves PROFIBUS DP on `port` for as long as the gateway runs, opening the port
 /// again (after 2 s, doubling to 30 s) when it fails.
-pub async fn serve_forever(engine: Engine, port: ProfibusPort, access: Access) {
+pub async fn serve_forever(engine: Engine, port: ProfibusPort) {
     let mut backoff =
         hart_host::reconnect::Backoff::new(Duration::from_secs(2), Duration::from_secs(30));
-    let access = Arc::new(access);
     loop {
         let started = Instant::now();
-        let task = tokio::spawn(serve(engine.clone(), port.clone(), access.clone()));
+        let task = tokio::spawn(serve(engine.clone(), port.clone()));
         let outcome = task.await;
         if started.elapsed() > Duration::from_secs(60) {
             backoff.reset();
@@ -416,7 +378,7 @@ pub fn line(port: &ProfibusPort) -> hart_serial::Line {
 }
 
 /// Opens `port` and serves until it fails (an error that says how).
-pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> std::io::Result<()> {
+pub async fn serve(engine: Engine, port: ProfibusPort) -> std::io::Result<()> {
     // The stations' modules are the devices the loops list once they are ready (the
     // configured ones and those the first scan found).
     engine.ready().await;
@@ -458,7 +420,6 @@ pub async fn serve(engine: Engine, port: ProfibusPort, access: Arc<Access>) -> s
         for w in writes {
             tokio::spawn(carry_out(
                 engine.clone(),
-                access.clone(),
                 states.clone(),
                 port.path.clone(),
                 w,

@@ -34,20 +34,6 @@ pub trait Backfill: Send + Sync + std::fmt::Debug + 'static {
     fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String>;
 }
 
-/// The gateway's access rules that DCMD writes follow, like the other front ends'.
-#[derive(Debug, Clone, Default)]
-pub struct Access {
-    /// Where writes let through are recorded.
-    pub audit: hart_access::Audit,
-    /// Only these HART commands may be sent (`--allow-commands`).
-    pub allow: Option<hart_access::CommandAllowList>,
-    /// The whole gateway is read-only (`--read-only`).
-    pub read_only: bool,
-    /// The gateway's historian, when it has one: a full store-and-forward backlog
-    /// leaves the rest of an outage to it, read back afterwards.
-    pub backfill: Option<Arc<dyn Backfill>>,
-}
-
 /// What the publisher is doing, for status pages and tests.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Status {
@@ -92,7 +78,11 @@ impl Handle {
 /// Starts publishing the engine's devices to the broker of `config`. Returns once the
 /// settings are checked and the files read; the connection is made (and made again)
 /// in the background, with a log line for each failure.
-pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<Handle, Error> {
+pub async fn run(
+    engine: Engine,
+    config: MqttConfig,
+    backfill: Option<Arc<dyn Backfill>>,
+) -> Result<Handle, Error> {
     let brokers = config.check()?;
     let password = match &config.password_file {
         Some(p) => Some(
@@ -121,12 +111,12 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
         edge_node: config.edge_node.clone(),
         primary_host: config.primary_host.clone(),
         backlog: config.backlog,
-        read_only: config.read_only || access.read_only,
-        allow: access.allow.clone(),
+        read_only: config.read_only,
+        gateway: engine.write_policy().clone(),
     };
     let mut core = EdgeNode::new(settings)
         .with_data_qos(config.data_qos)
-        .with_spill(access.backfill.is_some());
+        .with_spill(backfill.is_some());
     let client_id = config
         .client_id
         .clone()
@@ -149,7 +139,7 @@ pub async fn run(engine: Engine, config: MqttConfig, access: Access) -> Result<H
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
     let publisher = Publisher {
         engine,
-        access,
+        backfill,
         core,
         client,
         driver: Driver::spawn(eventloop),
@@ -310,7 +300,9 @@ fn explain(e: &ConnectionError, broker: &Broker) -> String {
 
 struct Publisher {
     engine: Engine,
-    access: Access,
+    /// The gateway's historian, when it has one: a full store-and-forward backlog
+    /// leaves the rest of an outage to it, read back afterwards.
+    backfill: Option<Arc<dyn Backfill>>,
     core: EdgeNode,
     client: AsyncClient,
     /// rumqttc's event loop, on a task of its own (never cancelled mid-connect).
@@ -631,7 +623,7 @@ impl Publisher {
     /// Reads what the historian kept from `from` to `to` on a blocking thread; the
     /// samples come back through `backfilled` to the run loop.
     fn backfill(&mut self, from: u64, to: u64) {
-        let Some(source) = self.access.backfill.clone() else {
+        let Some(source) = self.backfill.clone() else {
             return;
         };
         let tx = self.backfilled_tx.clone();
@@ -652,17 +644,13 @@ impl Publisher {
 
     fn write(&mut self, w: WriteRequest) {
         let engine = self.engine.clone();
-        let audit = self.access.audit.clone();
         let peer = self.url.clone();
         tokio::spawn(async move {
-            let origin = hart_poller::Origin {
-                audit: &audit,
-                record: hart_access::WriteRecord {
-                    front_end: "mqtt",
-                    peer,
-                    via: w.via.clone(),
-                    ..Default::default()
-                },
+            let origin = hart_access::WriteRecord {
+                front_end: "mqtt",
+                peer,
+                via: w.via.clone(),
+                ..Default::default()
             };
             for op in &w.ops {
                 match engine.apply(w.position, op, &origin).await {

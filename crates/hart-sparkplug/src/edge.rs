@@ -52,11 +52,12 @@ pub struct Settings {
     pub primary_host: Option<String>,
     /// Samples kept at most while the broker or the primary host is away.
     pub backlog: usize,
-    /// Refuse every DCMD write.
+    /// Refuse every DCMD write (`[mqtt] read_only`: this front end's own rule).
     pub read_only: bool,
-    /// The gateway's command allow-list: writes whose HART command is not on it are
-    /// refused, as on the other front ends.
-    pub allow: Option<hart_access::CommandAllowList>,
+    /// The gateway's rule for writes (`--read-only`, `--allow-commands`), as its
+    /// engine holds it: a DCMD is judged whole against it before any of its writes
+    /// goes, so a DCMD is never carried out in part.
+    pub gateway: hart_access::WritePolicy,
 }
 
 /// An MQTT message to publish.
@@ -812,21 +813,15 @@ impl EdgeNode {
                 if self.settings.read_only {
                     self.counters.bad_commands += 1;
                     tracing::warn!(
-                        "mqtt: DCMD for {device} refused: the gateway is read-only (--read-only, [mqtt] read_only)"
+                        "mqtt: DCMD for {device} refused: the MQTT front end is read-only ([mqtt] read_only)"
                     );
                     return;
                 }
-                if let Some(allow) = &self.settings.allow {
-                    if let Some(op) = ops.iter().find(|op| !allow.allows(op.command())) {
-                        self.counters.bad_commands += 1;
-                        tracing::warn!(
-                            "mqtt: DCMD for {device} refused: {} needs command {}, which is not on \
-                             the gateway's allow-list (--allow-commands)",
-                            op.describe(),
-                            op.command()
-                        );
-                        return;
-                    }
+                let commands = ops.iter().map(WriteOp::command);
+                if let Err(why) = self.settings.gateway.permits_all(commands) {
+                    self.counters.bad_commands += 1;
+                    tracing::warn!("mqtt: DCMD for {device} refused: {why}");
+                    return;
                 }
                 let via = format!(
                     "DCMD {}",

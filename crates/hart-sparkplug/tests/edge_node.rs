@@ -22,7 +22,7 @@ fn settings() -> Settings {
         primary_host: None,
         backlog: 1000,
         read_only: false,
-        allow: None,
+        gateway: Default::default(),
     }
 }
 
@@ -496,7 +496,10 @@ fn dcmd_writes_follow_the_rules() {
         .received(topic, &dcmd(vec![float("Config/Damping", 2.5)]), t(1))
         .is_empty());
     let mut allow = EdgeNode::new(Settings {
-        allow: Some("0-33,35-200".parse().unwrap()),
+        gateway: hart_access::WritePolicy {
+            allow: Some("0-33,35-200".parse().unwrap()),
+            ..Default::default()
+        },
         ..settings()
     });
     connected(&mut allow, t(0));

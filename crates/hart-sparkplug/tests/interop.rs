@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use hart_poller::{Engine, EngineConfig, Line, LoopSpec, MemoryLoop};
-use hart_sparkplug::{Access, MqttConfig};
+use hart_sparkplug::MqttConfig;
 use serde_json::{json, Value};
 
 struct Tools {
@@ -293,8 +293,13 @@ fn check_seq(msgs: &[&Value]) {
 }
 
 async fn engine() -> Engine {
+    engine_with(Default::default()).await
+}
+
+/// The demo plant's engine, its writes under `policy`.
+async fn engine_with(policy: hart_poller::WritePolicy) -> Engine {
     let devices = hart_host::transport::Plant::demo().devices().unwrap();
-    let (engine, _) = Engine::start(
+    let (engine, _) = Engine::start_with(
         EngineConfig {
             poll: true,
             ..Default::default()
@@ -303,6 +308,10 @@ async fn engine() -> Engine {
             settings: Default::default(),
             line: Line::Memory(MemoryLoop::new(devices)),
         }],
+        hart_poller::StartOptions {
+            write_policy: policy,
+            ..Default::default()
+        },
     );
     engine.ready().await;
     engine
@@ -321,18 +330,15 @@ async fn births_data_aliases_rebirth_writes_and_bad_commands() {
     let local = tokio::task::LocalSet::new();
     local
         .run_until(async {
-            let engine = engine().await;
             let audit = dir.path().join("audit.jsonl");
-            let handle = hart_sparkplug::run(
-                engine.clone(),
-                config(&broker.url(), "gw1"),
-                Access {
-                    audit: hart_access::Audit::new(Some(audit.clone())),
-                    ..Default::default()
-                },
-            )
-            .await
-            .unwrap();
+            let engine = engine_with(hart_poller::WritePolicy {
+                audit: hart_access::Audit::new(Some(audit.clone())),
+                ..Default::default()
+            })
+            .await;
+            let handle = hart_sparkplug::run(engine.clone(), config(&broker.url(), "gw1"), None)
+                .await
+                .unwrap();
             let identified = engine.image().snapshot().iter().filter(|d| d.info.is_some()).count();
             assert!(identified >= 3, "the demo plant's devices are found");
             sub.wait("NBIRTH, every DBIRTH and DDATA", |l| {
@@ -461,7 +467,7 @@ async fn child_publisher() {
     local
         .run_until(async {
             let engine = engine().await;
-            let handle = hart_sparkplug::run(engine, config(&url, "gw-kill"), Access::default())
+            let handle = hart_sparkplug::run(engine, config(&url, "gw-kill"), None)
                 .await
                 .unwrap();
             loop {
@@ -586,13 +592,9 @@ async fn broker_restart_every_sample_arrives_once_in_order() {
     local
         .run_until(async {
             let engine = engine().await;
-            let handle = hart_sparkplug::run(
-                engine,
-                config(&broker.url(), "gw-restart"),
-                Access::default(),
-            )
-            .await
-            .unwrap();
+            let handle = hart_sparkplug::run(engine, config(&broker.url(), "gw-restart"), None)
+                .await
+                .unwrap();
             sub.wait("data", |l| data(l, "gw-restart").len() >= 5).await;
             broker.stop();
             let stopped = Instant::now();
@@ -679,9 +681,7 @@ async fn primary_host_offline_and_online() {
             let engine = engine().await;
             let mut c = config(&broker.url(), "gw-host");
             c.primary_host = Some("scada".into());
-            let handle = hart_sparkplug::run(engine, c, Access::default())
-                .await
-                .unwrap();
+            let handle = hart_sparkplug::run(engine, c, None).await.unwrap();
             sub.wait("births and data", |l| data(l, "gw-host").len() >= 5)
                 .await;
             sub.send(state(false, now()));
@@ -748,7 +748,7 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
             let h = hart_sparkplug::run(
                 engine.clone(),
                 config(&format!("mqtt://127.0.0.1:{port}"), "gw-none"),
-                Access::default(),
+                None,
             )
             .await
             .unwrap();
@@ -786,9 +786,7 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
             let mut c = config(&broker.url(), "gw-auth");
             c.username = Some("gw".into());
             c.password_file = Some(dir.path().join("wrong"));
-            let h = hart_sparkplug::run(engine.clone(), c, Access::default())
-                .await
-                .unwrap();
+            let h = hart_sparkplug::run(engine.clone(), c, None).await.unwrap();
             let deadline = Instant::now() + Duration::from_secs(10);
             while h.status().last_error.is_none() {
                 assert!(Instant::now() < deadline);
@@ -918,7 +916,7 @@ async fn births_over_tls_with_a_ca_file() {
             let engine = engine().await;
             let mut trusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls");
             trusted.ca_file = Some(ca.clone());
-            let handle = hart_sparkplug::run(engine.clone(), trusted, Access::default())
+            let handle = hart_sparkplug::run(engine.clone(), trusted, None)
                 .await
                 .unwrap();
             sub.wait("NBIRTH and DBIRTHs over TLS", |l| {
@@ -935,7 +933,7 @@ async fn births_over_tls_with_a_ca_file() {
             let (other_ca, _, _) = certificates(other.path()).unwrap();
             let mut untrusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls2");
             untrusted.ca_file = Some(other_ca);
-            let handle = hart_sparkplug::run(engine.clone(), untrusted, Access::default())
+            let handle = hart_sparkplug::run(engine.clone(), untrusted, None)
                 .await
                 .unwrap();
             tokio::time::sleep(Duration::from_secs(2)).await;

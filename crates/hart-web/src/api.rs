@@ -15,7 +15,7 @@ use axum::routing::{get, post};
 use axum::{Json, Router};
 use futures::Stream;
 use hart_access::WriteRecord;
-use hart_poller::{Origin, WriteOp};
+use hart_poller::WriteOp;
 use serde_json::{json, Value};
 
 use crate::auth::{self, SessionView, LOGIN_COOKIE, SESSION_COOKIE};
@@ -172,10 +172,11 @@ fn authorize_write(
     headers: &HeaderMap,
     csrf: Option<&str>,
 ) -> Result<SessionView, ApiError> {
-    if state.access.read_only {
-        return Err(ApiError::forbidden(
-            "the gateway is read only (--read-only): no writes",
-        ));
+    if state.read_only() {
+        return Err(ApiError::forbidden(format!(
+            "{}: no writes",
+            hart_poller::NotPermitted::ReadOnly
+        )));
     }
     if !state.writes() {
         return Err(ApiError::forbidden(
@@ -495,24 +496,13 @@ async fn write(
     session: &SessionView,
 ) -> Result<Value, ApiError> {
     let op = planned.op;
-    if let Some(allow) = &state.access.allow {
-        if !allow.allows(op.command()) {
-            return Err(ApiError::forbidden(format!(
-                "command {} is not in the gateway's --allow-commands list",
-                op.command()
-            )));
-        }
-    }
-    let origin = Origin {
-        audit: &state.access.audit,
-        record: WriteRecord {
-            front_end: "web",
-            session: Some(session.number),
-            peer: peer.to_string(),
-            identity: Some(session.who.clone()),
-            via: "web dashboard".into(),
-            ..Default::default()
-        },
+    let origin = WriteRecord {
+        front_end: "web",
+        session: Some(session.number),
+        peer: peer.to_string(),
+        identity: Some(session.who.clone()),
+        via: "web dashboard".into(),
+        ..Default::default()
     };
     if let WriteOp::FixedCurrent(_) = op {
         // A new loop test, or its end, replaces the release pending.
@@ -563,15 +553,12 @@ async fn write(
         let task = tokio::spawn(async move {
             tokio::time::sleep(after).await;
             lock(&st.releases).remove(&position);
-            let origin = Origin {
-                audit: &st.access.audit,
-                record: WriteRecord {
-                    front_end: "web",
-                    peer: "-".into(),
-                    identity: Some("automatic release".into()),
-                    via: format!("loop test ended after {} s", after.as_secs()),
-                    ..Default::default()
-                },
+            let origin = WriteRecord {
+                front_end: "web",
+                peer: "-".into(),
+                identity: Some("automatic release".into()),
+                via: format!("loop test ended after {} s", after.as_secs()),
+                ..Default::default()
             };
             if let Err(e) = st
                 .engine

@@ -402,6 +402,7 @@ pub(crate) fn fields_of_json(v: &Value) -> Result<BTreeMap<String, String>, ApiE
 /// The HTTP status and message of a failed write.
 pub(crate) fn write_error(e: &WriteFailure) -> ApiError {
     let status = match e {
+        WriteFailure::NotPermitted(_) => StatusCode::FORBIDDEN,
         WriteFailure::Invalid(_) => StatusCode::BAD_REQUEST,
         WriteFailure::NotReadYet(_) | WriteFailure::Refused { .. } => StatusCode::CONFLICT,
         WriteFailure::Link(WriteError::UnknownDevice) => StatusCode::NOT_FOUND,

@@ -27,7 +27,6 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use hart_access::{Audit, CommandAllowList};
 use hart_poller::Engine;
 
 mod api;
@@ -111,17 +110,6 @@ pub struct TlsFiles {
     pub key: PathBuf,
 }
 
-/// The rules every write follows, shared with the gateway's other front ends.
-#[derive(Debug, Clone, Default)]
-pub struct Access {
-    /// Where writes are recorded.
-    pub audit: Audit,
-    /// Only these HART commands may be sent (`--allow-commands`).
-    pub allow: Option<CommandAllowList>,
-    /// The whole gateway is read only (`--read-only`).
-    pub read_only: bool,
-}
-
 /// Why the dashboard could not start.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Error {
@@ -160,8 +148,10 @@ impl WebServer {
 }
 
 /// Starts the dashboard on `engine`: binds its address at once (an address in use is
-/// an error here, not later), then serves on the current runtime.
-pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<WebServer, Error> {
+/// an error here, not later), then serves on the current runtime. Its writes follow
+/// the engine's write policy (`--read-only`, `--allow-commands`, the audit), after a
+/// login of its own.
+pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error> {
     let password = match &config.admin_password_file {
         Some(p) => Some(auth::read_password_file(p)?),
         None => None,
@@ -184,7 +174,7 @@ pub async fn start(engine: Engine, config: WebConfig, access: Access) -> Result<
         .local_addr()
         .map_err(|e| Error::Io(e.to_string()))?;
     let scheme = if tls.is_some() { "https" } else { "http" };
-    let state = AppState::start(engine, config, access, password, tls.is_some());
+    let state = AppState::start(engine, config, password, tls.is_some());
     let app = api::router(state.clone()).into_make_service_with_connect_info::<SocketAddr>();
     let handle = axum_server::Handle::new();
     let h = handle.clone();

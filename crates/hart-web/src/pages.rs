@@ -268,7 +268,7 @@ fn reply_html(v: &Value) -> String {
 /// The write forms, or why there are none.
 fn forms(state: &AppState, unit: usize, d: &Value, visitor: &Visitor<'_>) -> String {
     let mut out = String::from("<h2>Change</h2>");
-    if state.access.read_only {
+    if state.read_only() {
         out.push_str("<p class=\"muted\">The gateway is read only (--read-only).</p>");
         return out;
     }

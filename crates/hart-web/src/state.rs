@@ -11,7 +11,7 @@ use tokio::sync::broadcast;
 use crate::auth::Sessions;
 use crate::traffic::TrafficLog;
 use crate::trend::MemoryTrend;
-use crate::{Access, WebConfig};
+use crate::WebConfig;
 
 /// How often the plant view's event stream may send (it sends at least every
 /// [`EVENT_REFRESH`], so that ages move).
@@ -27,7 +27,6 @@ pub(crate) const MAX_EVENT_STREAMS: usize = 256;
 pub struct AppState {
     pub(crate) engine: Engine,
     pub(crate) config: WebConfig,
-    pub(crate) access: Access,
     /// The administrator's password; `None`: no writes.
     pub(crate) password: Option<String>,
     /// Served over HTTPS (cookies are marked Secure).
@@ -54,7 +53,6 @@ impl AppState {
     pub(crate) fn start(
         engine: Engine,
         config: WebConfig,
-        access: Access,
         password: Option<String>,
         secure: bool,
     ) -> Arc<AppState> {
@@ -68,7 +66,6 @@ impl AppState {
             tasks: Mutex::new(vec![]),
             engine,
             config,
-            access,
             password,
             secure,
         });
@@ -94,7 +91,12 @@ impl AppState {
     /// Whether anyone may write here: a password or a PSK identity to log in with, and
     /// the gateway not read only.
     pub(crate) fn writes(&self) -> bool {
-        (self.password.is_some() || !self.config.psk_logins.is_empty()) && !self.access.read_only
+        (self.password.is_some() || !self.config.psk_logins.is_empty()) && !self.read_only()
+    }
+
+    /// Whether the whole gateway is read-only (the engine's write policy).
+    pub(crate) fn read_only(&self) -> bool {
+        !self.engine.write_policy().writes_possible()
     }
 
     /// The plant as the event stream and `/api/devices` give it.

@@ -47,18 +47,20 @@ mod tempdir {
 /// A dashboard on the demo plant (answered in memory), with the password unless
 /// `read_only`.
 async fn server(name: &str, password: bool, read_only: bool) -> Server {
-    server_on(
-        hart_host::transport::Plant::demo(),
-        name,
-        password,
+    let policy = hart_poller::WritePolicy {
         read_only,
-    )
-    .await
+        ..Default::default()
+    };
+    server_on(hart_host::transport::Plant::demo(), name, password, policy).await
 }
 
-/// A polling engine on `plant`, answered in memory, its devices found.
-async fn engine_on(plant: hart_host::transport::Plant) -> hart_poller::Engine {
-    let (engine, _) = hart_poller::Engine::start(
+/// A polling engine on `plant`, answered in memory, its devices found, its writes
+/// under `policy`.
+async fn engine_on(
+    plant: hart_host::transport::Plant,
+    policy: hart_poller::WritePolicy,
+) -> hart_poller::Engine {
+    let (engine, _) = hart_poller::Engine::start_with(
         hart_poller::EngineConfig {
             poll: true,
             ..Default::default()
@@ -67,6 +69,10 @@ async fn engine_on(plant: hart_host::transport::Plant) -> hart_poller::Engine {
             settings: Default::default(),
             line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(plant.devices().unwrap())),
         }],
+        hart_poller::StartOptions {
+            write_policy: policy,
+            ..Default::default()
+        },
     );
     engine.ready().await;
     engine
@@ -77,23 +83,25 @@ async fn server_on(
     plant: hart_host::transport::Plant,
     name: &str,
     password: bool,
-    read_only: bool,
+    policy: hart_poller::WritePolicy,
 ) -> Server {
     let dir = tempdir::Dir::new(name);
-    let engine = engine_on(plant).await;
+    let audit = dir.0.join("audit.jsonl");
+    let engine = engine_on(
+        plant,
+        hart_poller::WritePolicy {
+            audit: hart_access::Audit::new(Some(audit.clone())),
+            ..policy
+        },
+    )
+    .await;
     let mut config = hart_web::WebConfig::new("127.0.0.1:0".parse().unwrap());
     if password {
         let p = dir.0.join("password");
         std::fs::write(&p, format!("{PASSWORD}\n")).unwrap();
         config.admin_password_file = Some(p);
     }
-    let audit = dir.0.join("audit.jsonl");
-    let access = hart_web::Access {
-        audit: hart_access::Audit::new(Some(audit.clone())),
-        allow: None,
-        read_only,
-    };
-    let web = hart_web::start(engine, config, access).await.unwrap();
+    let web = hart_web::start(engine, config).await.unwrap();
     let addr = web.addr;
     std::mem::forget(web);
     Server {
@@ -557,10 +565,39 @@ fn a_read_only_gateway_refuses_writes_and_logins_say_why() {
         let s = server("readonly", true, true).await;
         let r = post_json(s.addr, "/api/devices/1/write", &[], r#"{"damping": 1}"#).await;
         assert_json_error(&r, 403);
-        assert!(r.json()["error"].as_str().unwrap().contains("read only"));
+        assert!(r.json()["error"].as_str().unwrap().contains("read-only"));
         let s = server("nopassword", false, false).await;
         let r = post_json(s.addr, "/api/login", &[], r#"{"password": "x"}"#).await;
         assert_json_error(&r, 403);
+    });
+}
+
+/// `--allow-commands` is the engine's rule: a write whose command is off the list is
+/// refused (403, naming the option), nothing is audited, and one on it goes.
+#[test]
+fn a_command_off_the_allow_list_is_refused_and_not_audited() {
+    local(async {
+        let policy = hart_poller::WritePolicy {
+            allow: Some("0-33".parse().unwrap()),
+            ..Default::default()
+        };
+        let s = server_on(hart_host::transport::Plant::demo(), "allow", true, policy).await;
+        let (cookie, csrf) = login(s.addr).await;
+        let ok = [("Cookie", cookie.as_str()), ("X-CSRF-Token", csrf.as_str())];
+        let r = post_json(s.addr, "/api/devices/1/write", &ok, r#"{"damping": 2.5}"#).await;
+        assert_json_error(&r, 403);
+        let why = r.json()["error"].as_str().unwrap().to_string();
+        assert!(
+            why.contains("command 34") && why.contains("--allow-commands"),
+            "{why}"
+        );
+        assert!(std::fs::read_to_string(&s.audit)
+            .unwrap_or_default()
+            .is_empty());
+        let r = post_json(s.addr, "/api/devices/1/write", &ok, r#"{"tag": "PT-778"}"#).await;
+        assert_eq!(r.json()["confirmed"], true, "{}", r.text());
+        let audit = std::fs::read_to_string(&s.audit).unwrap();
+        assert_eq!(audit.lines().count(), 1, "{audit}");
     });
 }
 
@@ -606,7 +643,7 @@ fn a_loop_test_is_released_by_itself() {
                 ..Default::default()
             }],
         };
-        let s = server_on(plant, "looptest", true, false).await;
+        let s = server_on(plant, "looptest", true, Default::default()).await;
         let a = s.addr;
         let (cookie, csrf) = login(a).await;
         let ok = [("Cookie", cookie.as_str()), ("X-CSRF-Token", csrf.as_str())];
@@ -738,18 +775,21 @@ fn a_request_head_that_never_ends_is_closed() {
 fn a_psk_identity_with_write_rights_logs_in_with_its_key() {
     local(async {
         let dir = tempdir::Dir::new("psk");
-        let engine = engine_on(hart_host::transport::Plant::demo()).await;
+        let audit = dir.0.join("audit.jsonl");
+        let engine = engine_on(
+            hart_host::transport::Plant::demo(),
+            hart_poller::WritePolicy {
+                audit: hart_access::Audit::new(Some(audit.clone())),
+                ..Default::default()
+            },
+        )
+        .await;
         let mut config = hart_web::WebConfig::new("127.0.0.1:0".parse().unwrap());
         config.psk_logins = vec![hart_web::PskLogin {
             identity: "tech1".into(),
             key: (0u8..16).collect(),
         }];
-        let audit = dir.0.join("audit.jsonl");
-        let access = hart_web::Access {
-            audit: hart_access::Audit::new(Some(audit.clone())),
-            ..Default::default()
-        };
-        let web = hart_web::start(engine, config, access).await.unwrap();
+        let web = hart_web::start(engine, config).await.unwrap();
         let a = web.addr;
         let key = "000102030405060708090a0b0c0d0e0f";
         for bad in [

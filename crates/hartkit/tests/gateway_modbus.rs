@@ -417,6 +417,51 @@ fn modbus_writes_only_from_listed_clients() {
     let _ = std::fs::remove_file(&audit);
 }
 
+/// The gateway's write policy holds for Modbus as for every front end: with
+/// `--allow-commands 0-33` a damping write (command 34) from a client that may write is
+/// answered "illegal function", the device keeps its damping and nothing is audited;
+/// with `--read-only`, the same.
+#[test]
+fn modbus_writes_follow_the_allow_list_and_read_only() {
+    let Some(py) = python() else { return };
+    for (flags, why) in [
+        (&["--allow-commands", "0-33"][..], "allow-list"),
+        (&["--read-only"][..], "read-only"),
+    ] {
+        let audit = std::env::temp_dir().join(format!(
+            "hartkit-mb-policy-{}-{why}.jsonl",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_file(&audit);
+        let mut args = vec![
+            "--sim",
+            "--instant",
+            "--modbus",
+            "127.0.0.1:0",
+            "--audit-file",
+            audit.to_str().unwrap(),
+        ];
+        args.extend_from_slice(flags);
+        let gw = gateway(&args, 1);
+        let port = port_of(&gw.1["modbus"]);
+        let r = common::interop_json(
+            &py,
+            "pymodbus_write.py",
+            &["--port", &port, "--source", "127.0.0.1", "--damping", "4.5"],
+        );
+        assert_eq!(r["exception"], 1, "{why}: illegal function: {r}");
+        assert_eq!(r["after"], r["before"], "{why}: {r}");
+        drop(gw);
+        assert!(
+            std::fs::read_to_string(&audit)
+                .unwrap_or_default()
+                .is_empty(),
+            "{why}: nothing audited"
+        );
+        let _ = std::fs::remove_file(&audit);
+    }
+}
+
 /// The port under abuse (separate processes): 100 connections that never send a byte
 /// and 50 that send half a request, from ten loopback addresses, reopened as soon as
 /// they are closed, while a SCADA client (pymodbus, from 127.0.0.1) polls every half

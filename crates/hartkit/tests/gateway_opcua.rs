@@ -773,6 +773,15 @@ fn the_scada_is_served_while_the_opcua_port_is_flooded() {
         std::thread::sleep(std::time::Duration::from_millis(200));
         fds_after = open_fds(pid);
     }
+    // Right after the flood, whose never-activated sessions would hold the session
+    // table for the session time-out (30 s): a new client that is not a priority host
+    // opens its session and reads (the front keeps half of max_sessions for sessions
+    // that are activated).
+    let newcomer = common::interop_json(
+        &py,
+        "asyncua_poll.py",
+        &["--url", &url, "--seconds", "2", "--every", "0.5"],
+    );
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let (rss_peak, fds_peak) = sampler.join().unwrap();
     let _ = child.kill();
@@ -787,6 +796,11 @@ fn the_scada_is_served_while_the_opcua_port_is_flooded() {
         "every read answered in time: {scada}"
     );
     assert!(scada["polls"].as_u64().unwrap() >= 28, "{scada}");
+    assert!(
+        newcomer["polls"].as_u64() >= Some(1) && newcomer["answered"] == newcomer["polls"],
+        "a new client after the flood: {newcomer}\nflood: {flood}"
+    );
+
     let n = |k: &str| flood[k].as_u64().unwrap_or(0);
     assert!(
         n("idle_closed_by_server") + n("hello_closed_by_server") >= 150,
@@ -803,6 +817,12 @@ fn the_scada_is_served_while_the_opcua_port_is_flooded() {
     assert!(
         n("sessions_created") <= 100,
         "sessions stop at max_sessions: {flood}"
+    );
+    // Ten addresses create sessions and never activate them: four each, no more.
+    assert!(
+        n("sessions_refused") > 0
+            && n("sessions_created") <= 10 * hart_opcua::sessions::PENDING_PER_ADDRESS as u64,
+        "never-activated sessions bounded per address: {flood}"
     );
     assert!(
         text.contains("opcua: refused the connection from 127.0.0.")
