@@ -16,14 +16,11 @@ use hart_proto::frame::{
 use hartkit::{hex, json};
 use serde_json::Value;
 
-/// Small deterministic generator (xorshift64*), so failures reproduce.
-struct Rng(u64);
+/// The project's seeded generator, so failures reproduce.
+struct Rng(hart_rng::Rng);
 impl Rng {
     fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.0.next_u64()
     }
     fn below(&mut self, n: u64) -> u64 {
         self.next() % n
@@ -38,7 +35,7 @@ const COMMANDS: &[u16] = &[
 ];
 
 fn generated(n: usize) -> Vec<Vec<u8>> {
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let mut rng = Rng(hart_rng::Rng::new(0x9E37_79B9_7F4A_7C15));
     let mut out = vec![];
     for i in 0..n {
         let ft = [FrameType::Stx, FrameType::Ack, FrameType::Back][rng.below(3) as usize];

@@ -216,9 +216,11 @@ def decode_identity(d):
         r["manufacturer_id"] = u16(d, 17)
         r["private_label_distributor"] = u16(d, 19)
         r["device_profile"] = d[21]
-    if d[4] <= 5:
-        # HART 5 layout: byte 1 manufacturer, byte 2 device type
-        # (overrides a bytes 17-18 manufacturer_id in the odd case both exist)
+    if d[4] <= 5 and "manufacturer_id" not in r:
+        # HART 5 layout: byte 1 manufacturer, byte 2 device type. In the odd reply
+        # that says revision 5 or older and still carries bytes 17-18, those bytes
+        # are the manufacturer ID (the project's documented reading, hart-proto's
+        # identity_legacy_fields: a 16-bit code a device sent is not hidden).
         r["manufacturer_id"] = d[1]
         r["device_type"] = d[2]
     return r
