@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use hart_modbus::map::FloatOrder;
 
 /// The options of `hartkit serve`: shortcuts for the configuration file's settings,
-/// which they add to or override ([`GatewayConfig::from_options`]).
+/// which they add to or override ([`GatewayConfig::from_options`](crate::GatewayConfig::from_options)).
 #[derive(Debug, Clone, Default)]
 pub struct ServeOptions {
     /// `--config FILE`.

@@ -13,7 +13,7 @@
 //! * [`channel`]: the channel model: noise at a given Eb/N0, interfering tones, the
 //!   network's RC, the 4-20 mA analog signal and its 10 Hz reading.
 //! * [`cable`]: the longest cable a network allows (RC ≤ 65 µs).
-//! * [`line`]: the loop sample by sample, every station with its own modulator and
+//! * [`line`](mod@line): the loop sample by sample, every station with its own modulator and
 //!   demodulator on one electrical model (`alloc`).
 //!
 //! The cores are `no_std` and allocate nothing; the `alloc` feature adds whole-buffer

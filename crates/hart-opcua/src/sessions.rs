@@ -10,7 +10,7 @@
 //! hosts reach half of `max_sessions`. The other half is always left to sessions that
 //! are activated, and to the priority hosts.
 //!
-//! Sans-IO: [`RequestWatch`] takes the client's bytes, [`SessionGuard`] the requests
+//! Sans-IO: `RequestWatch` takes the client's bytes, `SessionGuard` the requests
 //! with the time, and says whether a CreateSession may go on.
 
 use std::collections::{HashMap, VecDeque};

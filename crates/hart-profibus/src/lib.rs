@@ -8,7 +8,7 @@
 //!
 //! * [`fdl`]: the telegrams SD1, SD2, SD3, SD4 and the short acknowledgement, with
 //!   the frame check sum and the end delimiter; damaged telegrams are typed errors.
-//! * [`cfg`]: configuration identifiers and the input and output lengths they declare.
+//! * [`cfg`](mod@cfg): configuration identifiers and the input and output lengths they declare.
 //! * [`slave`]: the DP services (Slave_Diag, Set_Prm, Chk_Cfg, Get_Cfg, Data_Exchange,
 //!   Global_Control, RD_Inp, RD_Outp) and the states Wait_Prm, Wait_Cfg, Data_Exch,
 //!   with the watchdog, the station delay (min TSDR from Set_Prm, max TSDR from the

@@ -1,6 +1,6 @@
 //! Typed requests and responses of the universal, common-practice and burst commands.
 //!
-//! Each command is one line of the [`commands!`] table below, naming its request and
+//! Each command is one line of the `commands!` table below, naming its request and
 //! response layouts; each layout is one [`wire_struct!`](crate::wire_struct) whose field
 //! list drives decoding, encoding, length limits and the field-by-field description
 //! (the annotated view and JSON). Adding a command is one line plus, if needed, one

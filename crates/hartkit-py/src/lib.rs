@@ -2,7 +2,7 @@
 //!
 //! * [`Frame`]: parse, build and decode frames with hart-proto, the decoded data as
 //!   Python dicts with units and codes in words.
-//! * [`NativeLoop`]: a HART master on any target the CLI takes (serial modem, RS-485,
+//! * `NativeLoop` (module `host`): a HART master on any target the CLI takes (serial modem, RS-485,
 //!   HART-IP, a simulated plant), run by `hart-host` on its own thread; each operation
 //!   comes back both as an awaitable (asyncio) and as a blocking call that releases the
 //!   GIL. The Python modules `hartkit` and `hartkit.sync` wrap it.
