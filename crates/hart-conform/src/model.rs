@@ -142,6 +142,29 @@ pub struct TestResult {
     pub duration_us: u64,
 }
 
+impl TestResult {
+    /// The result of test `d`: its catalogue entry with what was found.
+    pub fn of(
+        d: &crate::catalog::TestDef,
+        verdict: Verdict,
+        detail: String,
+        evidence: Vec<Evidence>,
+        duration_us: u64,
+    ) -> TestResult {
+        TestResult {
+            id: d.id,
+            group: d.group,
+            rule: d.rule,
+            source: d.source,
+            single_source: d.single_source,
+            verdict,
+            detail,
+            evidence,
+            duration_us,
+        }
+    }
+}
+
 /// What the run knows about the device it tested.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct DeviceSummary {

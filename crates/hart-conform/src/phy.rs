@@ -77,17 +77,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
     let mut warnings = vec![];
     let all = |verdict: Verdict, why: String, evidence: Vec<Evidence>| -> Vec<TestResult> {
         defs.iter()
-            .map(|d| TestResult {
-                id: d.id,
-                group: d.group,
-                rule: d.rule,
-                source: d.source,
-                single_source: d.single_source,
-                verdict,
-                detail: why.clone(),
-                evidence: evidence.clone(),
-                duration_us: 0,
-            })
+            .map(|d| TestResult::of(d, verdict, why.clone(), evidence.clone(), 0))
             .collect()
     };
     let report = |results: Vec<TestResult>, warnings: Vec<String>, dur: f64| Report {
@@ -176,17 +166,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
                     } else {
                         (Verdict::CouldNotRun, why.clone())
                     };
-                    TestResult {
-                        id: d.id,
-                        group: d.group,
-                        rule: d.rule,
-                        source: d.source,
-                        single_source: d.single_source,
-                        verdict,
-                        detail,
-                        evidence: vec![],
-                        duration_us: 0,
-                    }
+                    TestResult::of(d, verdict, detail, vec![], 0)
                 })
                 .collect();
             return report(results, warnings, dur);
@@ -242,17 +222,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
         .iter()
         .map(|d| {
             let (verdict, detail) = judge(d.id, &frames, snr, noise.unwrap_or(0.0), limits);
-            TestResult {
-                id: d.id,
-                group: d.group,
-                rule: d.rule,
-                source: d.source,
-                single_source: d.single_source,
-                verdict,
-                detail,
-                evidence: evidence.clone(),
-                duration_us: 0,
-            }
+            TestResult::of(d, verdict, detail, evidence.clone(), 0)
         })
         .collect();
     report(results, warnings, dur)

@@ -144,7 +144,10 @@ pub async fn run<T: Transport>(t: &mut T, opts: &Options) -> Report {
         Err(why) => {
             let results = selected
                 .iter()
-                .map(|d| result(d, cnr(why.clone()), ident_evidence.clone(), 0))
+                .map(|d| {
+                    let (verdict, detail) = cnr(why.clone());
+                    TestResult::of(d, verdict, detail, ident_evidence.clone(), 0)
+                })
                 .collect();
             (None, results)
         }
@@ -170,7 +173,7 @@ pub async fn run<T: Transport>(t: &mut T, opts: &Options) -> Report {
             let outcome = r.one(d).await;
             let evidence = std::mem::take(&mut r.p.evidence);
             let took = r.p.now().saturating_sub(t_start);
-            results.push(result(d, outcome, evidence, took));
+            results.push(TestResult::of(d, outcome.0, outcome.1, evidence, took));
             if r.stopped.is_none() && r.p.silent_streak >= SILENT_LIMIT {
                 r.stopped = Some(format!(
                     "the device stopped answering ({} requests in a row got no reply); check its power and wiring",
@@ -201,25 +204,6 @@ pub async fn run<T: Transport>(t: &mut T, opts: &Options) -> Report {
         results,
         duration_us: end.saturating_sub(start),
         line_time_us: p.line_time,
-    }
-}
-
-fn result(
-    d: &TestDef,
-    (verdict, detail): Outcome,
-    evidence: Vec<crate::model::Evidence>,
-    duration_us: u64,
-) -> TestResult {
-    TestResult {
-        id: d.id,
-        group: d.group,
-        rule: d.rule,
-        source: d.source,
-        single_source: d.single_source,
-        verdict,
-        detail,
-        evidence,
-        duration_us,
     }
 }
 
