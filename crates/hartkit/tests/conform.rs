@@ -2,9 +2,6 @@
 //! simulated line and over HART-IP, a faulty device fails where it should, the reports
 //! are written, bad input ends in a clear verdict.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
-
 use serde_json::Value;
 
 mod common;
@@ -232,45 +229,18 @@ fn phy_on_recordings() {
     assert!(err.contains("/nonexistent.wav"), "{err}");
 }
 
-struct Served(Child, String);
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// `hartkit sim serve --pty --profile pressure --poll 0 EXTRA`: the process and its
-/// pseudo-terminal (the path it prints first).
-fn served(extra: &[&str]) -> Served {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args([
-            "sim",
-            "serve",
-            "--pty",
-            "--profile",
-            "pressure",
-            "--poll",
-            "0",
-        ])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.as_mut().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let pty = first.trim().strip_prefix("pty: ").unwrap().to_string();
-    Served(child, pty)
+/// `hartkit sim serve --pty --profile pressure --poll 0 EXTRA`.
+fn served(extra: &[&str]) -> common::SimPty {
+    let mut args = vec!["--profile", "pressure", "--poll", "0"];
+    args.extend_from_slice(extra);
+    common::sim_pty(&args)
 }
 
 /// The whole suite against a device on a pseudo-terminal at 1200 bit/s, in real time.
 #[test]
 fn over_a_pseudo_terminal_at_1200_bit_s() {
     let s = served(&[]);
-    let (code, out, err) = hartkit(&["conform", "-p", &s.1, "--poll", "0", "--json"]);
+    let (code, out, err) = hartkit(&["conform", "-p", &s.pty, "--poll", "0", "--json"]);
     let r = results(&out);
     assert_eq!(code, 0, "{err} {:?}\n{out}", with("fail", &r));
     assert!(with("pass", &r).len() >= 30, "{:?}", with("pass", &r));
@@ -282,7 +252,7 @@ fn over_a_pseudo_terminal_at_1200_bit_s() {
 fn a_faulty_device_on_a_pseudo_terminal() {
     let s = served(&["--fault", "master-bit-not-echoed"]);
     let (code, out, err) = hartkit(&[
-        "conform", "-p", &s.1, "--poll", "0", "--only", "link", "--json",
+        "conform", "-p", &s.pty, "--poll", "0", "--only", "link", "--json",
     ]);
     let r = results(&out);
     assert_eq!(code, 1, "{err}");
@@ -300,7 +270,7 @@ fn a_write_protected_device() {
     let (code, out, err) = hartkit(&[
         "conform",
         "-p",
-        &s.1,
+        &s.pty,
         "--poll",
         "0",
         "--only",

@@ -1,44 +1,10 @@
 //! End to end: `hartkit sim serve --pty` runs devices on a real pseudo-terminal and the
 //! host commands talk to them through it, as they would through a USB HART modem.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
-
 use serde_json::Value;
 
-struct Served {
-    child: Child,
-    pty: String,
-}
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn serve(args: &[&str]) -> Served {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hartkit"))
-        .args(["sim", "serve", "--pty"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.as_mut().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let pty = first
-        .trim()
-        .strip_prefix("pty: ")
-        .expect("first line names the pty")
-        .to_string();
-    Served { child, pty }
-}
-
 mod common;
-use common::hartkit;
+use common::{hartkit, sim_pty as serve};
 
 #[test]
 fn host_commands_over_a_pseudo_terminal() {

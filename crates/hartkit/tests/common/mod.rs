@@ -23,6 +23,36 @@ impl Drop for Kill {
     }
 }
 
+/// `hartkit sim serve --pty ARGS`: simulated devices on a pseudo-terminal, killed when
+/// dropped; `pty` is the path it prints first.
+pub struct SimPty {
+    /// The pseudo-terminal's path, for `-p`.
+    pub pty: String,
+    _child: Kill,
+}
+
+/// Starts `hartkit sim serve --pty ARGS` and waits for the pseudo-terminal it names.
+pub fn sim_pty(args: &[&str]) -> SimPty {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_hartkit"))
+        .args(["sim", "serve", "--pty"])
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    std::io::BufReader::new(child.stdout.as_mut().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let child = Kill(child);
+    let pty = first
+        .trim()
+        .strip_prefix("pty: ")
+        .unwrap_or_else(|| panic!("the first line names the pty: {first:?}"))
+        .to_string();
+    SimPty { pty, _child: child }
+}
+
 /// `hartkit serve --hart-ip 127.0.0.1:0 ...` on a free port; killed when dropped. `.1`
 /// is the port (UDP and TCP), read from the first line the server prints.
 pub struct Server(pub std::process::Child, pub u16);
