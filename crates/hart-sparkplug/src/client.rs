@@ -190,75 +190,60 @@ impl Template {
     }
 }
 
-/// A rustls configuration with the ring provider and the CA file's roots (or the
-/// system's).
+/// The TLS configuration of `mqtts://`: OpenSSL (through native-tls), TLS 1.2 or
+/// newer, the broker's certificate checked against the CA file's certificates only, or
+/// against the system's certificate authorities without one.
 pub fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
-    use rustls::pki_types::{pem::PemObject, CertificateDer};
-    let mut roots = rustls::RootCertStore::empty();
+    use native_tls::{Certificate, Protocol, TlsConnector};
+    let mut builder = TlsConnector::builder();
+    builder.min_protocol_version(Some(Protocol::Tlsv12));
     match ca_file {
         Some(path) => {
-            let certs: Vec<CertificateDer<'static>> = CertificateDer::pem_file_iter(path)
-                .map_err(|e| Error::File(path.to_path_buf(), e.to_string()))?
-                .collect::<Result<_, _>>()
-                .map_err(|e| {
-                    Error::File(
-                        path.to_path_buf(),
-                        format!("not a PEM certificate file: {e}"),
-                    )
-                })?;
+            let pem =
+                std::fs::read(path).map_err(|e| Error::File(path.to_path_buf(), e.to_string()))?;
+            let certs = Certificate::stack_from_pem(&pem).map_err(|e| {
+                Error::File(
+                    path.to_path_buf(),
+                    format!("not a PEM certificate file: {e}"),
+                )
+            })?;
             if certs.is_empty() {
                 return Err(Error::File(
                     path.to_path_buf(),
                     "no certificate in it (PEM, -----BEGIN CERTIFICATE-----)".into(),
                 ));
             }
+            // Only the operator's CA: the system's authorities do not vouch for a
+            // plant's broker.
+            builder.disable_built_in_roots(true);
             for c in certs {
-                roots.add(c).map_err(|e| {
-                    Error::File(
-                        path.to_path_buf(),
-                        format!("a certificate is not usable: {e}"),
-                    )
-                })?;
+                builder.add_root_certificate(c);
             }
         }
         None => {
-            let found = rustls_native_roots();
-            if found.is_empty() {
+            if !SYSTEM_CA_BUNDLES
+                .iter()
+                .any(|f| std::fs::metadata(f).is_ok_and(|m| m.len() > 0))
+            {
                 return Err(Error::Config(
                     "mqtts:// without ca_file, and no system certificate authorities were found; give [mqtt] ca_file".into(),
                 ));
             }
-            for c in found {
-                let _ = roots.add(c);
-            }
         }
     }
-    let provider = Arc::new(rustls::crypto::ring::default_provider());
-    let config = rustls::ClientConfig::builder_with_provider(provider)
-        .with_safe_default_protocol_versions()
-        .map_err(|e| Error::Config(format!("TLS: {e}")))?
-        .with_root_certificates(roots)
-        .with_no_client_auth();
-    Ok(TlsConfiguration::Rustls(Arc::new(config)))
+    let connector = builder
+        .build()
+        .map_err(|e| Error::Config(format!("TLS: {e}")))?;
+    Ok(TlsConfiguration::NativeConnector(connector))
 }
 
-/// The system's certificate authorities (Debian's bundle).
-fn rustls_native_roots() -> Vec<rustls::pki_types::CertificateDer<'static>> {
-    use rustls::pki_types::{pem::PemObject, CertificateDer};
-    for f in [
-        "/etc/ssl/certs/ca-certificates.crt",
-        "/etc/pki/tls/certs/ca-bundle.crt",
-        "/etc/ssl/cert.pem",
-    ] {
-        if let Ok(it) = CertificateDer::pem_file_iter(f) {
-            let v: Vec<_> = it.filter_map(Result::ok).collect();
-            if !v.is_empty() {
-                return v;
-            }
-        }
-    }
-    vec![]
-}
+/// Where Linux distributions keep the system's certificate authorities (Debian's
+/// bundle first), which OpenSSL reads when no CA file is given.
+const SYSTEM_CA_BUNDLES: [&str; 3] = [
+    "/etc/ssl/certs/ca-certificates.crt",
+    "/etc/pki/tls/certs/ca-bundle.crt",
+    "/etc/ssl/cert.pem",
+];
 
 fn last_will(m: Message) -> LastWill {
     LastWill::new(m.topic, m.payload, qos(m.qos), m.retain)

@@ -157,7 +157,7 @@ pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error
         None => None,
     };
     let tls = match &config.tls {
-        Some(t) => Some(tls_config(t).await?),
+        Some(t) => Some(tls_config(t)?),
         None => None,
     };
     let listener = std::net::TcpListener::bind(config.bind).map_err(|e| {
@@ -182,7 +182,8 @@ pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error
     hart_host::load::raise_open_file_limit(limits::MAX_CONNECTIONS as u64 + 256);
     match tls {
         Some(tls) => {
-            let mut server = axum_server::from_tcp_rustls(listener, tls)
+            let mut server = axum_server::from_tcp(listener)
+                .acceptor(axum_server::tls_openssl::OpenSSLAcceptor::new(tls))
                 .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
                 .handle(h);
             header_timeout(server.http_builder());
@@ -220,11 +221,11 @@ fn header_timeout(b: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt
         .header_read_timeout(limits::HEADER_TIMEOUT);
 }
 
-/// The rustls configuration of `files`, with errors that say which file is wrong.
-async fn tls_config(files: &TlsFiles) -> Result<axum_server::tls_rustls::RustlsConfig, Error> {
-    // One process-wide provider (ring), as the MQTT client's; a second install is
-    // refused harmlessly.
-    let _ = rustls::crypto::ring::default_provider().install_default();
+/// The HTTPS configuration of `files` (OpenSSL, TLS 1.2 and 1.3 with Mozilla's
+/// intermediate ciphers, HTTP/2 or HTTP/1.1 by ALPN), with errors that say which file is
+/// wrong.
+fn tls_config(files: &TlsFiles) -> Result<axum_server::tls_openssl::OpenSSLConfig, Error> {
+    use openssl::ssl::{AlpnError, SslAcceptor, SslFiletype, SslMethod};
     for (what, p) in [("certificate", &files.cert), ("key", &files.key)] {
         if let Err(e) = std::fs::metadata(p) {
             return Err(Error::Io(format!(
@@ -234,14 +235,23 @@ async fn tls_config(files: &TlsFiles) -> Result<axum_server::tls_rustls::RustlsC
             )));
         }
     }
-    axum_server::tls_rustls::RustlsConfig::from_pem_file(&files.cert, &files.key)
-        .await
-        .map_err(|e| {
-            Error::Config(format!(
-                "--web-cert {} / --web-key {}: {e}; give a PEM certificate chain and its \
-                 PEM private key (PKCS#8, PKCS#1 or SEC1)",
-                files.cert.display(),
-                files.key.display()
-            ))
-        })
+    let refused = |e: openssl::error::ErrorStack| {
+        Error::Config(format!(
+            "--web-cert {} / --web-key {}: {e}; give a PEM certificate chain and its \
+             PEM private key (PKCS#8, PKCS#1 or SEC1) that belong together",
+            files.cert.display(),
+            files.key.display()
+        ))
+    };
+    let mut b = SslAcceptor::mozilla_intermediate_v5(SslMethod::tls_server()).map_err(refused)?;
+    b.set_certificate_chain_file(&files.cert).map_err(refused)?;
+    b.set_private_key_file(&files.key, SslFiletype::PEM)
+        .map_err(refused)?;
+    b.check_private_key().map_err(refused)?;
+    b.set_alpn_select_callback(|_, client| {
+        openssl::ssl::select_next_proto(b"\x02h2\x08http/1.1", client).ok_or(AlpnError::NOACK)
+    });
+    Ok(axum_server::tls_openssl::OpenSSLConfig::from_acceptor(
+        std::sync::Arc::new(b.build()),
+    ))
 }
