@@ -402,11 +402,13 @@ impl<T: Transport> Runner<'_, '_, T> {
             "CMD-201" => self.expect_identity(),
             "BURST-001" | "BURST-002" | "BURST-003" => self.burst(d.id).await,
             "BURST-004" => self.burst_105().await,
-            "BURST-005" | "BURST-006" if rev < 7 => {
+            "BURST-005" | "BURST-006" | "BURST-007" | "BURST-008" if rev < 7 => {
                 na(format!("{} is a HART 7 rule (burst message numbers); the device is HART {rev}", d.id))
             }
             "BURST-005" => self.burst_invalid_message().await,
             "BURST-006" => self.burst_period_adjusted().await,
+            "BURST-007" => self.burst_trigger_mode_refused().await,
+            "BURST-008" => self.burst_command_refused().await,
             other => cnr(format!("{other} has no implementation in this version")),
         }
     }
@@ -1774,6 +1776,84 @@ impl<T: Transport> Runner<'_, '_, T> {
             ));
         }
         verdict
+    }
+
+    /// BURST-007: command 104 with trigger mode 5, which Common Table 33 does not define.
+    async fn burst_trigger_mode_refused(&mut self) -> Outcome {
+        let nan = hart_proto::types::HART_NAN_BITS.to_be_bytes();
+        let request = [vec![0, 5, 0, 250], nan.to_vec()].concat();
+        self.burst_write_refused(104, request, 13, "trigger mode 5 (not in Common Table 33)")
+            .await
+    }
+
+    /// BURST-008: command 108 with command 6 (write polling address): a write, which no
+    /// device bursts.
+    async fn burst_command_refused(&mut self) -> Outcome {
+        self.burst_write_refused(108, vec![0, 6, 0], 2, "command 6 (a write, not burstable)")
+            .await
+    }
+
+    /// Sends `command` with `request` for burst message 0 and expects response code
+    /// `want` with message 0's configuration (command 105) unchanged; a configuration
+    /// the device did change is written back (command number, then trigger).
+    async fn burst_write_refused(
+        &mut self,
+        command: u16,
+        request: Vec<u8>,
+        want: u8,
+        what: &str,
+    ) -> Outcome {
+        let before = match self.burst_config(0).await {
+            Ok(d) => d,
+            Err(o) => return o,
+        };
+        if before.len() < 29 {
+            return cnr(format!(
+                "command 105 answered {} bytes, without the trigger (29 for HART 7): nothing to compare",
+                before.len()
+            ));
+        }
+        let ex = self.cmd(command, &request).await;
+        let verdict = match ex.rc_data() {
+            Some((rc, _)) if rc == want => pass(format!(
+                "command {command} with {what}: response code {want}"
+            )),
+            Some((7, _)) => return cnr(WRITE_PROTECTED),
+            Some((rc, _)) => fail(format!(
+                "command {command} with {what} answered response code {rc}, {want} expected"
+            )),
+            None => return fail(format!("no reply to command {command}")),
+        };
+        let after = match self.burst_config(0).await {
+            Ok(d) => d,
+            Err(o) => return o,
+        };
+        if after == before {
+            return verdict;
+        }
+        // Put message 0 back as it was: its command first (command 108 may reset the
+        // trigger), then its trigger.
+        let restored = matches!(
+            self.cmd(108, &[before[12], before[13], 0]).await.rc_data(),
+            Some((0 | 8, _))
+        ) && matches!(
+            self.cmd(104, &[vec![0], before[22..29].to_vec()].concat())
+                .await
+                .rc_data(),
+            Some((0 | 8, _))
+        ) && matches!(self.burst_config(0).await, Ok(d) if d == before);
+        let changed = format!(
+            "command {command} with {what} changed burst message 0 (command 105: {} before, {} after)",
+            crate::model::hex(&before),
+            crate::model::hex(&after)
+        );
+        if restored {
+            fail(format!("{changed}; it was written back"))
+        } else {
+            fail(format!(
+                "{changed}; it could not be written back: set its command and trigger again"
+            ))
+        }
     }
 
     async fn rc_too_large_small(&mut self) -> Outcome {

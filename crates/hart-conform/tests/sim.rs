@@ -77,6 +77,8 @@ const FAULTS: &[(&str, bool, &[&str])] = &[
     ("no-too-few-data-bytes", false, &["CMD-101"]),
     ("cmd38-no-reset", false, &["CMD-038"]),
     ("burst-period-off", true, &["BURST-001"]),
+    ("burst-trigger-any-mode", false, &["BURST-007"]),
+    ("burst-any-command", false, &["BURST-008"]),
 ];
 
 #[test]

@@ -1245,7 +1245,9 @@ impl Device {
                 if m >= self.cfg.burst.len() {
                     return err(9);
                 }
-                if !burst::BURSTABLE.contains(&r.command_number) {
+                if !burst::BURSTABLE.contains(&r.command_number)
+                    && !self.faults.has(crate::faults::Fault::BurstAnyCommand)
+                {
                     return err(rc::INVALID_SELECTION);
                 }
                 let b = &mut self.cfg.burst[m];
@@ -1550,14 +1552,15 @@ impl Device {
             return err(9);
         }
         let mode = r.trigger_mode.0;
-        if mode > 4 {
+        if mode > 4 && !self.faults.has(crate::faults::Fault::BurstTriggerAnyMode) {
             return err(13);
         }
         let command = self.cfg.burst[m].command;
         if matches!(command, 38 | 48) && !matches!(mode, 0 | 4) {
             return err(13);
         }
-        let (class, units, level) = if matches!(mode, 0 | 4) {
+        // Past the check above, a mode over 4 is the fault's: kept like mode 0.
+        let (class, units, level) = if matches!(mode, 0 | 4) || mode > 4 {
             (0, 250, hart_nan())
         } else {
             let Some(src_class) = burst::trigger_classification(&self.cfg, m) else {

@@ -34,6 +34,12 @@ pub enum Fault {
     Cmd38NoReset,
     /// Burst frames go out at 1.5 times the configured period.
     BurstPeriodOff,
+    /// Command 104 takes a trigger mode that is not in Common Table 33 (5 and above)
+    /// instead of refusing it with response code 13.
+    BurstTriggerAnyMode,
+    /// Command 108 takes a command that cannot be burst (a write such as command 6)
+    /// instead of refusing it with response code 2.
+    BurstAnyCommand,
 }
 
 /// Every fault with its name (as in plant files) and what it does.
@@ -87,6 +93,16 @@ pub const ALL: &[(Fault, &str, &str)] = &[
         Fault::BurstPeriodOff,
         "burst-period-off",
         "bursts at 1.5 times the configured period",
+    ),
+    (
+        Fault::BurstTriggerAnyMode,
+        "burst-trigger-any-mode",
+        "command 104 takes an undefined trigger mode",
+    ),
+    (
+        Fault::BurstAnyCommand,
+        "burst-any-command",
+        "command 108 takes a command that cannot be burst",
     ),
 ];
 
