@@ -676,3 +676,39 @@ impl Publisher {
         tracing::info!("mqtt: NDEATH sent, disconnected from {}", self.url);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A CA file that is missing, empty, not PEM or cut short is refused with its path and
+    /// what is wrong, before any connection.
+    #[test]
+    fn a_bad_ca_file_is_refused_with_its_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("absent.pem");
+        assert!(matches!(tls_config(Some(&missing)), Err(Error::File(p, _)) if p == missing));
+        for (name, text) in [
+            ("empty.pem", &b""[..]),
+            ("garbage.pem", b"not a certificate\n"),
+            (
+                "cut.pem",
+                b"-----BEGIN CERTIFICATE-----\nMIIBszCCAVmgAwIBAgIUQ\n",
+            ),
+        ] {
+            let f = dir.path().join(name);
+            std::fs::write(&f, text).unwrap();
+            match tls_config(Some(&f)) {
+                Err(Error::File(p, why)) => {
+                    assert_eq!(p, f);
+                    assert!(
+                        why.contains("no certificate") || why.contains("not a PEM"),
+                        "{name}: {why}"
+                    );
+                }
+                Err(e) => panic!("{name}: {e}"),
+                Ok(_) => panic!("{name}: taken"),
+            }
+        }
+    }
+}

@@ -255,3 +255,84 @@ fn tls_config(files: &TlsFiles) -> Result<axum_server::tls_openssl::OpenSSLConfi
         std::sync::Arc::new(b.build()),
     ))
 }
+
+#[cfg(test)]
+mod tls_tests {
+    use super::*;
+    use openssl::{
+        asn1::Asn1Time, ec::EcGroup, ec::EcKey, hash::MessageDigest, nid::Nid, pkey::PKey,
+        x509::X509,
+    };
+
+    /// A fresh P-256 key and a self-signed certificate for it, both PEM.
+    fn key_and_cert() -> (Vec<u8>, Vec<u8>) {
+        let group = EcGroup::from_curve_name(Nid::X9_62_PRIME256V1).unwrap();
+        let key = PKey::from_ec_key(EcKey::generate(&group).unwrap()).unwrap();
+        let mut name = openssl::x509::X509NameBuilder::new().unwrap();
+        name.append_entry_by_text("CN", "127.0.0.1").unwrap();
+        let name = name.build();
+        let mut b = X509::builder().unwrap();
+        b.set_version(2).unwrap();
+        b.set_subject_name(&name).unwrap();
+        b.set_issuer_name(&name).unwrap();
+        b.set_pubkey(&key).unwrap();
+        b.set_not_before(&Asn1Time::days_from_now(0).unwrap())
+            .unwrap();
+        b.set_not_after(&Asn1Time::days_from_now(1).unwrap())
+            .unwrap();
+        b.sign(&key, MessageDigest::sha256()).unwrap();
+        (
+            key.private_key_to_pem_pkcs8().unwrap(),
+            b.build().to_pem().unwrap(),
+        )
+    }
+
+    fn files(dir: &std::path::Path, key: &[u8], cert: &[u8]) -> TlsFiles {
+        let files = TlsFiles {
+            cert: dir.join("cert.pem"),
+            key: dir.join("key.pem"),
+        };
+        std::fs::write(&files.cert, cert).unwrap();
+        std::fs::write(&files.key, key).unwrap();
+        files
+    }
+
+    #[test]
+    fn a_matching_key_and_certificate_are_taken() {
+        let dir = tempfile::tempdir().unwrap();
+        let (key, cert) = key_and_cert();
+        assert!(tls_config(&files(dir.path(), &key, &cert)).is_ok());
+    }
+
+    #[test]
+    fn wrong_or_missing_files_say_which_and_what_to_give() {
+        let dir = tempfile::tempdir().unwrap();
+        let (key, cert) = key_and_cert();
+        let (other_key, _) = key_and_cert();
+        // A key that does not belong to the certificate.
+        let e = tls_config(&files(dir.path(), &other_key, &cert)).unwrap_err();
+        assert!(
+            matches!(&e, Error::Config(m) if m.contains("belong together")),
+            "{e}"
+        );
+        // Garbage for a certificate, a truncated key.
+        let e = tls_config(&files(dir.path(), &key, b"not a certificate")).unwrap_err();
+        assert!(
+            matches!(&e, Error::Config(m) if m.contains("--web-cert")),
+            "{e}"
+        );
+        let e = tls_config(&files(dir.path(), &key[..key.len() / 2], &cert)).unwrap_err();
+        assert!(
+            matches!(&e, Error::Config(m) if m.contains("--web-key")),
+            "{e}"
+        );
+        // A file that is not there.
+        let mut missing = files(dir.path(), &key, &cert);
+        missing.key = dir.path().join("absent.pem");
+        let e = tls_config(&missing).unwrap_err();
+        assert!(
+            matches!(&e, Error::Io(m) if m.starts_with("--web-key: cannot read")),
+            "{e}"
+        );
+    }
+}
