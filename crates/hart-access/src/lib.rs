@@ -31,7 +31,7 @@ pub mod pool;
 mod writes;
 
 pub use allow::CommandAllowList;
-pub use audit::{json_line, Audit, WriteRecord};
+pub use audit::{json_line, Audit, WriteOutcome, WriteRecord};
 pub use devices::DeviceCommands;
 pub use nets::NetList;
 pub use writes::{NotPermitted, WritePolicy};

@@ -208,7 +208,11 @@ impl GatewayConfig {
             w.history_db = Some(h.db.clone());
         }
         Ok(GatewayConfig {
-            engine: EngineConfig { poll, defaults },
+            engine: EngineConfig {
+                poll,
+                defaults,
+                loop_test_limit: loop_test_limit(file, opts)?,
+            },
             loops,
             hart_ip,
             modbus_tcp,
@@ -239,6 +243,27 @@ impl GatewayConfig {
 }
 
 /// The loops: --sim, --port targets, then the file's [[loop]]s.
+/// The loop test limit: `--loop-test-limit` seconds, or the file's `loop_test_limit`.
+fn loop_test_limit(file: &GatewayFile, opts: &ServeOptions) -> Result<Option<Duration>, Error> {
+    match opts.loop_test_limit {
+        Some(s) => Duration::try_from_secs_f64(s)
+            .ok()
+            .filter(|d| *d >= Duration::from_secs(1))
+            .map(Some)
+            .ok_or_else(|| {
+                Error::config(format!(
+                    "--loop-test-limit {s}: give a number of seconds, at least 1 (600 is 10 minutes)"
+                ))
+            }),
+        None => match file.loop_test_limit {
+            Some(d) if d < Duration::from_secs(1) => Err(Error::config(
+                "loop_test_limit: give at least \"1s\" (the default is \"10m\")",
+            )),
+            d => Ok(d),
+        },
+    }
+}
+
 fn loops(file: &GatewayFile, opts: &ServeOptions) -> Result<Vec<LoopConfig>, Error> {
     let mut loops = vec![];
     let cli_loop = |name: Option<String>| LoopSettings {

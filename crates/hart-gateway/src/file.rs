@@ -15,6 +15,10 @@ pub struct GatewayFile {
     /// Poll defaults (`[poll]`).
     #[serde(default)]
     pub poll: Option<PollSettings>,
+    /// The longest a loop test (fixed loop current) lasts before the gateway releases
+    /// it ("10m", the default; `--loop-test-limit`).
+    #[serde(default, with = "humantime_serde")]
+    pub loop_test_limit: Option<Duration>,
     /// The loops (`[[loop]]`).
     #[serde(default, rename = "loop")]
     pub loops: Vec<LoopSettings>,

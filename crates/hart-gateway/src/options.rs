@@ -76,6 +76,8 @@ pub struct ServeOptions {
     pub opcua_pki: Option<PathBuf>,
     /// `--poll-period` seconds.
     pub poll_period: Option<f64>,
+    /// `--loop-test-limit` seconds (`loop_test_limit` in the file).
+    pub loop_test_limit: Option<f64>,
     /// `--history DB`: keep every value's history in this SQLite file or
     /// `postgres://` database.
     pub history: Option<String>,

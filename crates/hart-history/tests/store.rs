@@ -535,6 +535,7 @@ fn feed_stores_the_engine_changes_and_periodic_samples() {
         let (engine, _) = Engine::start(
             EngineConfig {
                 poll: true,
+                loop_test_limit: None,
                 defaults: PollSettings {
                     period: Duration::from_millis(20),
                     read: ReadCommand::Dynamic,

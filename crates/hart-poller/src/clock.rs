@@ -76,6 +76,11 @@ impl Clock {
         }
     }
 
+    /// The time from now until `at` (an instant of this clock), zero when it is past.
+    pub fn until(&self, at: Instant) -> Duration {
+        at.saturating_duration_since(self.now())
+    }
+
     /// The time elapsed since `since` (an instant of this clock), never negative.
     pub fn since(&self, since: Instant) -> Duration {
         self.now().saturating_duration_since(since)

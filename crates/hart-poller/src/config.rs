@@ -198,9 +198,20 @@ pub struct EngineConfig {
     pub poll: bool,
     /// Defaults for every loop and device.
     pub defaults: PollSettings,
+    /// The longest a loop test (a fixed current, command 40) lasts before the engine
+    /// releases it, whoever asked for it (`--loop-test-limit`); `None`:
+    /// [`crate::lease::DEFAULT_LIMIT`].
+    pub loop_test_limit: Option<Duration>,
 }
 
 impl EngineConfig {
+    /// The longest a loop test lasts.
+    pub fn loop_test_limit(&self) -> Duration {
+        self.loop_test_limit
+            .unwrap_or(crate::lease::DEFAULT_LIMIT)
+            .max(Duration::from_secs(1))
+    }
+
     /// The poll period and read command of a device on `lp` (`dev`: as listed).
     pub fn device_settings(
         &self,
@@ -264,6 +275,7 @@ mod tests {
         assert_eq!(lp.scan_order()[..3], [3, 0, 1]);
         assert_eq!(lp.scan_order().len(), 16);
         let e = EngineConfig {
+            loop_test_limit: None,
             poll: true,
             defaults: f.poll,
         };

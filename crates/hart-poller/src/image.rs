@@ -187,6 +187,9 @@ pub struct DeviceImage {
     pub failures: u64,
     /// The device's loop is disturbed ([`Quality::LoopDisturbed`]).
     pub loop_disturbed: bool,
+    /// The loop test the engine holds for it ([`crate::lease`]): its fixed current,
+    /// when it is released, and whether a release already failed (an alarm).
+    pub loop_test: Option<crate::lease::LoopTest>,
 }
 
 impl DeviceImage {
@@ -215,6 +218,7 @@ impl DeviceImage {
             polls: 0,
             failures: 0,
             loop_disturbed: false,
+            loop_test: None,
         }
     }
 
@@ -535,6 +539,8 @@ pub struct Image {
     subscribed: AtomicBool,
     seq: AtomicU64,
     clock: Clock,
+    /// The engine stopped: no more commits, every subscription ends.
+    closed: AtomicBool,
 }
 
 impl Default for Image {
@@ -545,16 +551,7 @@ impl Default for Image {
 
 impl Drop for Image {
     fn drop(&mut self) {
-        for s in self
-            .subscribers
-            .get_mut()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-            .filter_map(Weak::upgrade)
-        {
-            s.closed.store(true, Ordering::Release);
-            s.notify.notify_one();
-        }
+        self.close();
     }
 }
 
@@ -568,7 +565,30 @@ impl Image {
             subscribed: AtomicBool::new(false),
             seq: AtomicU64::new(0),
             clock,
+            closed: AtomicBool::new(false),
         }
+    }
+
+    /// Ends every change subscription: each [`Changes::recv`] gives what was
+    /// committed before, then `None` (the engine stopped: no commit comes after).
+    /// Subscriptions made later end at once.
+    pub fn close(&self) {
+        self.closed.store(true, Ordering::Release);
+        for s in self
+            .subscribers
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .filter_map(Weak::upgrade)
+        {
+            s.closed.store(true, Ordering::Release);
+            s.notify.notify_one();
+        }
+    }
+
+    /// Whether [`Image::close`] was called (the engine stopped).
+    pub fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
     }
 
     /// The clock that stamps the image's values and changes.
@@ -619,7 +639,7 @@ impl Image {
             capacity: capacity.max(1),
             dropped: AtomicU64::new(0),
             notify: tokio::sync::Notify::new(),
-            closed: AtomicBool::new(false),
+            closed: AtomicBool::new(self.is_closed()),
             warned: Mutex::new(None),
         });
         let mut subs = self.subscribers.lock().unwrap_or_else(|e| e.into_inner());

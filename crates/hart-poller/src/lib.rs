@@ -24,6 +24,7 @@ pub mod clock;
 pub mod config;
 pub mod disturbance;
 pub mod image;
+pub mod lease;
 pub mod line;
 pub mod request;
 pub mod schedule;
@@ -35,10 +36,12 @@ pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadC
 pub use disturbance::{Disturbance, LineCounters};
 pub use hart_access::{NotPermitted, WritePolicy, WriteRecord};
 pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
+pub use lease::{LeaseTerms, LoopTest};
 pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
     FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
+    STOP_RELEASE_TRIES,
 };
 pub use write::{Applied, DeviceRefusal, WriteFailure, WriteOp};
 
@@ -114,7 +117,12 @@ pub(crate) struct Shared {
     /// Why each loop is disturbed, when it is.
     disturbed: std::sync::Mutex<Vec<Option<String>>>,
     /// The rule for typed writes, and their audit.
-    write_policy: WritePolicy,
+    pub(crate) write_policy: WritePolicy,
+    /// Loop tasks that have ended.
+    stopped: watch::Sender<usize>,
+    /// One lock per device that typed writes take: a read-modify-write sequence
+    /// (command 13 then 18) is never interleaved with another write to the device.
+    device_locks: std::sync::Mutex<std::collections::HashMap<usize, Arc<Mutex<()>>>>,
 }
 
 impl Shared {
@@ -140,6 +148,11 @@ impl Shared {
             }
             _ => false,
         }
+    }
+
+    /// A loop's task has ended (its loop tests released).
+    pub(crate) fn loop_stopped(&self) {
+        self.stopped.send_modify(|n| *n += 1);
     }
 
     /// Loop `channel` has identified its listed devices and scanned once.
@@ -231,6 +244,7 @@ pub struct Engine {
     shared: Arc<Shared>,
     requests: Vec<mpsc::Sender<LoopRequest>>,
     writes: Vec<mpsc::Sender<LoopRequest>>,
+    controls: Vec<mpsc::UnboundedSender<task::Control>>,
     ready: watch::Receiver<Vec<bool>>,
 }
 
@@ -309,17 +323,29 @@ impl Engine {
             failures: std::sync::Mutex::new(vec![None; loops.len()]),
             disturbed: std::sync::Mutex::new(vec![None; loops.len()]),
             write_policy,
+            stopped: watch::channel(0).0,
+            device_locks: Default::default(),
         });
         let mut requests = vec![];
         let mut writes = vec![];
+        let mut controls = vec![];
         let mut tasks = vec![];
         for (channel, l) in loops.into_iter().enumerate() {
             let (rtx, rrx) = mpsc::channel(queue.max(1));
             let (wtx, wrx) = mpsc::channel(WRITE_QUEUE);
+            let (ctx, crx) = mpsc::unbounded_channel();
             requests.push(rtx);
             writes.push(wtx);
-            let t =
-                task::LoopTask::new(channel as u8, l.settings, l.line, shared.clone(), rrx, wrx);
+            controls.push(ctx);
+            let t = task::LoopTask::new(
+                channel as u8,
+                l.settings,
+                l.line,
+                shared.clone(),
+                rrx,
+                wrx,
+                crx,
+            );
             tasks.push(tokio::task::spawn_local(t.run()));
         }
         (
@@ -327,6 +353,7 @@ impl Engine {
                 shared,
                 requests,
                 writes,
+                controls,
                 ready,
             },
             tasks,
@@ -412,11 +439,45 @@ impl Engine {
         let _ = rx.wait_for(|r| r.iter().all(|&x| x)).await;
     }
 
+    /// Stops the engine: every loop's task releases its loop tests ([`lease`]: command
+    /// 40 with 0 mA, each tried [`task::STOP_RELEASE_TRIES`] times), then ends; the
+    /// image is closed after the last commit, so every change subscription
+    /// ([`Image::changes`]) ends once its subscriber has received everything. Waits
+    /// for every loop; call it after the front ends that write have stopped.
+    pub async fn stop(&self) {
+        for c in &self.controls {
+            let _ = c.send(task::Control::Stop);
+        }
+        let loops = self.controls.len();
+        let mut stopped = self.shared.stopped.subscribe();
+        let _ = stopped.wait_for(|n| *n >= loops).await;
+        self.shared.image.close();
+    }
+
+    /// The write lock of the device at `position`.
+    pub(crate) fn device_lock(&self, position: usize) -> Arc<Mutex<()>> {
+        self.shared
+            .device_locks
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .entry(position)
+            .or_default()
+            .clone()
+    }
+
+    /// Releases the loop tests held by `holder` ([`LeaseTerms::holder`]): a PROFIBUS
+    /// master whose watchdog expired, a Sparkplug primary host gone offline.
+    pub fn release_held_by(&self, holder: &str) {
+        for c in &self.controls {
+            let _ = c.send(task::Control::HolderGone(holder.to_string()));
+        }
+    }
+
     /// Carries a client's request PDU to loop `channel` with `retries`, between polls.
     /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
     pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
         match self.requests.get(channel) {
-            Some(q) => request::submit(q, pdu, retries).await,
+            Some(q) => request::submit(q, pdu, retries, LeaseTerms::default()).await,
             None => LoopOutcome::NoReply,
         }
     }
@@ -424,12 +485,14 @@ impl Engine {
     /// Sends `command` with `data` to the device at image `position`, ahead of every
     /// poll and client request of its loop, and returns the device's answer (whatever
     /// its response code: the caller judges it). After a write that changes the
-    /// configuration, the engine reads the device's configuration again.
-    pub async fn write(
+    /// configuration, the engine reads the device's configuration again. Not public:
+    /// every write goes through [`Engine::apply`], which asks the policy and audits.
+    pub(crate) async fn write(
         &self,
         position: usize,
         command: u16,
         data: &[u8],
+        lease: LeaseTerms,
     ) -> Result<WriteReply, WriteError> {
         let (channel, id) = self
             .shared
@@ -449,7 +512,7 @@ impl Engine {
             .writes
             .get(usize::from(channel))
             .ok_or(WriteError::UnknownDevice)?;
-        match request::submit(queue, pdu, POLL_RETRIES).await {
+        match request::submit(queue, pdu, POLL_RETRIES, lease).await {
             LoopOutcome::Busy => Err(WriteError::Busy),
             LoopOutcome::NoReply => Err(WriteError::NoReply),
             LoopOutcome::Reply(r) => {

@@ -6,6 +6,8 @@ use std::sync::Arc;
 
 use tokio::sync::{mpsc, oneshot};
 
+use crate::lease::LeaseTerms;
+
 /// A request for a loop: a PDU, and where to send what became of it.
 pub struct LoopRequest {
     /// The frame (delimiter through check byte).
@@ -21,6 +23,9 @@ pub struct LoopRequest {
     /// The outcome. A request whose receiver is gone (its session ended) is dropped
     /// unsent.
     pub reply: oneshot::Sender<LoopOutcome>,
+    /// What the lease of a fixed current it starts (command 40 accepted) asks for
+    /// ([`crate::lease`]): the engine's limit and no holder by default.
+    pub lease: LeaseTerms,
 }
 
 /// [`LoopRequest::state`]: waiting in the queue.
@@ -40,6 +45,7 @@ impl LoopRequest {
                 retries,
                 state: Arc::new(AtomicU8::new(QUEUED)),
                 reply: tx,
+                lease: LeaseTerms::default(),
             },
             rx,
         )
@@ -84,8 +90,10 @@ pub(crate) async fn submit(
     queue: &mpsc::Sender<LoopRequest>,
     pdu: Vec<u8>,
     retries: u8,
+    lease: LeaseTerms,
 ) -> LoopOutcome {
-    let (request, mut rx) = LoopRequest::new(pdu, retries);
+    let (mut request, mut rx) = LoopRequest::new(pdu, retries);
+    request.lease = lease;
     let state = request.state.clone();
     match queue.try_send(request) {
         Ok(()) => {}

@@ -19,6 +19,7 @@ use tokio::sync::mpsc;
 use crate::clock::Clock;
 use crate::config::{LoopSettings, ReadCommand};
 use crate::image::{DeviceImage, LastPoll};
+use crate::lease::{LeaseTerms, Leases, LoopTest, ReleaseReason};
 use crate::line::{pdu, Line};
 use crate::request::{LoopOutcome, LoopRequest};
 use crate::schedule::{Micros, Schedule};
@@ -65,6 +66,19 @@ struct Polled {
     refresh_tags: bool,
 }
 
+/// What the engine tells a loop's task besides requests.
+#[derive(Debug, Clone)]
+pub(crate) enum Control {
+    /// Release every loop test, then end.
+    Stop,
+    /// Release the loop tests held by this holder.
+    HolderGone(String),
+}
+
+/// Tries of each release when the engine stops, before the task gives up on it (and
+/// says so): with the line's own retries, a few seconds per device at most.
+pub const STOP_RELEASE_TRIES: u32 = 2;
+
 pub(crate) struct LoopTask {
     pub(crate) channel: u8,
     pub(crate) settings: LoopSettings,
@@ -72,6 +86,8 @@ pub(crate) struct LoopTask {
     pub(crate) shared: Arc<Shared>,
     pub(crate) requests: mpsc::Receiver<LoopRequest>,
     pub(crate) writes: mpsc::Receiver<LoopRequest>,
+    control: mpsc::UnboundedReceiver<Control>,
+    leases: Leases,
     schedule: Schedule,
     polled: std::collections::HashMap<usize, Polled>,
     scan_order: Vec<u8>,
@@ -95,10 +111,13 @@ impl LoopTask {
         shared: Arc<Shared>,
         requests: mpsc::Receiver<LoopRequest>,
         writes: mpsc::Receiver<LoopRequest>,
+        control: mpsc::UnboundedReceiver<Control>,
     ) -> Self {
         let scan_order = settings.scan_order();
         let clock = *shared.image.clock();
         LoopTask {
+            control,
+            leases: Leases::new(shared.config.loop_test_limit()),
             channel,
             settings,
             line,
@@ -130,8 +149,15 @@ impl LoopTask {
         self.shared.config.poll
     }
 
-    /// Runs until every request queue is closed (the engine was dropped).
+    /// Runs until the engine stops ([`Control::Stop`]: its loop tests released first)
+    /// or every request queue is closed (the engine was dropped).
     pub(crate) async fn run(mut self) {
+        self.serve().await;
+        self.release_all().await;
+        self.shared.loop_stopped();
+    }
+
+    async fn serve(&mut self) {
         // Configured devices are polled from the start (identified on their first turn).
         if self.polling() {
             let now = self.now();
@@ -161,6 +187,17 @@ impl LoopTask {
                 tokio::task::yield_now().await;
             }
             self.shared.set_failure(self.channel, self.line.failure());
+            match self.control.try_recv() {
+                Ok(Control::Stop) => return,
+                Ok(Control::HolderGone(h)) => {
+                    self.leases.holder_gone(&h, self.clock.now());
+                }
+                Err(_) => {}
+            }
+            if let Some((p, why)) = self.leases.due(self.clock.now()) {
+                self.release(p, why).await;
+                continue;
+            }
             if let Ok(r) = self.writes.try_recv() {
                 self.carry(r).await;
                 continue;
@@ -201,7 +238,16 @@ impl LoopTask {
                         wait = wait.min(Duration::from_micros(d.saturating_sub(t)));
                     }
                 }
+                if let Some(d) = self.leases.next_deadline() {
+                    wait = wait.min(self.clock.until(d));
+                }
                 tokio::select! {
+                    c = self.control.recv() => match c {
+                        Some(Control::Stop) | None => return,
+                        Some(Control::HolderGone(h)) => {
+                            self.leases.holder_gone(&h, self.clock.now());
+                        }
+                    },
                     r = self.writes.recv() => if let Some(r) = r { self.carry(r).await },
                     r = self.requests.recv() => match r {
                         Some(r) => { self.in_a_row += 1; self.carry(r).await }
@@ -284,7 +330,7 @@ impl LoopTask {
         let outcome = match self.transact(&r.pdu, r.retries).await {
             Some(reply) => {
                 self.learn(&r.pdu, &reply).await;
-                self.after_write(&r.pdu, &reply);
+                self.after_write(&r.pdu, &reply, r.lease);
                 LoopOutcome::Reply(reply)
             }
             None => LoopOutcome::NoReply,
@@ -295,7 +341,7 @@ impl LoopTask {
 
     /// A write that went through: read the device's configuration again on its next
     /// poll (at once), and keep the loop current it was fixed at.
-    fn after_write(&mut self, request: &[u8], reply: &[u8]) {
+    fn after_write(&mut self, request: &[u8], reply: &[u8], lease: LeaseTerms) {
         use hart_proto::tables::{response_class, ResponseClass};
         let (Ok(req), Ok(rep)) = (Frame::parse_pdu(request), Frame::parse_pdu(reply)) else {
             return;
@@ -319,9 +365,28 @@ impl LoopTask {
         };
         match req.command {
             40 => {
-                let current = float(0);
+                let current = float(0).filter(|c| *c != 0.0);
+                let now = self.clock.now();
+                let test = match current {
+                    // A loop test started (or changed): the engine holds it.
+                    Some(c) => {
+                        self.leases.granted(position, c, lease, now);
+                        self.leases.get(position).map(|l| LoopTest {
+                            current: c,
+                            release_at: self.clock.wall_at(l.expires),
+                            by: l.terms.by.clone(),
+                            failed_releases: 0,
+                        })
+                    }
+                    // Left fixed current mode, whoever asked: nothing to release.
+                    None => {
+                        self.leases.released(position);
+                        None
+                    }
+                };
                 self.shared.image.update(position, |d| {
-                    d.fixed_current = current.filter(|c| *c != 0.0);
+                    d.fixed_current = current;
+                    d.loop_test = test;
                 });
             }
             34 => {
@@ -351,6 +416,115 @@ impl LoopTask {
         p.refresh_tags |= matches!(req.command, 6 | 17 | 18 | 22);
         let now = self.now();
         self.schedule.hurry(position, now);
+    }
+
+    /// Ends the loop test of the device at `position` (command 40 with 0 mA), audited
+    /// as the engine's own write; a release the device does not confirm is tried
+    /// again later, and shown and logged as an alarm meanwhile. Returns whether the
+    /// device confirmed it.
+    async fn release(&mut self, position: usize, why: ReleaseReason) -> bool {
+        let Some(lease) = self.leases.get(position).cloned() else {
+            return true;
+        };
+        let Some((id, name)) = self
+            .shared
+            .image
+            .with(position, |d| (d.unique_id(), d.display_name()))
+        else {
+            self.leases.forget(position);
+            return true;
+        };
+        let Some(id) = id else {
+            self.leases.forget(position);
+            return true;
+        };
+        let request = pdu(&FrameSpec::request(
+            Address::long(id).with_master(MasterKind::Primary),
+            40,
+            &0f32.to_be_bytes(),
+        ));
+        let record = hart_access::WriteRecord {
+            front_end: "engine",
+            peer: "-".into(),
+            identity: Some("loop test release".into()),
+            device: format!("{name} (unique ID {id}, unit {})", position + 1),
+            command: 40,
+            via: format!("{} (asked by {})", why.describe(), lease.terms.by),
+            operation: Some("leave fixed current mode".into()),
+            ..Default::default()
+        };
+        let audit = &self.shared.write_policy.audit;
+        let n = audit.record(&record);
+        let reply = self.transact(&request, crate::POLL_RETRIES).await;
+        let outcome = crate::write::outcome_of(40, reply.as_deref());
+        self.shared.write_policy.audit.outcome(n, &record, &outcome);
+        if let hart_access::WriteOutcome::Done { .. } = outcome {
+            self.leases.released(position);
+            tracing::info!(
+                "{name}: loop test at {} mA ended ({}): the loop current follows the process again",
+                lease.current,
+                why.describe()
+            );
+            self.shared.image.update(position, |d| {
+                d.fixed_current = None;
+                d.loop_test = None;
+            });
+            let p = self.polled.entry(position).or_default();
+            p.refresh = true;
+            let now = self.now();
+            self.schedule.hurry(position, now);
+            return true;
+        }
+        let failed = self.leases.release_failed(position, self.clock.now());
+        let next = self
+            .leases
+            .get(position)
+            .map_or(Duration::ZERO, |l| self.clock.until(l.deadline()));
+        tracing::error!(
+            "ALARM {name}: the loop test at {} mA could not be ended ({}; try {failed}: {}); \
+             the device still drives a fixed loop current and the control system reads a false \
+             value. Trying again in {} s; check the device and its loop, or end it by hand \
+             (command 40 with 0 mA)",
+            lease.current,
+            why.describe(),
+            outcome.reason().map_or_else(
+                || format!("response code {}", outcome.response_code().unwrap_or(0)),
+                str::to_string
+            ),
+            next.as_secs()
+        );
+        self.shared.image.update(position, |d| {
+            if let Some(t) = d.loop_test.as_mut() {
+                t.failed_releases = failed;
+            }
+        });
+        false
+    }
+
+    /// Releases every loop test of the loop (the engine stops), each tried
+    /// [`STOP_RELEASE_TRIES`] times; what the devices do not confirm is logged as an
+    /// alarm.
+    async fn release_all(&mut self) {
+        if self.leases.is_empty() {
+            return;
+        }
+        self.leases.release_all(self.clock.now());
+        let positions: Vec<usize> = self.leases.iter().map(|(p, _)| p).collect();
+        for p in positions {
+            for _ in 0..STOP_RELEASE_TRIES {
+                if self.release(p, ReleaseReason::Stopping).await {
+                    break;
+                }
+            }
+        }
+        for (p, l) in self.leases.iter() {
+            tracing::error!(
+                "ALARM unit {}: stopping with its loop current still fixed at {} mA: end the \
+                 loop test by hand (command 40 with 0 mA)",
+                p + 1,
+                l.current
+            );
+        }
     }
 
     /// The image position of the device a request addresses on this loop.

@@ -4,11 +4,52 @@
 //! of the device's response codes ([`DeviceRefusal`]) that every front end translates
 //! into its own words (Modbus exceptions, OPC UA status codes).
 
-use hart_access::{NotPermitted, WriteRecord};
+use hart_access::{NotPermitted, WriteOutcome, WriteRecord};
 use hart_proto::tables::{rc, response_class, ResponseClass};
 use hart_proto::types::{Date, Latin1String, PackedString};
 
+use crate::lease::LeaseTerms;
 use crate::{Engine, WriteError, WriteReply};
+
+/// What a reply (or its absence) to a write of `command` means for the audit.
+pub(crate) fn outcome_of(command: u16, reply: Option<&[u8]>) -> WriteOutcome {
+    let Some(reply) = reply else {
+        return WriteOutcome::NoReply;
+    };
+    match hart_proto::frame::Frame::parse_pdu(reply) {
+        Err(e) => WriteOutcome::Failed(format!("bad reply: {e}")),
+        Ok(f) if f.is_communication_error() => WriteOutcome::Failed(format!(
+            "the device reports a communication error ({:#04x})",
+            f.response_code.unwrap_or(0)
+        )),
+        Ok(f) => {
+            let code = f.response_code.unwrap_or(0);
+            if DeviceRefusal::of(command, code).is_some() {
+                WriteOutcome::Refused {
+                    response_code: code,
+                }
+            } else {
+                WriteOutcome::Done {
+                    response_code: code,
+                }
+            }
+        }
+    }
+}
+
+impl WriteFailure {
+    /// The audit's outcome of a write that failed so.
+    pub fn outcome(&self) -> WriteOutcome {
+        match self {
+            WriteFailure::NotPermitted(why) => WriteOutcome::NotPermitted(why.to_string()),
+            WriteFailure::Refused { code, .. } => WriteOutcome::Refused {
+                response_code: *code,
+            },
+            WriteFailure::Link(WriteError::NoReply) => WriteOutcome::NoReply,
+            other => WriteOutcome::Failed(other.to_string()),
+        }
+    }
+}
 
 /// A change to one device.
 #[derive(Debug, Clone, PartialEq)]
@@ -127,6 +168,21 @@ impl WriteOp {
     }
 }
 
+/// Who asked, in words, for a loop test's lease: `web session 3 (admin)`.
+fn describe_origin(o: &WriteRecord) -> String {
+    let mut s = o.front_end.to_string();
+    if let Some(n) = o.session {
+        s.push_str(&format!(" session {n}"));
+    }
+    if !o.peer.is_empty() && o.peer != "-" {
+        s.push_str(&format!(" from {}", o.peer));
+    }
+    if let Some(i) = &o.identity {
+        s.push_str(&format!(" ({i})"));
+    }
+    s
+}
+
 fn unit_name(u: u8) -> String {
     hart_proto::tables::unit_symbol(u).map_or(format!("code {u}"), str::to_string)
 }
@@ -222,54 +278,98 @@ impl Engine {
     /// asks the engine's [`WritePolicy`](hart_access::WritePolicy) (`--read-only`,
     /// `--allow-commands`), checks the values, reads what the command keeps (the
     /// range's other value, the tag's descriptor and date), records the write in the
-    /// audit just before it goes on the loop, and judges the reply.
+    /// audit just before it goes on the loop, judges the reply and records what became
+    /// of it (a second audit record). A refusal by the policy is audited too.
     ///
     /// `origin` says who asks: the front end, its session, peer, identity and path
-    /// (`via`); the engine fills in the device, the command and the operation.
+    /// (`via`); the engine fills in the device, the command and the operation. A fixed
+    /// current (loop test) is held with the engine's limit ([`Engine::apply_with`]
+    /// for other terms).
     pub async fn apply(
         &self,
         position: usize,
         op: &WriteOp,
         origin: &WriteRecord,
     ) -> Result<Applied, WriteFailure> {
+        let lease = LeaseTerms {
+            by: describe_origin(origin),
+            ..LeaseTerms::default()
+        };
+        self.apply_with(position, op, origin, lease).await
+    }
+
+    /// [`Engine::apply`] with the terms of the loop test a fixed current starts: a
+    /// shorter limit, a holder whose leaving releases it ([`crate::lease`]).
+    pub async fn apply_with(
+        &self,
+        position: usize,
+        op: &WriteOp,
+        origin: &WriteRecord,
+        lease: LeaseTerms,
+    ) -> Result<Applied, WriteFailure> {
         let command = op.command();
-        self.write_policy()
-            .permits(command)
-            .map_err(WriteFailure::NotPermitted)?;
-        op.validate()?;
-        let data = self.encode(position, op).await?;
-        let device = self
-            .image()
-            .with(position, |d| {
-                format!(
-                    "{} ({}, unit {})",
-                    d.display_name(),
-                    d.unique_id()
-                        .map_or("unique ID not known".to_string(), |u| format!(
-                            "unique ID {u}"
-                        )),
-                    d.position + 1
-                )
-            })
-            .ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
-        self.write_policy().audit.record(&WriteRecord {
-            device,
+        let device = self.describe_device(position);
+        let record = WriteRecord {
+            device: device
+                .clone()
+                .unwrap_or_else(|| format!("unit {}", position + 1)),
             command,
             operation: Some(op.describe()),
             ..origin.clone()
-        });
-        let reply = self
-            .write(position, command, &data)
-            .await
-            .map_err(WriteFailure::Link)?;
-        match DeviceRefusal::of(command, reply.response_code) {
-            None => Ok(reply),
-            Some(refusal) => Err(WriteFailure::Refused {
-                command,
-                code: reply.response_code,
-                refusal,
-            }),
+        };
+        if let Err(why) = self.write_policy().permits(command) {
+            self.write_policy().audit.refused(&record, &why.to_string());
+            return Err(WriteFailure::NotPermitted(why));
         }
+        op.validate()?;
+        device.ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
+        let audit = &self.write_policy().audit;
+        // The device's own lock: a read-modify-write (command 13 then 18) is never
+        // interleaved with another write to the same device.
+        let _turn = self.device_lock(position).lock_owned().await;
+        let data = match self.encode(position, op).await {
+            Ok(d) => d,
+            Err(e) => {
+                let n = audit.record(&record);
+                audit.outcome(n, &record, &e.outcome());
+                return Err(e);
+            }
+        };
+        let n = audit.record(&record);
+        let result = match self.write(position, command, &data, lease).await {
+            Err(e) => Err(WriteFailure::Link(e)),
+            Ok(reply) => match DeviceRefusal::of(command, reply.response_code) {
+                None => Ok(reply),
+                Some(refusal) => Err(WriteFailure::Refused {
+                    command,
+                    code: reply.response_code,
+                    refusal,
+                }),
+            },
+        };
+        let outcome = match &result {
+            Ok(r) => WriteOutcome::Done {
+                response_code: r.response_code,
+            },
+            Err(e) => e.outcome(),
+        };
+        audit.outcome(n, &record, &outcome);
+        result
+    }
+
+    /// The device at `position` as the audit names it, when it is identified.
+    fn describe_device(&self, position: usize) -> Option<String> {
+        self.image().with(position, |d| {
+            format!(
+                "{} ({}, unit {})",
+                d.display_name(),
+                d.unique_id()
+                    .map_or("unique ID not known".to_string(), |u| format!(
+                        "unique ID {u}"
+                    )),
+                d.position + 1
+            )
+        })
     }
 
     /// The request data of `op` for the device at `position`.
@@ -313,7 +413,7 @@ impl Engine {
                 // Command 18 writes tag, descriptor and date together: read the ones
                 // kept (command 13) first.
                 let current = self
-                    .write(position, 13, &[])
+                    .write(position, 13, &[], LeaseTerms::default())
                     .await
                     .map_err(WriteFailure::Link)?;
                 if let Some(refusal) = DeviceRefusal::of(13, current.response_code) {

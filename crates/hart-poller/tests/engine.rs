@@ -7,7 +7,7 @@ use std::time::{Duration, Instant, SystemTime};
 use hart_host::transport::Plant;
 use hart_poller::{
     Clock, DeviceSettings, Engine, EngineConfig, Line, LoopSettings, LoopSpec, MemoryLoop,
-    PollSettings, Quality, ReadCommand, StartOptions,
+    PollSettings, Quality, ReadCommand, StartOptions, WriteFailure, WriteOp,
 };
 
 fn local<F: std::future::Future>(f: F) -> F::Output {
@@ -21,6 +21,7 @@ fn local<F: std::future::Future>(f: F) -> F::Output {
 fn config(period_ms: u64, read: ReadCommand) -> EngineConfig {
     EngineConfig {
         poll: true,
+        loop_test_limit: None,
         defaults: PollSettings {
             period: Duration::from_millis(period_ms),
             read,
@@ -223,7 +224,11 @@ fn writes_go_through_and_the_configuration_is_read_again() {
             })
             .await
         );
-        let r = engine.write(1, 34, &2.5f32.to_be_bytes()).await.unwrap();
+        let who = hart_poller::WriteRecord {
+            front_end: "test",
+            ..Default::default()
+        };
+        let r = engine.apply(1, &WriteOp::Damping(2.5), &who).await.unwrap();
         assert_eq!(r.response_code, 0);
         // The period is 10 s: the new damping shows because the write hurried a poll.
         assert!(
@@ -237,10 +242,16 @@ fn writes_go_through_and_the_configuration_is_read_again() {
             engine.image().with(1, |d| d.range)
         );
         // A multidrop device refuses fixed current: response code 11, "in multidrop
-        // mode", passed on for the front end to judge.
-        let r = engine.write(1, 40, &12.0f32.to_be_bytes()).await.unwrap();
-        assert_eq!(r.response_code, 11);
+        // mode": a refusal, no loop test.
+        assert!(matches!(
+            engine.apply(1, &WriteOp::FixedCurrent(12.0), &who).await,
+            Err(WriteFailure::Refused { code: 11, .. })
+        ));
         assert_eq!(engine.image().with(1, |d| d.fixed_current).unwrap(), None);
+        assert_eq!(
+            engine.image().with(1, |d| d.loop_test.clone()).unwrap(),
+            None
+        );
         // The device at polling address 0 (found first: position 0 is it) drives its
         // loop current: fixed, shown, released.
         let p0 = engine
@@ -250,18 +261,30 @@ fn writes_go_through_and_the_configuration_is_read_again() {
             .find(|d| d.polling_address == Some(0))
             .map(|d| d.position)
             .unwrap();
-        let r = engine.write(p0, 40, &12.0f32.to_be_bytes()).await.unwrap();
+        let r = engine
+            .apply(p0, &WriteOp::FixedCurrent(12.0), &who)
+            .await
+            .unwrap();
         assert_eq!(r.response_code, 0);
         assert_eq!(
             engine.image().with(p0, |d| d.fixed_current).unwrap(),
             Some(12.0)
         );
-        engine.write(p0, 40, &0f32.to_be_bytes()).await.unwrap();
+        let test = engine.image().with(p0, |d| d.loop_test.clone()).unwrap();
+        assert_eq!(test.map(|t| t.current), Some(12.0));
+        engine
+            .apply(p0, &WriteOp::FixedCurrent(0.0), &who)
+            .await
+            .unwrap();
         assert_eq!(engine.image().with(p0, |d| d.fixed_current).unwrap(), None);
+        assert_eq!(
+            engine.image().with(p0, |d| d.loop_test.clone()).unwrap(),
+            None
+        );
         // No such device.
         assert_eq!(
-            engine.write(99, 34, &[0; 4]).await,
-            Err(hart_poller::WriteError::UnknownDevice)
+            engine.apply(99, &WriteOp::Damping(1.0), &who).await,
+            Err(WriteFailure::Link(hart_poller::WriteError::UnknownDevice))
         );
     });
 }
@@ -355,6 +378,7 @@ fn virtual_engine(period: Duration) -> Engine {
     let (engine, _) = Engine::start_with(
         EngineConfig {
             poll: true,
+            loop_test_limit: None,
             defaults: PollSettings {
                 period,
                 read: ReadCommand::Dynamic,
@@ -595,7 +619,7 @@ fn a_device_answering_every_address_disturbs_its_loop() {
 /// asks; a write on the list is done and recorded once.
 #[test]
 fn the_write_policy_refuses_before_the_loop_and_the_audit() {
-    use hart_poller::{NotPermitted, WriteFailure, WriteOp, WritePolicy, WriteRecord};
+    use hart_poller::{NotPermitted, WritePolicy, WriteRecord};
     local(async {
         let dir = std::env::temp_dir().join(format!("hartkit-policy-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -632,7 +656,12 @@ fn the_write_policy_refuses_before_the_loop_and_the_audit() {
             engine.apply(0, &WriteOp::Damping(2.0), &who).await,
             Err(WriteFailure::NotPermitted(NotPermitted::NotAllowed(34)))
         );
-        assert!(!audit.exists(), "nothing recorded");
+        // The refusal is recorded (nothing was sent).
+        let lines = std::fs::read_to_string(&audit).unwrap();
+        assert_eq!(lines.lines().count(), 1, "{lines}");
+        let refusal: serde_json::Value = serde_json::from_str(lines.trim()).unwrap();
+        assert_eq!(refusal["outcome"], "not-permitted", "{lines}");
+        assert_eq!(refusal["command"], 34, "{lines}");
         engine
             .apply(0, &WriteOp::Tag("PT-9".into()), &who)
             .await
@@ -648,9 +677,18 @@ fn the_write_policy_refuses_before_the_loop_and_the_audit() {
             !commands.contains(&34),
             "the damping never went: {commands:?}"
         );
+        // The tag's write: a record before it went, and its outcome (same id).
         let lines = std::fs::read_to_string(&audit).unwrap();
-        assert_eq!(lines.lines().count(), 1, "{lines}");
-        assert!(lines.contains("\"front_end\":\"test\""), "{lines}");
+        let records: Vec<serde_json::Value> = lines
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(records.len(), 3, "{lines}");
+        assert_eq!(records[1]["front_end"], "test", "{lines}");
+        assert_eq!(records[1]["outcome"], serde_json::Value::Null, "{lines}");
+        assert_eq!(records[2]["id"], records[1]["id"], "{lines}");
+        assert_eq!(records[2]["outcome"], "done", "{lines}");
+        assert_eq!(records[2]["response_code"], 0, "{lines}");
 
         let read_only = engine_with(WritePolicy {
             read_only: true,

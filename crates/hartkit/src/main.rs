@@ -1917,6 +1917,10 @@ struct ServeCli {
     /// Poll each device at most this often, seconds (default 1).
     #[arg(long, value_name = "SECONDS")]
     poll_period: Option<f64>,
+    /// The longest a loop test (a fixed loop current, command 40) lasts, seconds,
+    /// whichever front end asked for it: then the gateway releases it (default 600).
+    #[arg(long, value_name = "SECONDS")]
+    loop_test_limit: Option<f64>,
     /// A loop behind the gateway (any host --port target); repeat for several loops
     /// (a multiplexer: each loop is a channel).
     #[arg(long = "port", short = 'p', value_name = "TARGET")]
@@ -2024,6 +2028,7 @@ impl ServeCli {
             opcua_users: self.opcua_users.clone(),
             opcua_pki: self.opcua_pki.clone(),
             poll_period: self.poll_period,
+            loop_test_limit: self.loop_test_limit,
             history: self.history.clone(),
             mqtt: self.mqtt.clone(),
             mqtt_group: self.group.clone(),
