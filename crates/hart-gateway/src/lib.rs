@@ -388,15 +388,11 @@ impl Gateway {
         self.modbus_tcp
     }
 
-    /// Stops the front ends (the MQTT publisher says its NDEATH), then the loops.
+    /// Stops the gateway without leaving anything behind: the front ends that take
+    /// writes stop first; then the engine releases every loop test (command 40 with
+    /// 0 mA) and commits its last changes; the MQTT publisher says its NDEATH; the
+    /// historian writes every change the engine committed; then the loops end.
     pub async fn stop(self) {
-        if let Some(m) = self.mqtt {
-            m.shutdown().await;
-        }
-        // The last batch is written before the historian stops.
-        if let Some(h) = self.history {
-            h.stop().await;
-        }
         if let Some(w) = self.web {
             w.stop();
         }
@@ -409,11 +405,31 @@ impl Gateway {
         for s in self.hart_ip {
             s.stop();
         }
+        if tokio::time::timeout(ENGINE_STOP_LIMIT, self.engine.stop())
+            .await
+            .is_err()
+        {
+            tracing::error!(
+                "the loops did not stop within {} s; a loop test may still be running: check \
+                 the devices' loop currents",
+                ENGINE_STOP_LIMIT.as_secs()
+            );
+        }
+        if let Some(m) = self.mqtt {
+            m.shutdown().await;
+        }
+        if let Some(h) = self.history {
+            h.stop().await;
+        }
         for t in self.loop_tasks {
             t.abort();
         }
     }
 }
+
+/// The longest [`Gateway::stop`] waits for the loops to release their loop tests: two
+/// tries per device on a slow loop (four retries of 300 ms each) and some.
+pub const ENGINE_STOP_LIMIT: Duration = Duration::from_secs(20);
 
 /// The Modbus register map of the gateway `config` describes, once its loops have
 /// listed their devices: as text, or as JSON with `json` (`hartkit serve
@@ -489,14 +505,36 @@ where
     })
 }
 
-/// Until Ctrl-C, or for `seconds` when given: the `until` of `hartkit serve`.
+/// Until Ctrl-C (SIGINT) or SIGTERM (a service manager's stop), or for `seconds`
+/// when given: the `until` of `hartkit serve`. Either signal also ends a timed run
+/// early, so the gateway always stops through [`Gateway::stop`].
 pub async fn interrupted_or(seconds: Option<f64>) {
-    match seconds {
-        Some(s) => {
-            tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await
+    let time = async {
+        match seconds {
+            Some(s) => {
+                tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await
+            }
+            None => std::future::pending().await,
         }
-        None => {
-            let _ = tokio::signal::ctrl_c().await;
+    };
+    let term = async {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            match signal(SignalKind::terminate()) {
+                Ok(mut s) => {
+                    s.recv().await;
+                }
+                Err(_) => std::future::pending().await,
+            }
         }
+        #[cfg(not(unix))]
+        std::future::pending::<()>().await
+    };
+    let signal = tokio::signal::ctrl_c();
+    tokio::select! {
+        _ = time => {}
+        _ = term => tracing::info!("SIGTERM: stopping (loop tests released, history written)"),
+        _ = signal => tracing::info!("interrupted: stopping (loop tests released, history written)"),
     }
 }

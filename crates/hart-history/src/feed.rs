@@ -59,7 +59,12 @@ impl Recorder {
 pub struct Handle {
     writer: Arc<Writer>,
     task: tokio::task::JoinHandle<()>,
+    image: Arc<hart_poller::Image>,
 }
+
+/// The longest [`Handle::stop`] waits for the feed to hand the writer the changes the
+/// engine committed before it stopped.
+pub const DRAIN_LIMIT: std::time::Duration = std::time::Duration::from_secs(30);
 
 impl Handle {
     /// The writer's counters.
@@ -72,10 +77,27 @@ impl Handle {
         self.writer.flush()
     }
 
-    /// Stops taking samples, writes what is held, and stops the writer.
-    pub async fn stop(self) -> Stats {
-        self.task.abort();
-        let _ = self.task.await;
+    /// Stops taking samples, writes what is held, and stops the writer. After the
+    /// engine's stop ([`Engine::stop`]) every change it committed is written first
+    /// (the change stream ends after its last one; [`DRAIN_LIMIT`] at most); before
+    /// it, the feed stops where it is.
+    pub async fn stop(mut self) -> Stats {
+        if self.image.is_closed() {
+            if tokio::time::timeout(DRAIN_LIMIT, &mut self.task)
+                .await
+                .is_err()
+            {
+                tracing::error!(
+                    "history: the last changes were not all handed to the writer within {} s; \
+                     the newest may be missing",
+                    DRAIN_LIMIT.as_secs()
+                );
+                self.task.abort();
+            }
+        } else {
+            self.task.abort();
+            let _ = (&mut self.task).await;
+        }
         let writer = self.writer;
         tokio::task::spawn_blocking(move || match Arc::try_unwrap(writer) {
             Ok(w) => w.close(),
@@ -114,6 +136,7 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
     let writer = Arc::new(writer);
     let w = writer.clone();
     let mut changes = engine.image().changes(CHANGES_CAPACITY);
+    let image = engine.image().clone();
     let period = config.sample_period;
     let task = tokio::spawn(async move {
         let clock = *engine.clock();
@@ -138,7 +161,11 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
             }
         }
     });
-    Ok(Handle { writer, task })
+    Ok(Handle {
+        writer,
+        task,
+        image,
+    })
 }
 
 #[cfg(test)]

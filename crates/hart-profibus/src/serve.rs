@@ -64,6 +64,8 @@ pub struct WriteRequest {
     pub op: WriteOp,
     /// The master that wrote the output image.
     pub master: Option<u8>,
+    /// The station whose outputs asked (its master's watchdog ends the loop test).
+    pub station: u8,
 }
 
 struct Station {
@@ -84,6 +86,15 @@ pub struct Polled {
     pub writes: Vec<WriteRequest>,
     /// What to log: `true` for a fault (a warning).
     pub log: Vec<(bool, String)>,
+    /// Stations whose master's watchdog expired (their outputs cleared): the loop
+    /// tests their modules started are released ([`holder`]).
+    pub watchdog_expired: Vec<u8>,
+}
+
+/// The holder of the loop tests station `address`'s outputs start: the engine
+/// releases them when the master's watchdog on that station expires.
+pub fn holder(address: u8) -> String {
+    format!("profibus station {address}")
 }
 
 /// The stations of the front end, without I/O: feed it the line's bytes, the image,
@@ -170,6 +181,7 @@ impl Front {
         let mut reply = None;
         let mut writes = vec![];
         let mut log = vec![];
+        let mut watchdog_expired = vec![];
         for i in 0..self.stations.len() {
             if let Some(r) = self.stations[i].slave.poll_transmit(t) {
                 reply = Some(r);
@@ -185,6 +197,9 @@ impl Front {
                         log.push((false, format!("station {address}: {e}")));
                     }
                     e => {
+                        if matches!(e, Event::WatchdogExpired { .. }) {
+                            watchdog_expired.push(address);
+                        }
                         let fault = matches!(
                             e,
                             Event::ParameterFault { .. }
@@ -212,7 +227,12 @@ impl Front {
                 }
             }
         }
-        Polled { reply, writes, log }
+        Polled {
+            reply,
+            writes,
+            log,
+            watchdog_expired,
+        }
     }
 
     /// The writes station `i`'s new outputs ask for: a module whose counter changed
@@ -244,6 +264,7 @@ impl Front {
                 counter,
                 op: WriteOp::FixedCurrent(fixed_current),
                 master,
+                station: s.slave.config().address,
             });
         }
         out
@@ -324,7 +345,17 @@ pub async fn carry_out(
         ),
         ..Default::default()
     };
-    let r = engine.apply(w.position, &w.op, &origin).await.map(|_| ());
+    // A loop test lasts while the master keeps the station in data exchange: its
+    // watchdog expiring releases it (as well as the gateway's limit and stop).
+    let lease = hart_poller::LeaseTerms {
+        limit: None,
+        holder: Some(holder(w.station)),
+        by: format!("profibus {}", origin.peer),
+    };
+    let r = engine
+        .apply_with(w.position, &w.op, &origin, lease)
+        .await
+        .map(|_| ());
     if let Err(e) = &r {
         tracing::warn!(
             "profibus: write to device {} ({}) not done: {e}",
@@ -406,7 +437,15 @@ pub async fn serve(engine: Engine, port: ProfibusPort) -> std::io::Result<()> {
             front.refresh(&engine.image().snapshot(), clock_now);
             next_refresh = now + REFRESH;
         }
-        let Polled { reply, writes, log } = front.poll(Instant::now());
+        let Polled {
+            reply,
+            writes,
+            log,
+            watchdog_expired,
+        } = front.poll(Instant::now());
+        for station in watchdog_expired {
+            engine.release_held_by(&holder(station));
+        }
         if let Some(reply) = reply {
             hart_modbus::write_port(&writer, &reply).await?;
         }
@@ -552,7 +591,8 @@ mod tests {
                 position: 8,
                 counter: 4,
                 op: WriteOp::FixedCurrent(12.0),
-                master: Some(2)
+                master: Some(2),
+                station: 6,
             }]
         );
         // Repeated (same FCB): the reply again, no second write.

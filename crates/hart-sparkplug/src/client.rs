@@ -501,7 +501,10 @@ impl Publisher {
             }
             Event::Outgoing(Outgoing::Disconnect) => {
                 // Asked by the edge node (primary host offline): connect again at once
-                // and wait for the host there.
+                // and wait for the host there. The loop tests the host started end.
+                if let Some(h) = self.primary_holder() {
+                    self.engine.release_held_by(&h);
+                }
                 self.forget_session(None);
                 self.driver.resume(Resume {
                     options: Some(self.options()),
@@ -627,9 +630,20 @@ impl Publisher {
         });
     }
 
+    /// The holder of the loop tests DCMDs start, with a primary host: they end when
+    /// it goes offline.
+    fn primary_holder(&self) -> Option<String> {
+        self.core
+            .settings()
+            .primary_host
+            .as_ref()
+            .map(|h| format!("sparkplug primary host {h}"))
+    }
+
     fn write(&mut self, w: WriteRequest) {
         let engine = self.engine.clone();
         let peer = self.url.clone();
+        let holder = self.primary_holder();
         tokio::spawn(async move {
             let origin = hart_access::WriteRecord {
                 front_end: "mqtt",
@@ -637,8 +651,16 @@ impl Publisher {
                 via: w.via.clone(),
                 ..Default::default()
             };
+            let lease = hart_poller::LeaseTerms {
+                limit: None,
+                holder,
+                by: format!("mqtt DCMD from {}", origin.peer),
+            };
             for op in &w.ops {
-                match engine.apply(w.position, op, &origin).await {
+                match engine
+                    .apply_with(w.position, op, &origin, lease.clone())
+                    .await
+                {
                     Ok(_) => tracing::info!("mqtt: DCMD for {}: {} done", w.device, op.describe()),
                     Err(e) => {
                         tracing::warn!(

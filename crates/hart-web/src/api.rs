@@ -504,15 +504,16 @@ async fn write(
         via: "web dashboard".into(),
         ..Default::default()
     };
-    if let WriteOp::FixedCurrent(_) = op {
-        // A new loop test, or its end, replaces the release pending.
-        if let Some(r) = lock(&state.releases).remove(&position) {
-            r.abort();
-        }
-    }
+    // A loop test is a lease the engine holds: released after `release_after_s`
+    // (capped by the gateway's limit), when the gateway stops, or by a new test.
+    let lease = hart_poller::LeaseTerms {
+        limit: planned.release_after,
+        holder: None,
+        by: format!("web session {} ({})", session.number, session.who),
+    };
     let applied = state
         .engine
-        .apply(position, &op, &origin)
+        .apply_with(position, &op, &origin, lease)
         .await
         .map_err(|e| device::write_error(&e))?;
     let (read_back, confirmed) = device::read_back(&state.engine, position, &op).await;
@@ -542,37 +543,26 @@ async fn write(
         "confirmed": confirmed,
         "read_back": read_back,
     });
-    if let (WriteOp::FixedCurrent(_), Some(after)) = (&op, planned.release_after) {
-        let at = state.engine.clock().wall() + after;
-        out["release_at"] = json!(humantime::format_rfc3339_seconds(at).to_string());
-        message.push_str(&format!(
-            "; released automatically in {} s",
-            after.as_secs()
-        ));
-        let st = state.clone();
-        let task = tokio::spawn(async move {
-            tokio::time::sleep(after).await;
-            lock(&st.releases).remove(&position);
-            let origin = WriteRecord {
-                front_end: "web",
-                peer: "-".into(),
-                identity: Some("automatic release".into()),
-                via: format!("loop test ended after {} s", after.as_secs()),
-                ..Default::default()
-            };
-            if let Err(e) = st
+    if let WriteOp::FixedCurrent(ma) = op {
+        if ma != 0.0 {
+            if let Some(test) = state
                 .engine
-                .apply(position, &WriteOp::FixedCurrent(0.0), &origin)
-                .await
+                .image()
+                .with(position, |d| d.loop_test.clone())
+                .flatten()
             {
-                tracing::error!(
-                    "web: the loop test of unit {} could not be ended: {e}; end it by hand \
-                     (command 40 with 0 mA)",
-                    position + 1
-                );
+                out["release_at"] =
+                    json!(humantime::format_rfc3339_seconds(test.release_at).to_string());
+                let left = test
+                    .release_at
+                    .duration_since(state.engine.clock().wall())
+                    .unwrap_or_default();
+                message.push_str(&format!(
+                    "; released automatically in {} s",
+                    left.as_secs_f64().round()
+                ));
             }
-        });
-        lock(&state.releases).insert(position, task.abort_handle());
+        }
     }
     out["message"] = json!(message);
     Ok(out)

@@ -78,6 +78,12 @@ pub(crate) fn device_json(d: &DeviceImage, engine: &Engine) -> Value {
             "write_protect": r.write_protect,
         })),
         "fixed_current": d.fixed_current.map(f),
+        "loop_test": d.loop_test.as_ref().map(|t| json!({
+            "current": f(t.current),
+            "release_at": time(t.release_at),
+            "by": t.by,
+            "failed_releases": t.failed_releases,
+        })),
         "device_status": d.device_status,
         "device_status_words": status_words(d.device_status),
         "extended_status": d.extended_status,

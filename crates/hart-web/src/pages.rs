@@ -348,8 +348,27 @@ fn forms(state: &AppState, unit: usize, d: &Value, visitor: &Visitor<'_>) -> Str
         "Write",
     ));
     out.push_str("</div>");
+    let t = &d["loop_test"];
+    let running = if t.is_null() {
+        String::new()
+    } else if t["failed_releases"].as_u64().unwrap_or(0) > 0 {
+        format!(
+            "<p class=\"warn\">⚠ ALARM: the loop test at {} mA ({}) could not be ended \
+             ({} tries); the gateway keeps trying. Check the device and its loop.</p>",
+            num(&t["current"], 3),
+            esc(t["by"].as_str().unwrap_or("")),
+            t["failed_releases"]
+        )
+    } else {
+        format!(
+            "<p class=\"warn\">Loop test running: {} mA, asked by {}, released at {}.</p>",
+            num(&t["current"], 3),
+            esc(t["by"].as_str().unwrap_or("")),
+            esc(t["release_at"].as_str().unwrap_or(""))
+        )
+    };
     out.push_str(&format!(
-        "<h3>Loop test</h3><p class=\"warn\">⚠ A loop test drives the 4-20 mA output to a fixed current: the control system sees a false value. Put the loop in manual first. The device is released automatically after the time given.</p>\
+        "<h3>Loop test</h3><p class=\"warn\">⚠ A loop test drives the 4-20 mA output to a fixed current: the control system sees a false value. Put the loop in manual first. The device is released automatically after the time given, and when the gateway stops.</p>{running}\
 {}{}",
         form(
             "loop_test",

@@ -1,7 +1,6 @@
 //! What the dashboard's handlers share, and the tasks that keep it current: the
 //! memory trend, the traffic log and the plant view's event stream.
 
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -38,8 +37,6 @@ pub struct AppState {
     pub(crate) events: broadcast::Sender<Arc<str>>,
     /// Event streams open now.
     pub(crate) streams: std::sync::atomic::AtomicUsize,
-    /// The automatic release of each device's loop test.
-    pub(crate) releases: Mutex<HashMap<usize, tokio::task::AbortHandle>>,
     tasks: Mutex<Vec<tokio::task::JoinHandle<()>>>,
 }
 
@@ -62,7 +59,6 @@ impl AppState {
             sessions: Mutex::new(Sessions::default()),
             events: broadcast::channel(4).0,
             streams: Default::default(),
-            releases: Mutex::new(HashMap::new()),
             tasks: Mutex::new(vec![]),
             engine,
             config,
@@ -78,13 +74,11 @@ impl AppState {
         state
     }
 
-    /// Stops the tasks and pending loop-test releases.
+    /// Stops the tasks. Loop tests are the engine's: released at their limit or when
+    /// the engine stops, not here.
     pub(crate) fn stop(&self) {
         for t in lock(&self.tasks).drain(..) {
             t.abort();
-        }
-        for (_, r) in lock(&self.releases).drain() {
-            r.abort();
         }
     }
 

@@ -427,11 +427,27 @@ fn writes_need_a_login_and_the_csrf_token_and_are_read_back() {
             "{}",
             r.text()
         );
-        // Every write let through is in the audit, as the web front end.
+        // Every write let through is in the audit, as the web front end: a record
+        // before it went, and one with its outcome (the refusal's: "refused").
         let audit = std::fs::read_to_string(&s.audit).unwrap();
+        let web: Vec<serde_json::Value> = audit
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .filter(|v: &serde_json::Value| v["front_end"] == "web")
+            .collect();
         assert_eq!(
-            audit.lines().filter(|l| l.contains("\"web\"")).count(),
+            web.iter().filter(|v| v["outcome"].is_null()).count(),
             5,
+            "{audit}"
+        );
+        assert_eq!(
+            web.iter().filter(|v| v["outcome"] == "done").count(),
+            4,
+            "{audit}"
+        );
+        assert_eq!(
+            web.iter().filter(|v| v["outcome"] == "refused").count(),
+            1,
             "{audit}"
         );
         // Bad writes: 4xx with a JSON error.
@@ -573,9 +589,10 @@ fn a_read_only_gateway_refuses_writes_and_logins_say_why() {
 }
 
 /// `--allow-commands` is the engine's rule: a write whose command is off the list is
-/// refused (403, naming the option), nothing is audited, and one on it goes.
+/// refused (403, naming the option), audited as refused (nothing sent), and one on it
+/// goes (a record before it, one with its outcome).
 #[test]
-fn a_command_off_the_allow_list_is_refused_and_not_audited() {
+fn a_command_off_the_allow_list_is_refused_and_audited_as_such() {
     local(async {
         let policy = hart_poller::WritePolicy {
             allow: Some("0-33".parse().unwrap()),
@@ -591,13 +608,14 @@ fn a_command_off_the_allow_list_is_refused_and_not_audited() {
             why.contains("command 34") && why.contains("--allow-commands"),
             "{why}"
         );
-        assert!(std::fs::read_to_string(&s.audit)
-            .unwrap_or_default()
-            .is_empty());
+        let audit = std::fs::read_to_string(&s.audit).unwrap();
+        assert_eq!(audit.lines().count(), 1, "{audit}");
+        assert!(audit.contains("\"outcome\":\"not-permitted\""), "{audit}");
         let r = post_json(s.addr, "/api/devices/1/write", &ok, r#"{"tag": "PT-778"}"#).await;
         assert_eq!(r.json()["confirmed"], true, "{}", r.text());
         let audit = std::fs::read_to_string(&s.audit).unwrap();
-        assert_eq!(audit.lines().count(), 1, "{audit}");
+        assert_eq!(audit.lines().count(), 3, "{audit}");
+        assert!(audit.contains("\"outcome\":\"done\""), "{audit}");
     });
 }
 
@@ -670,8 +688,9 @@ fn a_loop_test_is_released_by_itself() {
         }
         assert!(released, "the loop test ended by itself");
         let audit = std::fs::read_to_string(&s.audit).unwrap();
-        assert!(audit.contains("automatic release"), "{audit}");
-        // A loop test ended by hand cancels its release.
+        assert!(audit.contains("loop test release"), "{audit}");
+        assert!(audit.contains("loop test limit reached"), "{audit}");
+        // A loop test ended by hand ends its lease.
         let r = post_json(a, "/api/devices/1/write", &ok, r#"{"loop_test_ma": 8}"#).await;
         assert_eq!(r.json()["confirmed"], true);
         let r = post_json(a, "/api/devices/1/write", &ok, r#"{"loop_test_ma": 0}"#).await;
