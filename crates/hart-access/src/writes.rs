@@ -66,6 +66,29 @@ impl WritePolicy {
         commands.into_iter().try_for_each(|c| self.permits(c))
     }
 
+    /// [`WritePolicy::permits_all`], with a refusal recorded in the audit as
+    /// `not-permitted` (`record` says who asked and where; its command becomes the one
+    /// refused).
+    pub fn judge_all(
+        &self,
+        commands: impl IntoIterator<Item = u16>,
+        record: &crate::WriteRecord,
+    ) -> Result<(), NotPermitted> {
+        for c in commands {
+            if let Err(why) = self.permits(c) {
+                self.audit.refused(
+                    &crate::WriteRecord {
+                        command: c,
+                        ..record.clone()
+                    },
+                    &why.to_string(),
+                );
+                return Err(why);
+            }
+        }
+        Ok(())
+    }
+
     /// Whether any write may go at all (for a front end that shows writes as
     /// possible or not).
     pub fn writes_possible(&self) -> bool {

@@ -146,7 +146,7 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
             tokio::select! {
                 c = changes.recv() => match c {
                     Some(c) => {
-                        w.submit(rec.changed(&c.device, c.quality, c.at));
+                        w.submit(rec.changed(&c.device, c.quality, c.value_time()));
                     }
                     None => break,
                 },
@@ -155,7 +155,8 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
                     let now = clock.now();
                     let wall = clock.wall();
                     for d in engine.image().snapshot() {
-                        w.submit(rec.all(&d, d.quality(now), wall));
+                        let q = d.quality(now);
+                        w.submit(rec.all(&d, q, d.value_time(q, wall)));
                     }
                 }
             }

@@ -270,14 +270,24 @@ pub async fn start_with_engine(
     mut tasks: Vec<tokio::task::JoinHandle<()>>,
 ) -> std::io::Result<Server> {
     let bursts = engine.bursts().clone();
+    // The engine's rule is the gateway's: its read-only and allow-list hold here too,
+    // and one audit (one numbering of records) serves every front end.
+    let gateway = engine.write_policy().clone();
+    let mut config = config;
+    config.read_only |= gateway.read_only;
+    let allow = config.allow_commands.clone().or(gateway.allow.clone());
+    let write_audit = match &config.audit_file {
+        Some(f) if gateway.audit.file() != Some(f) => hart_access::Audit::new(Some(f.clone())),
+        _ => gateway.audit.clone(),
+    };
     let io = IoSystem::new(config.identity.clone(), engine, config.transparent);
     let shared = Arc::new(Shared {
         config: config.clone(),
         policy: hart_access::Policy {
-            allow: config.allow_commands.clone(),
+            allow,
             device_commands: config.device_commands.clone(),
         },
-        write_audit: hart_access::Audit::new(config.audit_file.clone()),
+        write_audit,
         sessions: std::sync::Mutex::new(0),
         per_host: Default::default(),
         stats: Counters::default(),

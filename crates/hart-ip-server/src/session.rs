@@ -19,13 +19,29 @@ pub(crate) enum Action {
     Close,
     /// Forward a token-passing request to a loop and answer with sequence number `seq`
     /// when the reply comes (over TCP, other requests and publish messages go on
-    /// meanwhile).
+    /// meanwhile); a write's outcome is then audited.
     Forward {
         channel: usize,
         retries: u8,
         pdu: Vec<u8>,
         seq: u16,
+        write: Option<PendingWrite>,
     },
+}
+
+/// A write let through and recorded in the audit, waiting for its outcome (the audit's
+/// second record of it).
+pub(crate) struct PendingWrite {
+    id: u64,
+    record: WriteRecord,
+}
+
+impl PendingWrite {
+    /// Records what became of the write: the device's reply to `request` (or none).
+    fn done(self, shared: &Shared, reply: Option<&[u8]>) {
+        let outcome = hart_poller::write::outcome_of(self.record.command, reply);
+        shared.write_audit.outcome(self.id, &self.record, &outcome);
+    }
 }
 
 /// Waits for a loop's reply to a forwarded request and builds the response message:
@@ -38,8 +54,23 @@ pub(crate) async fn forwarded(
     retries: u8,
     pdu: Vec<u8>,
     seq: u16,
+    write: Option<PendingWrite>,
 ) -> Vec<u8> {
-    let body = match shared.io.forward(channel, pdu.clone(), retries).await {
+    let outcome = shared.io.forward(channel, pdu.clone(), retries).await;
+    if let Some(w) = write {
+        match &outcome {
+            LoopOutcome::Reply(reply) => w.done(shared, Some(reply)),
+            LoopOutcome::NoReply => w.done(shared, None),
+            LoopOutcome::Busy => shared.write_audit.outcome(
+                w.id,
+                &w.record,
+                &hart_access::WriteOutcome::Failed(
+                    "not sent: the loop was busy (the client was answered 32, busy)".into(),
+                ),
+            ),
+        }
+    }
+    let body = match outcome {
         LoopOutcome::Reply(reply) => reply,
         LoopOutcome::NoReply => not_responding(&pdu),
         LoopOutcome::Busy => {
@@ -186,14 +217,15 @@ impl Session {
 }
 
 /// Asks the server's policy whether session `s` may send request frame `f` and whether
-/// it writes; a write let through is audited (with the innermost device and command),
-/// a refusal logged. `via` names the path (`token-passing`, `direct PDU`).
+/// it writes; a write let through is audited (with the innermost device and command)
+/// and returned to have its outcome recorded, a refusal logged and audited. `via`
+/// names the path (`token-passing`, `direct PDU`).
 async fn admit(
     shared: &Shared,
     s: &Session,
     f: &Frame<'_>,
     via: &str,
-) -> Result<Allowed, hart_access::Refusal> {
+) -> Result<Option<PendingWrite>, hart_access::Refusal> {
     let device_type = shared.io.device_type(f).await;
     let rights = s.rights(shared);
     let verdict = if hart_access::SESSION_COMMANDS.contains(&f.command) {
@@ -201,14 +233,14 @@ async fn admit(
     } else {
         shared.policy.check(rights, f, device_type)
     };
-    match &verdict {
+    match verdict {
         Ok(Allowed::Write(t)) => {
             let via = match t.depth {
                 0 => via.to_string(),
                 1 => format!("{via}, command 77"),
                 n => format!("{via}, command 77 ({n} levels)"),
             };
-            shared.write_audit.record(&WriteRecord {
+            let record = WriteRecord {
                 front_end: "hart-ip",
                 session: s.audit,
                 peer: s.peer.to_string(),
@@ -217,24 +249,28 @@ async fn admit(
                 command: t.command,
                 via,
                 operation: hart_proto::command::title(t.command).map(str::to_string),
-            });
+            };
+            let id = shared.write_audit.record(&record);
             if let Some(i) = s.audit {
                 if let Some(r) = lock(&shared.audit).get_mut(i) {
                     r.status |= 0x0001; // writes occurred
                 }
             }
+            Ok(Some(PendingWrite { id, record }))
         }
-        Ok(Allowed::Read) => {}
-        Err(why) => tracing::warn!(
-            "hart-ip: refused {via} request from {} ({}, {}): {why}",
-            s.peer,
-            s.secure
-                .as_ref()
-                .map_or("plain".to_string(), |(i, _)| format!("identity {i:?}")),
-            rights
-        ),
+        Ok(Allowed::Read) => Ok(None),
+        Err(why) => {
+            tracing::warn!(
+                "hart-ip: refused {via} request from {} ({}, {}): {why}",
+                s.peer,
+                s.secure
+                    .as_ref()
+                    .map_or("plain".to_string(), |(i, _)| format!("identity {i:?}")),
+                rights
+            );
+            Err(why)
+        }
     }
-    verdict
 }
 
 /// Most command entries in one Direct PDU; a message with more is refused whole
@@ -352,12 +388,15 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             if f.frame_type() != FrameType::Stx {
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
-            if admit(shared, s, &f, "token-passing").await.is_err() {
-                return Action::Reply(reply(
-                    status::SUCCESS,
-                    &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
-                ));
-            }
+            let write = match admit(shared, s, &f, "token-passing").await {
+                Ok(w) => w,
+                Err(_) => {
+                    return Action::Reply(reply(
+                        status::SUCCESS,
+                        &local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
+                    ))
+                }
+            };
             if hart_access::SESSION_COMMANDS.contains(&f.command) {
                 // Subscriptions belong to this session: the server answers them whatever
                 // the address.
@@ -370,10 +409,11 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 Route::Local => {
                     let (code, status, data) =
                         shared.io.local(f.address.master(), f.command, f.data).await;
-                    Action::Reply(reply(
-                        status::SUCCESS,
-                        &local_frame(&f, code, status, &data),
-                    ))
+                    let frame = local_frame(&f, code, status, &data);
+                    if let Some(w) = write {
+                        w.done(shared, Some(&frame));
+                    }
+                    Action::Reply(reply(status::SUCCESS, &frame))
                 }
                 Route::Loop { channel, retries } => {
                     Counters::count(&shared.stats.forwarded);
@@ -382,9 +422,15 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                         retries,
                         pdu: body.to_vec(),
                         seq: h.sequence,
+                        write,
                     }
                 }
-                Route::Nowhere => Action::Reply(reply(status::SUCCESS, &not_responding(body))),
+                Route::Nowhere => {
+                    if let Some(w) = write {
+                        w.done(shared, None);
+                    }
+                    Action::Reply(reply(status::SUCCESS, &not_responding(body)))
+                }
             }
         }
         MessageId::DirectPdu => {
@@ -414,18 +460,22 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 };
                 let pdu = crate::pdu(&spec);
                 let admitted = match Frame::parse_pdu(&pdu) {
-                    Ok(f) => admit(shared, s, &f, "direct PDU").await.is_ok(),
-                    Err(_) => false,
+                    Ok(f) => admit(shared, s, &f, "direct PDU").await.ok(),
+                    Err(_) => None,
                 };
-                let (code, data) = if !admitted {
-                    (hart_proto::tables::rc::ACCESS_RESTRICTED, vec![])
-                } else {
-                    // Direct PDUs come from the session's host, a primary master.
-                    let (code, _, data) = shared
-                        .io
-                        .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
-                        .await;
-                    (code, data)
+                let (code, data) = match admitted {
+                    None => (hart_proto::tables::rc::ACCESS_RESTRICTED, vec![]),
+                    Some(write) => {
+                        // Direct PDUs come from the session's host, a primary master.
+                        let (code, status, data) = shared
+                            .io
+                            .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
+                            .await;
+                        if let (Some(w), Ok(f)) = (write, Frame::parse_pdu(&pdu)) {
+                            w.done(shared, Some(&local_frame(&f, code, status, &data)));
+                        }
+                        (code, data)
+                    }
                 };
                 let data = if hart_proto::tables::response_class(code)
                     == hart_proto::tables::ResponseClass::Error

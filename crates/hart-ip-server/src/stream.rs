@@ -258,6 +258,7 @@ where
                             retries,
                             pdu,
                             seq,
+                            write,
                         } => {
                             // Several requests may be in flight on one connection: each
                             // reply goes out when its loop answers, with its sequence
@@ -284,7 +285,8 @@ where
                             }
                             in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
                                 let r =
-                                    forwarded(&shared, version, channel, retries, pdu, seq).await;
+                                    forwarded(&shared, version, channel, retries, pdu, seq, write)
+                                        .await;
                                 let _ = wr.lock().await.write_all(&r).await;
                             })));
                         }

@@ -275,11 +275,22 @@ fn writes_are_let_through_and_audited_on_read_write_sessions() {
         t.close().await;
         s.stop();
         let log = std::fs::read_to_string(&audit).unwrap();
-        let lines: Vec<serde_json::Value> = log
+        let all: Vec<serde_json::Value> = log
             .lines()
             .map(|l| serde_json::from_str(l).unwrap())
             .collect();
+        // Each write: its record before it went, and one with its outcome (same id).
+        let lines: Vec<&serde_json::Value> =
+            all.iter().filter(|l| l["outcome"].is_null()).collect();
         assert_eq!(lines.len(), expected.len(), "{log}");
+        assert_eq!(all.len(), 2 * expected.len(), "{log}");
+        for l in &lines {
+            assert!(
+                all.iter()
+                    .any(|o| o["id"] == l["id"] && o["outcome"].is_string()),
+                "{log}"
+            );
+        }
         for (line, (command, depth, path)) in lines.iter().zip(expected) {
             assert_eq!(line["command"], command, "{path}: {line}");
             assert_eq!(line["front_end"], "hart-ip");

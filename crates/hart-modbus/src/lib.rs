@@ -288,13 +288,6 @@ impl Gateway {
             (false, None) => return Err(ExceptionCode::GatewayPathUnavailable),
         };
         let ops = operations(&values)?;
-        // One request is done whole or not at all: every write it carries is judged
-        // against the gateway's rule before the first goes.
-        let commands = ops.iter().map(WriteOp::command);
-        if let Err(why) = self.engine.write_policy().permits_all(commands) {
-            tracing::warn!("modbus: refused a write from {peer}: {why}");
-            return Err(ExceptionCode::IllegalFunction);
-        }
         let origin = hart_access::WriteRecord {
             front_end: match peer.link() {
                 Link::Tcp => "modbus-tcp",
@@ -312,6 +305,26 @@ impl Gateway {
             ),
             ..Default::default()
         };
+        // One request is done whole or not at all: every write it carries is judged
+        // against the gateway's rule before the first goes (a refusal is audited).
+        let commands = ops.iter().map(WriteOp::command);
+        let asked = hart_access::WriteRecord {
+            device: match (broadcast, position) {
+                (false, Some(p)) => format!("unit {}", p + 1),
+                _ => "every unit (broadcast)".into(),
+            },
+            operation: Some(
+                ops.iter()
+                    .map(WriteOp::describe)
+                    .collect::<Vec<_>>()
+                    .join("; "),
+            ),
+            ..origin.clone()
+        };
+        if let Err(why) = self.engine.write_policy().judge_all(commands, &asked) {
+            tracing::warn!("modbus: refused a write from {peer}: {why}");
+            return Err(ExceptionCode::IllegalFunction);
+        }
         let mut result = Ok(());
         for p in targets {
             for op in &ops {

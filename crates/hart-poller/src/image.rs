@@ -222,6 +222,20 @@ impl DeviceImage {
         }
     }
 
+    /// The one time stamp of the device's values, for every front end and the
+    /// historian: the reply's (`updated`) while they are the device's answer (good,
+    /// configuration changed, device malfunction); `otherwise` (the time of the change
+    /// or of the sample) when they are not (no reply, stale, waiting, disturbed), so a
+    /// change of quality never shares a time stamp with the values it replaces.
+    pub fn value_time(&self, quality: Quality, otherwise: SystemTime) -> SystemTime {
+        match quality {
+            Quality::Good | Quality::ConfigurationChanged | Quality::DeviceMalfunction => {
+                self.updated.unwrap_or(otherwise)
+            }
+            _ => otherwise,
+        }
+    }
+
     /// The device's unique ID, once identified.
     pub fn unique_id(&self) -> Option<UniqueId> {
         self.info.as_ref().map(|i| i.unique_id())
@@ -435,6 +449,14 @@ pub struct Change {
     /// The engine-wide commit number: increases by one per change, in the order the
     /// changes were made.
     pub seq: u64,
+}
+
+impl Change {
+    /// The time stamp of the values it carries ([`DeviceImage::value_time`]): the
+    /// reply's, or the change's own for a change of quality.
+    pub fn value_time(&self) -> SystemTime {
+        self.device.value_time(self.quality, self.at)
+    }
 }
 
 /// What one change subscriber holds: a bounded queue of changes and what it lost.

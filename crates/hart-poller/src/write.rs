@@ -11,8 +11,10 @@ use hart_proto::types::{Date, Latin1String, PackedString};
 use crate::lease::LeaseTerms;
 use crate::{Engine, WriteError, WriteReply};
 
-/// What a reply (or its absence) to a write of `command` means for the audit.
-pub(crate) fn outcome_of(command: u16, reply: Option<&[u8]>) -> WriteOutcome {
+/// What a reply (or its absence) to a write of `command` means for the audit: for
+/// every front end that carries a write's frame itself (HART-IP) as for the engine's
+/// own.
+pub fn outcome_of(command: u16, reply: Option<&[u8]>) -> WriteOutcome {
     let Some(reply) = reply else {
         return WriteOutcome::NoReply;
     };

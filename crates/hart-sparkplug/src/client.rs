@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
-use hart_poller::{Engine, Quality};
+use hart_poller::Engine;
 use rumqttc::{
     AsyncClient, ConnectReturnCode, ConnectionError, Event, LastWill, MqttOptions, Outgoing,
     Packet, QoS, TlsConfiguration, Transport,
@@ -355,7 +355,7 @@ impl Publisher {
                 }
                 c = changes.recv() => match c {
                     Some(c) => {
-                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        let out = self.core.device(&c.device, c.quality, c.value_time(), self.engine.clock().wall());
                         self.apply(out);
                     }
                     None => {
@@ -369,7 +369,7 @@ impl Publisher {
                     // Qualities that change with time alone (stale): after the changes
                     // waiting, so that nothing older follows the current image.
                     while let Some(c) = changes.try_recv() {
-                        let out = self.core.device(&c.device, c.quality, c.at, self.engine.clock().wall());
+                        let out = self.core.device(&c.device, c.quality, c.value_time(), self.engine.clock().wall());
                         self.apply(out);
                     }
                     self.feed_all();
@@ -592,12 +592,7 @@ impl Publisher {
             return;
         };
         let wall = self.engine.clock().wall();
-        let at = match quality {
-            Quality::Good | Quality::ConfigurationChanged | Quality::DeviceMalfunction => {
-                image.updated.unwrap_or(wall)
-            }
-            _ => wall,
-        };
+        let at = image.value_time(quality, wall);
         let out = self.core.device(&image, quality, at, wall);
         self.apply(out);
     }

@@ -817,12 +817,6 @@ impl EdgeNode {
                     );
                     return;
                 }
-                let commands = ops.iter().map(WriteOp::command);
-                if let Err(why) = self.settings.gateway.permits_all(commands) {
-                    self.counters.bad_commands += 1;
-                    tracing::warn!("mqtt: DCMD for {device} refused: {why}");
-                    return;
-                }
                 let via = format!(
                     "DCMD {}",
                     metrics
@@ -831,6 +825,25 @@ impl EdgeNode {
                         .collect::<Vec<_>>()
                         .join(", ")
                 );
+                let commands = ops.iter().map(WriteOp::command);
+                let asked = hart_access::WriteRecord {
+                    front_end: "mqtt",
+                    peer: "broker".into(),
+                    device: device.to_string(),
+                    via: via.clone(),
+                    operation: Some(
+                        ops.iter()
+                            .map(WriteOp::describe)
+                            .collect::<Vec<_>>()
+                            .join("; "),
+                    ),
+                    ..Default::default()
+                };
+                if let Err(why) = self.settings.gateway.judge_all(commands, &asked) {
+                    self.counters.bad_commands += 1;
+                    tracing::warn!("mqtt: DCMD for {device} refused: {why}");
+                    return;
+                }
                 out.push(Output::Write(WriteRequest {
                     position,
                     device: device.to_string(),

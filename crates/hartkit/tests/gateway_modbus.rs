@@ -402,11 +402,18 @@ fn modbus_writes_only_from_listed_clients() {
     );
     drop(gw);
     let log = std::fs::read_to_string(&audit).unwrap_or_default();
-    let lines: Vec<serde_json::Value> = log
+    let all: Vec<serde_json::Value> = log
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
+    // One write let through: its record, then its outcome (the same id).
+    let lines: Vec<&serde_json::Value> = all.iter().filter(|l| l["outcome"].is_null()).collect();
     assert_eq!(lines.len(), 1, "one write let through: {log}");
+    assert!(
+        all.iter()
+            .any(|o| o["id"] == lines[0]["id"] && o["outcome"] == "done"),
+        "{log}"
+    );
     assert_eq!(lines[0]["front_end"], "modbus-tcp");
     assert_eq!(lines[0]["command"], 34);
     assert_eq!(lines[0]["operation"], "damping 4.5 s");
@@ -419,8 +426,8 @@ fn modbus_writes_only_from_listed_clients() {
 
 /// The gateway's write policy holds for Modbus as for every front end: with
 /// `--allow-commands 0-33` a damping write (command 34) from a client that may write is
-/// answered "illegal function", the device keeps its damping and nothing is audited;
-/// with `--read-only`, the same.
+/// answered "illegal function", the device keeps its damping and the audit has only
+/// the refusal (nothing sent); with `--read-only`, the same.
 #[test]
 fn modbus_writes_follow_the_allow_list_and_read_only() {
     let Some(py) = python() else { return };
@@ -452,11 +459,13 @@ fn modbus_writes_follow_the_allow_list_and_read_only() {
         assert_eq!(r["exception"], 1, "{why}: illegal function: {r}");
         assert_eq!(r["after"], r["before"], "{why}: {r}");
         drop(gw);
+        let log = std::fs::read_to_string(&audit).unwrap_or_default();
         assert!(
-            std::fs::read_to_string(&audit)
-                .unwrap_or_default()
-                .is_empty(),
-            "{why}: nothing audited"
+            !log.is_empty()
+                && log
+                    .lines()
+                    .all(|l| l.contains("\"outcome\":\"not-permitted\"")),
+            "{why}: only the refusal audited: {log}"
         );
         let _ = std::fs::remove_file(&audit);
     }

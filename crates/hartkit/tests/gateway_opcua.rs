@@ -132,13 +132,27 @@ fn assert_refused(r: &Value) {
     );
 }
 
-/// The audit file's lines.
+/// The audit file's records of writes let through (each has a second record with its
+/// outcome, the same `id`, checked here too).
 fn audit_lines(file: &Path) -> Vec<Value> {
-    std::fs::read_to_string(file)
+    let all: Vec<Value> = std::fs::read_to_string(file)
         .unwrap_or_default()
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
-        .collect()
+        .collect();
+    let sent: Vec<Value> = all
+        .iter()
+        .filter(|l| l["outcome"].is_null())
+        .cloned()
+        .collect();
+    for l in &sent {
+        assert!(
+            all.iter()
+                .any(|o| o["id"] == l["id"] && o["outcome"].is_string()),
+            "no outcome for {l}: {all:?}"
+        );
+    }
+    sent
 }
 
 /// The audit holds exactly these calls (identity, command, operation), from OPC UA.
