@@ -1,0 +1,1 @@
+//! Typed layouts of the wireless commands.
