@@ -3,7 +3,9 @@
 //! network key (command 961) and session keys (command 963) from what it decrypts.
 
 use std::collections::{BTreeMap, HashMap};
+use std::string::{String, ToString};
 use std::vec::Vec;
+use std::{format, vec};
 
 use crate::capture::{hex, Packet};
 use crate::crypto::{Key, WELL_KNOWN_KEY};
@@ -75,8 +77,6 @@ pub struct FrameReport {
     pub nl: Option<NlReport>,
 }
 
-use std::string::String;
-
 /// Counts kept across a run.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Stats {
@@ -96,6 +96,14 @@ pub struct Stats {
     pub decrypted: usize,
     /// Commands seen, by number.
     pub commands: BTreeMap<u16, usize>,
+    /// Commands decoded by their typed layout (vendor commands counted as typed raw).
+    pub commands_typed: usize,
+    /// Commands whose data did not fit their layout.
+    pub commands_bad: usize,
+    /// Commands no table types.
+    pub commands_untyped: usize,
+    /// Decrypted payloads that are not a list of commands (vendor payloads).
+    pub vendor_payloads: usize,
 }
 
 /// The decoder: feed it captured frames in order.
@@ -286,9 +294,17 @@ impl Decoder {
                 self.stats.decrypted += 1;
                 rep.counter = Some(c);
                 rep.tpdu = Tpdu::parse(&plain).ok();
+                if rep.tpdu.is_none() {
+                    self.stats.vendor_payloads += 1;
+                }
                 if let Some(t) = &rep.tpdu {
                     for cmd in &t.commands {
                         *self.stats.commands.entry(cmd.number).or_default() += 1;
+                        match crate::commands::decode(cmd.number, t.response, &cmd.data) {
+                            Some(Ok(_)) => self.stats.commands_typed += 1,
+                            Some(Err(_)) => self.stats.commands_bad += 1,
+                            None => self.stats.commands_untyped += 1,
+                        }
                         self.learn(cmd.number, t.response, &cmd.data);
                     }
                 }
@@ -330,4 +346,235 @@ impl Decoder {
             _ => {}
         }
     }
+}
+
+impl FrameReport {
+    /// The frame type as the JSON view names it (`"malformed"` when unparsable).
+    pub fn type_name(&self) -> &'static str {
+        match &self.dl {
+            Ok(d) => d.pdu_type.name(),
+            Err(_) => "malformed",
+        }
+    }
+
+    /// The JSON object of this frame (one line of `hartkit wireless decode --json`).
+    pub fn to_json(&self) -> serde_json::Value {
+        use serde_json::{json, Map, Value};
+        let mut o = Map::new();
+        o.insert("index".into(), json!(self.index));
+        o.insert("time".into(), json!(self.time_ns as f64 / 1e9));
+        o.insert("channel".into(), json!(self.channel));
+        o.insert("type".into(), json!(self.type_name()));
+        let d = match &self.dl {
+            Ok(d) => d,
+            Err(reason) => {
+                o.insert("reason".into(), json!(reason));
+                o.insert("fcs_ok".into(), json!(self.fcs_ok));
+                return Value::Object(o);
+            }
+        };
+        o.insert("seq".into(), json!(d.seq));
+        o.insert("network_id".into(), json!(format!("{:04x}", d.network_id)));
+        o.insert("src".into(), json!(d.src.to_string()));
+        o.insert("dst".into(), json!(d.dst.to_string()));
+        o.insert("asn".into(), json!(self.asn));
+        o.insert("fcs_ok".into(), json!(self.fcs_ok));
+        o.insert(
+            "dl_key".into(),
+            json!(if d.network_key {
+                "network"
+            } else {
+                "well-known"
+            }),
+        );
+        o.insert("dl_mic_ok".into(), json!(self.dl_mic_ok));
+        match &d.body {
+            DlBody::Advertise(a) => {
+                o.insert(
+                    "advertise".into(),
+                    json!({
+                        "join_control": a.join_control,
+                        "channel_map": format!("{:04x}", a.channel_map),
+                        "graph_id": a.graph_id,
+                        "superframes": a.superframes.iter().map(|s| json!({
+                            "id": s.id, "slots": s.slots,
+                            "links": s.links.iter().map(|l| json!({"slot": l.slot, "channel_offset": l.channel_offset(), "transmit": l.transmit()})).collect::<Vec<_>>(),
+                        })).collect::<Vec<_>>(),
+                    }),
+                );
+            }
+            DlBody::Ack(a) => {
+                o.insert(
+                    "ack".into(),
+                    json!({"response_code": a.response_code, "time_adjustment_us": a.time_adjustment}),
+                );
+            }
+            _ => {}
+        }
+        if let Some(nl) = &self.nl {
+            let n = &nl.npdu;
+            let mut m = Map::new();
+            m.insert("src".into(), json!(n.src.to_string()));
+            m.insert("dst".into(), json!(n.dst.to_string()));
+            m.insert("ttl".into(), json!(n.ttl));
+            m.insert("graph_id".into(), json!(n.graph_id));
+            m.insert("security".into(), json!(n.security.name()));
+            m.insert(
+                "counter".into(),
+                json!(nl.counter.unwrap_or(n.security.counter())),
+            );
+            m.insert("decrypted".into(), json!(nl.plain.is_some()));
+            if let Some(why) = nl.why_not {
+                m.insert("reason".into(), json!(why));
+            }
+            match (&nl.tpdu, &nl.plain) {
+                (Some(t), _) => {
+                    m.insert("response".into(), json!(t.response));
+                    m.insert(
+                        "commands".into(),
+                        Value::Array(
+                            t.commands
+                                .iter()
+                                .map(|c| {
+                                    json!({
+                                        "command": c.number,
+                                        "name": crate::commands::name(c.number),
+                                        "data": hex(&c.data),
+                                    })
+                                })
+                                .collect(),
+                        ),
+                    );
+                }
+                (None, Some(p)) => {
+                    m.insert("commands".into(), json!([]));
+                    m.insert("vendor_payload".into(), json!(hex(p)));
+                }
+                _ => {}
+            }
+            o.insert("nl".into(), Value::Object(m));
+        }
+        Value::Object(o)
+    }
+
+    /// One human-readable line: time, channel, type, source → destination, commands.
+    pub fn to_line(&self) -> String {
+        use std::fmt::Write;
+        let mut s = format!("{:>5} {:>14.6}", self.index, self.time_ns as f64 / 1e9);
+        match self.channel {
+            Some(c) => {
+                let _ = write!(s, " ch{c:<2}");
+            }
+            None => s.push_str(" ch? "),
+        }
+        let d = match &self.dl {
+            Ok(d) => d,
+            Err(e) => {
+                let _ = write!(s, " malformed: {e}");
+                return s;
+            }
+        };
+        let _ = write!(s, " {:<10} {} -> {}", d.pdu_type.name(), d.src, d.dst);
+        match self.dl_mic_ok {
+            Some(true) => {}
+            Some(false) => s.push_str(" [MIC FAILED]"),
+            None => s.push_str(" [MIC unchecked]"),
+        }
+        if let Some(nl) = &self.nl {
+            let _ = write!(
+                s,
+                " | {} -> {} {}",
+                nl.npdu.src,
+                nl.npdu.dst,
+                nl.npdu.security.name()
+            );
+            match (&nl.tpdu, &nl.plain) {
+                (Some(t), _) => {
+                    s.push_str(if t.response { " rsp" } else { " req" });
+                    for c in &t.commands {
+                        let _ = write!(s, " {}:{}", c.number, crate::commands::name(c.number));
+                    }
+                }
+                (None, Some(p)) => {
+                    let _ = write!(s, " vendor payload ({} bytes)", p.len());
+                }
+                _ => s.push_str(" (sealed)"),
+            }
+        }
+        s
+    }
+}
+
+impl Stats {
+    /// The summary printed after a run.
+    pub fn summary(&self) -> String {
+        use std::fmt::Write;
+        let mut s = format!("{} frames:", self.frames);
+        for (t, n) in &self.by_type {
+            let _ = write!(s, " {t} {n},");
+        }
+        s.pop();
+        s.push('\n');
+        for (k, n) in &self.mic_ok {
+            let _ = writeln!(s, "data-link MICs verified with the {k}: {n}");
+        }
+        let _ = writeln!(
+            s,
+            "data-link MICs failed: {}, not checked (key or ASN not known yet): {}",
+            self.mic_failed, self.mic_unchecked
+        );
+        let _ = writeln!(
+            s,
+            "network PDUs: {}, decrypted: {} ({} vendor payloads)",
+            self.npdus, self.decrypted, self.vendor_payloads
+        );
+        let _ = writeln!(
+            s,
+            "commands: {} decoded by their layout, {} did not fit, {} untyped",
+            self.commands_typed, self.commands_bad, self.commands_untyped
+        );
+        let list: Vec<String> = self
+            .commands
+            .iter()
+            .map(|(c, n)| format!("{c} {} ×{n}", crate::commands::name(*c)))
+            .collect();
+        let _ = writeln!(s, "commands seen: {}", list.join(", "));
+        s
+    }
+
+    /// The statistics as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "frames": self.frames,
+            "by_type": self.by_type,
+            "mic_ok": self.mic_ok,
+            "mic_failed": self.mic_failed,
+            "mic_unchecked": self.mic_unchecked,
+            "npdus": self.npdus,
+            "decrypted": self.decrypted,
+            "vendor_payloads": self.vendor_payloads,
+            "commands_typed": self.commands_typed,
+            "commands_bad": self.commands_bad,
+            "commands_untyped": self.commands_untyped,
+            "commands": self.commands.iter().map(|(c, n)| (c.to_string(), *n)).collect::<BTreeMap<_, _>>(),
+        })
+    }
+}
+
+/// Reads a capture and decodes it whole with the given keys.
+pub fn decode_capture(
+    data: &[u8],
+    join_keys: &[Key],
+    network_keys: &[Key],
+) -> Result<(Vec<FrameReport>, Stats), crate::capture::CaptureError> {
+    let packets = crate::capture::read(data)?;
+    let mut d = Decoder::new();
+    join_keys.iter().for_each(|k| d.add_join_key(*k));
+    network_keys.iter().for_each(|k| d.add_network_key(*k));
+    let reports = packets
+        .iter()
+        .enumerate()
+        .map(|(i, p)| d.decode(i, p))
+        .collect();
+    Ok((reports, d.stats))
 }
