@@ -10,6 +10,7 @@
 //! * [`tl`]: the transport PDU and its commands;
 //! * [`commands`]: typed layouts of the wireless commands, on hart-proto's
 //!   decode/encode/describe machinery;
+//! * [`build`]: frames built from their fields (an example join exchange);
 //! * [`crypto`]: AES-CCM* with a 4-byte MIC (RustCrypto `aes` + `ccm`);
 //! * [`capture`]: pcap/pcapng reading and pcap writing (802.15.4 link types 195, 230, 283);
 //! * [`decoder`] (feature `std`): a stateful decoder that recovers ASNs, learns keys
@@ -20,6 +21,7 @@
 
 extern crate alloc;
 
+pub mod build;
 pub mod capture;
 pub mod commands;
 pub mod crypto;
