@@ -23,6 +23,7 @@ extern crate alloc;
 
 pub mod build;
 pub mod capture;
+pub mod codes;
 pub mod commands;
 pub mod crypto;
 #[cfg(feature = "std")]

@@ -215,3 +215,66 @@ fn the_example_exchange_decodes_whole() {
     assert_eq!(stats.decrypted, 2);
     assert_eq!(stats.commands_typed, 4);
 }
+
+/// Every command the issue names is typed, with its response codes.
+#[test]
+fn every_command_of_the_issue_is_typed() {
+    let mut wanted: Vec<u16> = vec![768, 769, 773, 774, 805, 814, 817, 818];
+    wanted.extend(777..=780);
+    wanted.extend(787..=791);
+    wanted.extend(793..=801);
+    wanted.extend(832..=845);
+    wanted.extend(960..=977);
+    for n in wanted {
+        let info = commands::info(n).unwrap_or_else(|| panic!("{n} is not typed"));
+        assert!(info.codes().iter().any(|(c, _)| *c == 0), "{n}");
+        assert_ne!(commands::name(n), "unknown");
+    }
+    assert_eq!(commands::code_name(963, 67), Some("Session Type Invalid"));
+    assert_eq!(commands::name(64533), "vendor");
+}
+
+/// 779 takes both forms by its length: HART 7.0's 9 bytes (one-byte MIC failure
+/// counters) and the later, longer one the captures carry.
+#[test]
+fn device_health_both_forms() {
+    use commands::{DeviceHealth, Response, Typed};
+    let short = unhex("00 0015 0011 03 04 00 02 01");
+    let Some(Ok(Typed::Response(0, Some(Response::ReportDeviceHealth(DeviceHealth::V70(h)))))) =
+        commands::decode(779, true, &short)
+    else {
+        panic!("7.0 form not decoded")
+    };
+    assert_eq!(
+        (
+            h.generated,
+            h.dl_mic_failures,
+            h.nl_mic_failures,
+            h.crc_errors
+        ),
+        (21, 3, 4, 2)
+    );
+    let long = unhex("00 0015 0011 0000 0000 00 04 000000000000ea601026924000000000000000000000");
+    let Some(Ok(t @ Typed::Response(0, Some(Response::ReportDeviceHealth(DeviceHealth::Long(h)))))) =
+        commands::decode(779, true, &long)
+    else {
+        panic!("long form not decoded")
+    };
+    assert_eq!((h.generated, h.terminated, h.crc_errors), (21, 17, 4));
+    assert_eq!(commands::encode(&t).unwrap(), long);
+}
+
+#[test]
+fn source_route_hops_then_the_count_left() {
+    use commands::{Response, Typed};
+    let data = unhex("00 03 02 0001 0005 07");
+    let Some(Ok(Typed::Response(0, Some(Response::WriteSourceRoute(r))))) =
+        commands::decode(976, true, &data)
+    else {
+        panic!()
+    };
+    assert_eq!(
+        (r.route_id, r.hop_count, r.hops.as_slice(), r.remaining),
+        (3, 2, &[1u16, 5][..], 7)
+    );
+}
