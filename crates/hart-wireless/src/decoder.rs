@@ -435,13 +435,7 @@ impl FrameReport {
                         Value::Array(
                             t.commands
                                 .iter()
-                                .map(|c| {
-                                    json!({
-                                        "command": c.number,
-                                        "name": crate::commands::name(c.number),
-                                        "data": hex(&c.data),
-                                    })
-                                })
+                                .map(|c| command_json(c.number, t.response, &c.data))
                                 .collect(),
                         ),
                     );
@@ -577,4 +571,34 @@ pub fn decode_capture(
         .map(|(i, p)| d.decode(i, p))
         .collect();
     Ok((reports, d.stats))
+}
+
+/// One command as JSON: `command`, `name`, `data` (hex), and when its layout decoded
+/// it, `response_code` (responses) and `fields`, or `error` when the data did not fit.
+pub fn command_json(number: u16, response: bool, data: &[u8]) -> serde_json::Value {
+    use crate::commands::{self, Typed};
+    let mut o = serde_json::Map::new();
+    o.insert("command".into(), number.into());
+    o.insert("name".into(), commands::name(number).into());
+    o.insert("data".into(), hex(data).into());
+    match commands::decode(number, response, data) {
+        Some(Ok(t)) => {
+            if let Typed::Response(code, _) | Typed::WiredResponse(code, _) = &t {
+                o.insert("response_code".into(), (*code).into());
+                if let Some(n) = commands::code_name(number, *code) {
+                    o.insert("response_code_name".into(), n.into());
+                }
+            }
+            if !matches!(t, Typed::Vendor) {
+                let mut v = hart_proto::json::JsonVisitor::default();
+                commands::describe(&t, &mut v);
+                o.insert("fields".into(), v.finish());
+            }
+        }
+        Some(Err(e)) => {
+            o.insert("error".into(), e.to_string().into());
+        }
+        None => {}
+    }
+    serde_json::Value::Object(o)
 }
