@@ -11,6 +11,7 @@
 //! * [`commands`]: typed layouts of the wireless commands, on hart-proto's
 //!   decode/encode/describe machinery;
 //! * [`build`]: frames built from their fields (an example join exchange);
+//! * [`codes`]: each command's response codes;
 //! * [`crypto`]: AES-CCM* with a 4-byte MIC (RustCrypto `aes` + `ccm`);
 //! * [`capture`]: pcap/pcapng reading and pcap writing (802.15.4 link types 195, 230, 283);
 //! * [`decoder`] (feature `std`): a stateful decoder that recovers ASNs, learns keys
