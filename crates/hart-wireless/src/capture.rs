@@ -191,7 +191,7 @@ fn read_pcapng(d: &[u8]) -> Result<Vec<Packet>, CaptureError> {
                 let link = rd16(body, le) as u32;
                 let mut units = 1_000_000u64;
                 let mut o = 8;
-                while body.len() - o >= 4 {
+                while o + 4 <= body.len() {
                     let code = rd16(&body[o..], le);
                     let len = rd16(&body[o + 2..], le) as usize;
                     if code == 0 || body.len() - o - 4 < len {
@@ -346,4 +346,63 @@ pub fn hex(b: &[u8]) -> String {
         let _ = write!(s, "{x:02x}");
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn block(t: u32, body: &[u8]) -> Vec<u8> {
+        let len = (12 + body.len()) as u32;
+        let mut v = t.to_le_bytes().to_vec();
+        v.extend_from_slice(&len.to_le_bytes());
+        v.extend_from_slice(body);
+        v.extend_from_slice(&len.to_le_bytes());
+        v
+    }
+
+    #[test]
+    fn pcapng_option_padding_past_the_block_is_no_panic() {
+        let mut shb = 0x1A2B_3C4Du32.to_le_bytes().to_vec();
+        shb.extend_from_slice(&[1, 0, 0, 0]);
+        shb.extend_from_slice(&[0xFF; 8]);
+        let mut f = block(0x0A0D_0D0A, &shb);
+        // An interface whose last option (1 byte of if_tsresol) is not padded.
+        let mut idb = 195u16.to_le_bytes().to_vec();
+        idb.extend_from_slice(&[0, 0, 0, 0, 0, 0]);
+        idb.extend_from_slice(&[9, 0, 1, 0, 6]);
+        idb.extend_from_slice(&[0, 0, 0]);
+        f.extend_from_slice(&block(1, &idb));
+        let frame = [0x41, 0x88, 1, 0xCD, 0x04, 1, 0, 2, 0, 0x3A, 1, 2, 3, 4];
+        let mut epb = vec![0u8; 12];
+        epb.extend_from_slice(&((frame.len() + 2) as u32).to_le_bytes());
+        epb.extend_from_slice(&((frame.len() + 2) as u32).to_le_bytes());
+        epb.extend_from_slice(&frame);
+        epb.extend_from_slice(&crate::mac::fcs(&frame).to_le_bytes());
+        epb.resize(epb.len().div_ceil(4) * 4, 0);
+        f.extend_from_slice(&block(6, &epb));
+        let p = read(&f).unwrap();
+        assert_eq!(p.len(), 1);
+        assert_eq!(p[0].fcs_ok, Some(true));
+        assert_eq!(p[0].frame, frame);
+        // Cut anywhere: an error, never a panic.
+        for n in 0..f.len() {
+            let _ = read(&f[..n]);
+        }
+    }
+
+    #[test]
+    fn tap_header_channel_and_fcs() {
+        let frame = [0x41, 0x88, 1, 0xCD, 0x04, 1, 0, 2, 0, 0x3A, 1, 2, 3, 4];
+        // TAP: version, reserved, length 16; TLV 0 (FCS type 1), TLV 3 (channel 15, page 0).
+        let mut raw = vec![0, 0, 20, 0, 0, 0, 1, 0, 1, 0, 0, 0, 3, 0, 3, 0, 15, 0, 0, 0];
+        raw.extend_from_slice(&frame);
+        raw.extend_from_slice(&crate::mac::fcs(&frame).to_le_bytes());
+        let p = packet(LINKTYPE_IEEE802_15_4_TAP, 0, &raw);
+        assert_eq!((p.channel, p.fcs_ok), (Some(15), Some(true)));
+        assert_eq!(p.frame, frame);
+        for n in 0..raw.len() {
+            let _ = packet(LINKTYPE_IEEE802_15_4_TAP, 0, &raw[..n]);
+        }
+    }
 }
