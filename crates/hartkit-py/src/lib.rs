@@ -541,6 +541,53 @@ fn sim_bench(
     to_py(py, &hartkit::sim::report_json(&cfg, &report, wall))
 }
 
+/// A key given from Python: 16 bytes, or 32 hex digits.
+fn wireless_key(k: &Bound<'_, PyAny>, what: &str) -> PyResult<hart_wireless::Key> {
+    if let Ok(b) = k.extract::<Vec<u8>>() {
+        if let Ok(key) = <[u8; 16]>::try_from(b.as_slice()) {
+            return Ok(key);
+        }
+    }
+    if let Ok(text) = k.extract::<String>() {
+        if let Some(key) = hart_wireless::crypto::parse_key(&text) {
+            return Ok(key);
+        }
+    }
+    Err(pyo3::exceptions::PyValueError::new_err(format!(
+        "{what}: give 16 bytes or 32 hex digits, e.g. '41424344414243444142434441424344'"
+    )))
+}
+
+/// Decodes a WirelessHART capture (the bytes of a pcap or pcapng file) whole: a dict
+/// with `frames` (one dict per frame, as `hartkit wireless decode --json` prints them)
+/// and `summary`. Keys learned from the traffic (commands 961, 963) are used for what
+/// follows. Raises FrameError when the bytes are not a capture of 802.15.4 frames.
+#[pyfunction]
+#[pyo3(signature = (data, keys=Vec::new(), network_keys=Vec::new()))]
+fn wireless_decode(
+    py: Python<'_>,
+    data: &[u8],
+    keys: Vec<Bound<'_, PyAny>>,
+    network_keys: Vec<Bound<'_, PyAny>>,
+) -> PyResult<Py<PyAny>> {
+    let join: Vec<hart_wireless::Key> = keys
+        .iter()
+        .map(|k| wireless_key(k, "a join key"))
+        .collect::<PyResult<_>>()?;
+    let network: Vec<hart_wireless::Key> = network_keys
+        .iter()
+        .map(|k| wireless_key(k, "a network key"))
+        .collect::<PyResult<_>>()?;
+    let (frames, stats) = py
+        .detach(|| hart_wireless::decoder::decode_capture(data, &join, &network))
+        .map_err(|e| FrameError::new_err(e.to_string()))?;
+    let j = serde_json::json!({
+        "frames": frames.iter().map(|f| f.to_json()).collect::<Vec<_>>(),
+        "summary": stats.to_json(),
+    });
+    to_py(py, &j)
+}
+
 /// The `hartkit._native` module.
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -558,6 +605,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(unit, m)?)?;
     m.add_function(wrap_pyfunction!(response_code_name, m)?)?;
     m.add_function(wrap_pyfunction!(sim_bench, m)?)?;
+    m.add_function(wrap_pyfunction!(wireless_decode, m)?)?;
     m.add_function(wrap_pyfunction!(host::open_loop, m)?)?;
     m.add("HartError", py.get_type::<HartError>())?;
     m.add("FrameError", py.get_type::<FrameError>())?;

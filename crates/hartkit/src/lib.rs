@@ -21,5 +21,6 @@ pub mod sound;
 pub mod wells;
 pub mod wells_bus;
 pub mod wells_export;
+pub mod wireless;
 
 pub use hart_proto::decode::{decode_body, Decoded};

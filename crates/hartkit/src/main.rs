@@ -37,6 +37,10 @@ enum Top {
     /// handheld and the bureau's PC over RS-485 and telephone lines (docs/wells.md).
     #[command(subcommand)]
     Wells(hartkit::wells::WellsCmd),
+    /// WirelessHART: decode 802.15.4 captures whole (MICs, decryption with keys
+    /// learned on the way, commands by name) and build frames (docs/wireless.md).
+    #[command(subcommand)]
+    Wireless(hartkit::wireless::WirelessCmd),
     /// Find devices: command 0 in short frames over a polling-address range.
     Scan {
         #[command(flatten)]
@@ -1781,6 +1785,7 @@ fn main() -> ExitCode {
         Top::Modem(cmd) => modem(cmd),
         Top::Loop(cmd) => loop_cmd(cmd),
         Top::Wells(cmd) => hartkit::wells::run(cmd),
+        Top::Wireless(cmd) => hartkit::wireless::run(cmd),
         _ => unreachable!("host commands are handled above"),
     };
     match result {

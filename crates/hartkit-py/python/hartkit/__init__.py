@@ -30,7 +30,7 @@ from ._native import (
     response_code_name,
     unit,
 )
-from . import commands, sim
+from . import commands, sim, wireless
 from .commands import encode_reply, encode_request
 from ._host import Device, DeviceInfo, Loop, Reply, connect
 
@@ -56,4 +56,5 @@ __all__ = [
     "response_code_name",
     "sim",
     "unit",
+    "wireless",
 ]
