@@ -129,9 +129,23 @@ fn sigterm_releases_every_loop_test_before_the_gateway_ends() {
         assert!(Instant::now() < end, "the devices were not polled: {body}");
         std::thread::sleep(Duration::from_millis(300));
     }
-    // Modbus: 5 mA on unit 1 (the first loop's device).
-    assert_eq!(modbus_write_float(&modbus, 1, 6, 5.0), 0x10);
-    // Web: log in, then a 10-minute loop test at 6 mA on device 2.
+    // Devices are numbered (Modbus unit, web id) in the order the scan found them,
+    // which need not be the order of the ports: each is found by its loop.
+    let (_, _, body) = http(&web, "GET", "/api/devices", &[], "");
+    let devices: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let unit_of = |loop_name: &str| -> u64 {
+        devices["devices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["loop"] == loop_name)
+            .and_then(|d| d["unit"].as_u64())
+            .unwrap_or_else(|| panic!("no device on {loop_name}: {devices}"))
+    };
+    let (unit1, unit2) = (unit_of("loop1"), unit_of("loop2"));
+    // Modbus: 5 mA on the first loop's device.
+    assert_eq!(modbus_write_float(&modbus, unit1 as u8, 6, 5.0), 0x10);
+    // Web: log in, then a 10-minute loop test at 6 mA on the second loop's device.
     let (status, head, body) = http(
         &web,
         "POST",
@@ -156,7 +170,7 @@ fn sigterm_releases_every_loop_test_before_the_gateway_ends() {
     let (status, _, body) = http(
         &web,
         "POST",
-        "/api/devices/2/write",
+        &format!("/api/devices/{unit2}/write"),
         &[("Cookie", &cookie), ("X-CSRF-Token", &csrf)],
         r#"{"loop_test_ma": 6, "release_after_s": 600}"#,
     );
@@ -175,12 +189,18 @@ fn sigterm_releases_every_loop_test_before_the_gateway_ends() {
     // Fixed, as the gateway shows them.
     let (_, _, body) = http(&web, "GET", "/api/devices", &[], "");
     let v: serde_json::Value = serde_json::from_str(&body).unwrap();
-    assert_eq!(v["devices"][0]["fixed_current"], 5.0, "{body}");
-    assert_eq!(v["devices"][1]["fixed_current"], 6.0, "{body}");
-    assert!(
-        v["devices"][1]["loop_test"]["release_at"].is_string(),
-        "{body}"
-    );
+    let on = |loop_name: &str| {
+        v["devices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["loop"] == loop_name)
+            .cloned()
+            .unwrap()
+    };
+    assert_eq!(on("loop1")["fixed_current"], 5.0, "{body}");
+    assert_eq!(on("loop2")["fixed_current"], 6.0, "{body}");
+    assert!(on("loop2")["loop_test"]["release_at"].is_string(), "{body}");
 
     // SIGTERM, as systemd's stop.
     let pid = gw.0.id().to_string();
