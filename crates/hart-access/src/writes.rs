@@ -1,6 +1,7 @@
-//! The gateway's rule for the typed writes its front ends make through the polling
-//! engine (Modbus registers, OPC UA methods, PROFIBUS outputs, Sparkplug DCMD, the
-//! web dashboard): one [`WritePolicy`], held by the engine, asked once per write.
+//! The gateway's rule for every write its front ends make through the polling engine
+//! (Modbus registers, OPC UA methods, PROFIBUS outputs, Sparkplug DCMD, the web
+//! dashboard, and frames HART-IP clients compose): one [`WritePolicy`], held by the
+//! engine, asked once per write.
 //!
 //! What a front end adds of its own (which Modbus clients may write, which OPC UA
 //! users, a web login, `[mqtt] read_only`) it checks before; what the whole gateway
@@ -18,6 +19,10 @@ pub struct WritePolicy {
     pub read_only: bool,
     /// Only these HART commands (`--allow-commands`); `None`: every command.
     pub allow: Option<CommandAllowList>,
+    /// Device-specific commands the plant declared reads (`--device-commands`,
+    /// `[[device_commands]]`): frames a client composes itself that carry them pass
+    /// as reads.
+    pub device_commands: crate::DeviceCommands,
     /// Where each write let through is recorded.
     pub audit: Audit,
 }

@@ -76,6 +76,10 @@ pub struct GatewayConfig {
     pub console: Option<ConsoleConfig>,
     /// Only these HART commands may be sent by clients (`--allow-commands`).
     pub allow_commands: Option<hart_access::CommandAllowList>,
+    /// Device-specific commands declared reads (`--device-commands`,
+    /// `[[device_commands]]`): frames clients compose that carry them pass the
+    /// engine's gate as reads.
+    pub device_commands: hart_access::DeviceCommands,
     /// Where every write let through is recorded (`--audit-file`).
     pub audit_file: Option<PathBuf>,
     /// Everything is read only: HART-IP refuses changes, Modbus writes, OPC UA method
@@ -196,7 +200,7 @@ impl GatewayConfig {
         // Checked whichever front ends run: a mistake in the file is said at once.
         let device_commands = device_commands(file, opts)?;
         let hart_ip = match hart_ip {
-            Some(bind) => Some(hart_ip_config(file, opts, &bind, device_commands)?),
+            Some(bind) => Some(hart_ip_config(file, opts, &bind, device_commands.clone())?),
             None => None,
         };
         let modbus_tcp = modbus
@@ -225,6 +229,7 @@ impl GatewayConfig {
             history,
             allow_commands: opts.allow_commands.clone(),
             audit_file: opts.audit_file.clone(),
+            device_commands,
             console: console.then_some(ConsoleConfig {
                 json: opts.json,
                 every: Duration::from_secs(5),

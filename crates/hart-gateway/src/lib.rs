@@ -150,6 +150,7 @@ async fn start_engine(
             write_policy: hart_access::WritePolicy {
                 read_only: config.read_only,
                 allow: config.allow_commands.clone(),
+                device_commands: config.device_commands.clone(),
                 audit: hart_access::Audit::new(config.audit_file.clone()),
             },
             ..StartOptions::default()

@@ -22,7 +22,9 @@ use hart_proto::types::{
 use hart_proto::wire::{List, Reader, Wire, Writer};
 use tokio::sync::Mutex;
 
-pub use hart_poller::{LoopOutcome, LoopRequest, SubDevice, LOOP_QUEUE, MAX_QUEUE_WAIT};
+pub use hart_poller::{
+    Denied, LoopOutcome, LoopRequest, Requester, SubDevice, LOOP_QUEUE, MAX_QUEUE_WAIT,
+};
 
 /// The I/O system's own identity (the fixed part; tag, descriptor, message and long
 /// tag can be written by hosts and start from these).
@@ -320,10 +322,18 @@ impl IoSystem {
         }
     }
 
-    /// Forwards a PDU to loop `channel` with `retries`, between the engine's polls.
-    /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
-    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
-        self.engine.forward(channel, pdu, retries).await
+    /// Forwards a PDU `from` a requester to loop `channel` with `retries`, between the
+    /// engine's polls, through the engine's gate (judged by the gateway's rule, writes
+    /// audited with their outcome). Never waits for room in the queue: a full queue
+    /// answers [`LoopOutcome::Busy`].
+    pub async fn forward(
+        &self,
+        channel: usize,
+        pdu: Vec<u8>,
+        retries: u8,
+        from: &Requester,
+    ) -> Result<LoopOutcome, Denied> {
+        self.engine.forward(channel, pdu, retries, from).await
     }
 
     fn identity_reply(&self, state: &Local) -> Vec<u8> {
@@ -380,14 +390,21 @@ impl IoSystem {
         state.changed = [true; 2];
     }
 
-    /// Answers a command addressed to the I/O system itself (from `master`): response
-    /// code, field device status and data.
-    pub async fn local(&self, master: MasterKind, command: u16, data: &[u8]) -> (u8, u8, Vec<u8>) {
+    /// Answers a command addressed to the I/O system itself (from `master`, sent by
+    /// `from`): response code, field device status and data. What it carries to a
+    /// sub-device (commands 75 and 77) passes the engine's gate as `from`'s.
+    pub async fn local(
+        &self,
+        master: MasterKind,
+        command: u16,
+        data: &[u8],
+        from: &Requester,
+    ) -> (u8, u8, Vec<u8>) {
         let ids = self.sub_ids().await;
         let (code, out) = match command {
             74 => self.capabilities().await,
-            75 => self.poll_sub_device(data).await,
-            77 => self.send_to_sub_device(data).await,
+            75 => self.poll_sub_device(data, from).await,
+            77 => self.send_to_sub_device(data, from).await,
             84 => self.sub_device_summary(data).await,
             101 | 102 => self.burst_map(command, data).await,
             103 | 105 | 107 | 108 | 109 => self.burst_config(command, data),
@@ -578,7 +595,7 @@ impl IoSystem {
 
     /// Command 75: poll sub-device (card, channel, polling address): command 0 in a
     /// short frame on that channel; the reply is the sub-device's command 0 data.
-    async fn poll_sub_device(&self, data: &[u8]) -> (u8, Vec<u8>) {
+    async fn poll_sub_device(&self, data: &[u8], from: &Requester) -> (u8, Vec<u8>) {
         let [card, channel, poll, ..] = *data else {
             return (rc::TOO_FEW_DATA_BYTES, vec![]);
         };
@@ -597,15 +614,16 @@ impl IoSystem {
             &[],
         ));
         match self
-            .forward(usize::from(channel), pdu, UNKNOWN_RETRIES)
+            .forward(usize::from(channel), pdu, UNKNOWN_RETRIES, from)
             .await
         {
-            LoopOutcome::Reply(r) => match Frame::parse_pdu(&r) {
+            Ok(LoopOutcome::Reply(r)) => match Frame::parse_pdu(&r) {
                 Ok(f) => (rc::SUCCESS, f.data.to_vec()),
                 Err(_) => (NO_SUB_DEVICE_FOUND, vec![]),
             },
-            LoopOutcome::NoReply => (NO_SUB_DEVICE_FOUND, vec![]),
-            LoopOutcome::Busy => (rc::BUSY, vec![]),
+            Ok(LoopOutcome::NoReply) => (NO_SUB_DEVICE_FOUND, vec![]),
+            Ok(LoopOutcome::Busy) => (rc::BUSY, vec![]),
+            Err(_) => (rc::ACCESS_RESTRICTED, vec![]),
         }
     }
 
@@ -836,7 +854,10 @@ impl IoSystem {
     /// `index` (0: the I/O system) turned into a BACK frame with the burst bit set.
     async fn burst_frame(&self, index: u16, command: u16, data: &[u8]) -> Option<Vec<u8>> {
         let (address, code, status, reply) = if index == 0 {
-            let (code, status, d) = self.local(MasterKind::Primary, command, data).await;
+            let reader = Requester::reader("hart-ip", "burst message of the I/O system");
+            let (code, status, d) = self
+                .local(MasterKind::Primary, command, data, &reader)
+                .await;
             (Address::long(self.unique_id()), code, status, d)
         } else {
             let sub = self
@@ -849,8 +870,9 @@ impl IoSystem {
             let pdu = pdu_of(&hart_proto::frame::FrameSpec::request(
                 address, command, data,
             ));
-            let LoopOutcome::Reply(reply) = self
-                .forward(usize::from(sub.channel), pdu, KNOWN_RETRIES)
+            let reader = Requester::reader("hart-ip", "burst message of the I/O system");
+            let Ok(LoopOutcome::Reply(reply)) = self
+                .forward(usize::from(sub.channel), pdu, KNOWN_RETRIES, &reader)
                 .await
             else {
                 return None;
@@ -874,7 +896,7 @@ impl IoSystem {
     /// Command 77: I/O card, channel, transmit preamble count, then the embedded frame
     /// from the delimiter through the data (no check byte). The reply carries card,
     /// channel and the sub-device's reply frame in the same form.
-    async fn send_to_sub_device(&self, data: &[u8]) -> (u8, Vec<u8>) {
+    async fn send_to_sub_device(&self, data: &[u8], from: &Requester) -> (u8, Vec<u8>) {
         if data.len() < 4 {
             return (rc::TOO_FEW_DATA_BYTES, vec![]);
         }
@@ -906,9 +928,14 @@ impl IoSystem {
         } else {
             UNKNOWN_RETRIES
         };
-        match self.forward(usize::from(channel), pdu, retries).await {
-            LoopOutcome::Busy => (rc::BUSY, vec![]),
-            LoopOutcome::Reply(reply) => {
+        let from = from.inside_77();
+        match self
+            .forward(usize::from(channel), pdu, retries, &from)
+            .await
+        {
+            Err(_) => (rc::ACCESS_RESTRICTED, vec![]),
+            Ok(LoopOutcome::Busy) => (rc::BUSY, vec![]),
+            Ok(LoopOutcome::Reply(reply)) => {
                 let mut d = vec![card, channel];
                 d.extend_from_slice(&reply[..reply.len().saturating_sub(1)]);
                 if d.len() > 253 {
@@ -916,7 +943,7 @@ impl IoSystem {
                 }
                 (rc::SUCCESS, d)
             }
-            LoopOutcome::NoReply => (SUB_DEVICE_NOT_RESPONDING, vec![]),
+            Ok(LoopOutcome::NoReply) => (SUB_DEVICE_NOT_RESPONDING, vec![]),
         }
     }
 }

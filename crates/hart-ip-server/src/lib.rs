@@ -102,6 +102,20 @@ impl Default for Config {
     }
 }
 
+impl Config {
+    /// The rule of an engine this server starts itself ([`start`], [`start_in_memory`]):
+    /// its read-only, allow-list, declared reads and audit file, so the engine's gate
+    /// judges every frame as the server does.
+    pub fn write_policy(&self) -> hart_poller::WritePolicy {
+        hart_poller::WritePolicy {
+            read_only: self.read_only,
+            allow: self.allow_commands.clone(),
+            device_commands: self.device_commands.clone(),
+            audit: hart_access::Audit::new(self.audit_file.clone()),
+        }
+    }
+}
+
 /// A session whose client sent nothing after its session initiate is closed after this
 /// long (or its own inactivity timer, if shorter): initiates alone cannot hold the
 /// sessions for the full timer.
@@ -257,7 +271,14 @@ pub async fn start(config: Config, loops: Vec<Client<AnyTransport>>) -> std::io:
             line: hart_poller::Line::client(c),
         })
         .collect();
-    let (engine, tasks) = hart_poller::Engine::start(hart_poller::EngineConfig::default(), specs);
+    let (engine, tasks) = hart_poller::Engine::start_with(
+        hart_poller::EngineConfig::default(),
+        specs,
+        hart_poller::StartOptions {
+            write_policy: config.write_policy(),
+            ..hart_poller::StartOptions::default()
+        },
+    );
     start_with_engine(config, engine, tasks).await
 }
 
@@ -403,10 +424,14 @@ pub async fn start_in_memory(
         settings: loop_settings(config.scan_to),
         line: hart_poller::Line::Memory(hart_poller::MemoryLoop::new(devices)),
     };
-    let (engine, tasks) = hart_poller::Engine::start_with_queue(
+    let (engine, tasks) = hart_poller::Engine::start_with(
         hart_poller::EngineConfig::default(),
         vec![spec],
-        1024,
+        hart_poller::StartOptions {
+            queue: 1024,
+            write_policy: config.write_policy(),
+            ..hart_poller::StartOptions::default()
+        },
     );
     start_with_engine(config, engine, tasks).await
 }

@@ -7,7 +7,7 @@ use hart_ip::{status, Body, Header, MessageId, MessageType};
 use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
-use crate::io_system::{LoopOutcome, Route};
+use crate::io_system::{LoopOutcome, Requester, Route};
 use crate::subscriptions::{subscription_command, Subscriptions};
 use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
 use hart_access::{Allowed, Rights, WriteRecord};
@@ -17,26 +17,34 @@ pub(crate) enum Action {
     Reply(Vec<u8>),
     ReplyAndClose(Vec<u8>),
     Close,
-    /// Forward a token-passing request to a loop and answer with sequence number `seq`
-    /// when the reply comes (over TCP, other requests and publish messages go on
-    /// meanwhile); a write's outcome is then audited.
+    /// Forward a token-passing request to a loop through the engine's gate (which
+    /// judges it again by the gateway's rule and audits a write with its outcome) and
+    /// answer with sequence number `seq` when the reply comes (over TCP, other
+    /// requests and publish messages go on meanwhile).
     Forward {
         channel: usize,
         retries: u8,
         pdu: Vec<u8>,
         seq: u16,
-        write: Option<PendingWrite>,
+        from: Requester,
     },
 }
 
-/// A write let through and recorded in the audit, waiting for its outcome (the audit's
-/// second record of it).
+/// A write to the I/O system itself let through and recorded in the audit, waiting for
+/// its outcome (the audit's second record of it). Writes to devices on the loops are
+/// audited by the engine's gate.
 pub(crate) struct PendingWrite {
     id: u64,
     record: WriteRecord,
 }
 
 impl PendingWrite {
+    /// Records `record` in the audit, before the write is carried out.
+    fn start(shared: &Shared, record: WriteRecord) -> Self {
+        let id = shared.write_audit.record(&record);
+        PendingWrite { id, record }
+    }
+
     /// Records what became of the write: the device's reply to `request` (or none).
     fn done(self, shared: &Shared, reply: Option<&[u8]>) {
         let outcome = hart_poller::write::outcome_of(self.record.command, reply);
@@ -46,7 +54,8 @@ impl PendingWrite {
 
 /// Waits for a loop's reply to a forwarded request and builds the response message:
 /// the reply PDU, or, when the device did not answer after the loop's retries, the I/O
-/// system's answer for a silent sub-device ([`not_responding`]).
+/// system's answer for a silent sub-device ([`not_responding`]); a request the
+/// engine's gate refuses is answered "access restricted".
 pub(crate) async fn forwarded(
     shared: &Shared,
     version: u8,
@@ -54,28 +63,28 @@ pub(crate) async fn forwarded(
     retries: u8,
     pdu: Vec<u8>,
     seq: u16,
-    write: Option<PendingWrite>,
+    from: Requester,
 ) -> Vec<u8> {
-    let outcome = shared.io.forward(channel, pdu.clone(), retries).await;
-    if let Some(w) = write {
-        match &outcome {
-            LoopOutcome::Reply(reply) => w.done(shared, Some(reply)),
-            LoopOutcome::NoReply => w.done(shared, None),
-            LoopOutcome::Busy => shared.write_audit.outcome(
-                w.id,
-                &w.record,
-                &hart_access::WriteOutcome::Failed(
-                    "not sent: the loop was busy (the client was answered 32, busy)".into(),
-                ),
-            ),
-        }
-    }
+    let outcome = shared
+        .io
+        .forward(channel, pdu.clone(), retries, &from)
+        .await;
     let body = match outcome {
-        LoopOutcome::Reply(reply) => reply,
-        LoopOutcome::NoReply => not_responding(&pdu),
-        LoopOutcome::Busy => {
+        Ok(LoopOutcome::Reply(reply)) => reply,
+        Ok(LoopOutcome::NoReply) => not_responding(&pdu),
+        Ok(LoopOutcome::Busy) => {
             Counters::count(&shared.stats.busy);
             busy(&pdu)
+        }
+        Err(why) => {
+            tracing::warn!(
+                "hart-ip: refused token-passing request from {}: {why}",
+                from.record.peer
+            );
+            match Frame::parse_pdu(&pdu) {
+                Ok(f) => local_frame(&f, hart_proto::tables::rc::ACCESS_RESTRICTED, 0, &[]),
+                Err(_) => vec![],
+            }
         }
     };
     message(
@@ -216,16 +225,46 @@ impl Session {
     }
 }
 
+/// Who session `s` is, for the engine's gate and the audit: its rights, and the
+/// audit's front end, session, peer and identity; `via` names the path
+/// (`token-passing`, `direct PDU`).
+fn requester(shared: &Shared, s: &Session, via: &str) -> Requester {
+    Requester {
+        rights: s.rights(shared),
+        record: WriteRecord {
+            front_end: "hart-ip",
+            session: s.audit,
+            peer: s.peer.to_string(),
+            identity: s.secure.as_ref().map(|(i, _)| i.clone()),
+            via: via.to_string(),
+            ..WriteRecord::default()
+        },
+        unwrapped: 0,
+    }
+}
+
+/// The audit record of a write session `s` makes to the I/O system itself (`t`, at
+/// depth 0).
+fn own_write(shared: &Shared, s: &Session, t: &hart_access::Target, via: &str) -> WriteRecord {
+    WriteRecord {
+        device: t.device.clone(),
+        command: t.command,
+        operation: hart_proto::command::title(t.command).map(str::to_string),
+        ..requester(shared, s, via).record
+    }
+}
+
 /// Asks the server's policy whether session `s` may send request frame `f` and whether
-/// it writes; a write let through is audited (with the innermost device and command)
-/// and returned to have its outcome recorded, a refusal logged and audited. `via`
-/// names the path (`token-passing`, `direct PDU`).
+/// it writes (the session's audit-log record then says writes occurred); a refusal is
+/// logged and audited. Writes are audited where they are carried out: by the engine's
+/// gate for a device on a loop (also inside command 77), by the caller for the I/O
+/// system itself. `via` names the path (`token-passing`, `direct PDU`).
 async fn admit(
     shared: &Shared,
     s: &Session,
     f: &Frame<'_>,
     via: &str,
-) -> Result<Option<PendingWrite>, hart_access::Refusal> {
+) -> Result<Allowed, hart_access::Refusal> {
     let device_type = shared.io.device_type(f).await;
     let rights = s.rights(shared);
     let verdict = if hart_access::SESSION_COMMANDS.contains(&f.command) {
@@ -235,31 +274,34 @@ async fn admit(
     };
     match verdict {
         Ok(Allowed::Write(t)) => {
-            let via = match t.depth {
-                0 => via.to_string(),
-                1 => format!("{via}, command 77"),
-                n => format!("{via}, command 77 ({n} levels)"),
-            };
-            let record = WriteRecord {
-                front_end: "hart-ip",
-                session: s.audit,
-                peer: s.peer.to_string(),
-                identity: s.secure.as_ref().map(|(i, _)| i.clone()),
-                device: t.device.clone(),
-                command: t.command,
-                via,
-                operation: hart_proto::command::title(t.command).map(str::to_string),
-            };
-            let id = shared.write_audit.record(&record);
             if let Some(i) = s.audit {
                 if let Some(r) = lock(&shared.audit).get_mut(i) {
                     r.status |= 0x0001; // writes occurred
                 }
             }
-            Ok(Some(PendingWrite { id, record }))
+            Ok(Allowed::Write(t))
         }
-        Ok(Allowed::Read) => Ok(None),
+        Ok(Allowed::Read) => Ok(Allowed::Read),
         Err(why) => {
+            let (command, depth) = match &why {
+                hart_access::Refusal::NotListed { command, depth }
+                | hart_access::Refusal::ReadOnly { command, depth, .. } => (*command, *depth),
+                hart_access::Refusal::TooDeep => (f.command, 0),
+            };
+            let via = match depth {
+                0 => via.to_string(),
+                1 => format!("{via}, command 77"),
+                n => format!("{via}, command 77 ({n} levels)"),
+            };
+            shared.write_audit.refused(
+                &WriteRecord {
+                    device: f.address.to_string(),
+                    command,
+                    operation: hart_proto::command::title(command).map(str::to_string),
+                    ..requester(shared, s, &via).record
+                },
+                &why.to_string(),
+            );
             tracing::warn!(
                 "hart-ip: refused {via} request from {} ({}, {}): {why}",
                 s.peer,
@@ -388,8 +430,8 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             if f.frame_type() != FrameType::Stx {
                 return Action::Reply(reply(status::INVALID_SELECTION, &[]));
             }
-            let write = match admit(shared, s, &f, "token-passing").await {
-                Ok(w) => w,
+            let verdict = match admit(shared, s, &f, "token-passing").await {
+                Ok(v) => v,
                 Err(_) => {
                     return Action::Reply(reply(
                         status::SUCCESS,
@@ -405,12 +447,23 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 return Action::Reply(reply(status::SUCCESS, &local_frame(&f, code, 0, &data)));
             }
             let route = shared.io.route(&f).await;
+            let from = requester(shared, s, "token-passing");
+            // A write to the I/O system itself (or to no device at all) is audited here;
+            // one carried to a loop, by the engine's gate.
+            let own = match (&verdict, route) {
+                (Allowed::Write(t), Route::Local | Route::Nowhere) if t.depth == 0 => Some(
+                    PendingWrite::start(shared, own_write(shared, s, t, "token-passing")),
+                ),
+                _ => None,
+            };
             match route {
                 Route::Local => {
-                    let (code, status, data) =
-                        shared.io.local(f.address.master(), f.command, f.data).await;
+                    let (code, status, data) = shared
+                        .io
+                        .local(f.address.master(), f.command, f.data, &from)
+                        .await;
                     let frame = local_frame(&f, code, status, &data);
-                    if let Some(w) = write {
+                    if let Some(w) = own {
                         w.done(shared, Some(&frame));
                     }
                     Action::Reply(reply(status::SUCCESS, &frame))
@@ -422,11 +475,11 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                         retries,
                         pdu: body.to_vec(),
                         seq: h.sequence,
-                        write,
+                        from,
                     }
                 }
                 Route::Nowhere => {
-                    if let Some(w) = write {
+                    if let Some(w) = own {
                         w.done(shared, None);
                     }
                     Action::Reply(reply(status::SUCCESS, &not_responding(body)))
@@ -465,13 +518,26 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 };
                 let (code, data) = match admitted {
                     None => (hart_proto::tables::rc::ACCESS_RESTRICTED, vec![]),
-                    Some(write) => {
+                    Some(verdict) => {
+                        let own = match &verdict {
+                            Allowed::Write(t) if t.depth == 0 => Some(PendingWrite::start(
+                                shared,
+                                own_write(shared, s, t, "direct PDU"),
+                            )),
+                            _ => None,
+                        };
+                        let from = requester(shared, s, "direct PDU");
                         // Direct PDUs come from the session's host, a primary master.
                         let (code, status, data) = shared
                             .io
-                            .local(hart_proto::frame::MasterKind::Primary, e.command, e.data)
+                            .local(
+                                hart_proto::frame::MasterKind::Primary,
+                                e.command,
+                                e.data,
+                                &from,
+                            )
                             .await;
-                        if let (Some(w), Ok(f)) = (write, Frame::parse_pdu(&pdu)) {
+                        if let (Some(w), Ok(f)) = (own, Frame::parse_pdu(&pdu)) {
                             w.done(shared, Some(&local_frame(&f, code, status, &data)));
                         }
                         (code, data)

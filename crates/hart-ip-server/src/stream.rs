@@ -258,7 +258,7 @@ where
                             retries,
                             pdu,
                             seq,
-                            write,
+                            from,
                         } => {
                             // Several requests may be in flight on one connection: each
                             // reply goes out when its loop answers, with its sequence
@@ -285,7 +285,7 @@ where
                             }
                             in_flight.push(AbortOnDrop(tokio::task::spawn_local(async move {
                                 let r =
-                                    forwarded(&shared, version, channel, retries, pdu, seq, write)
+                                    forwarded(&shared, version, channel, retries, pdu, seq, from)
                                         .await;
                                 let _ = wr.lock().await.write_all(&r).await;
                             })));

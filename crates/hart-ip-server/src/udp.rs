@@ -200,10 +200,10 @@ async fn datagram(
                 retries,
                 pdu,
                 seq,
-                write,
+                from,
             } => {
                 // In order, per client: the session waits for its loop's reply.
-                let r = forwarded(shared, s.version, channel, retries, pdu, seq, write).await;
+                let r = forwarded(shared, s.version, channel, retries, pdu, seq, from).await;
                 let _ = sock.send_to(&r, peer).await;
             }
             Action::ReplyAndClose(r) => {

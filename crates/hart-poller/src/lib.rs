@@ -16,6 +16,7 @@
 
 use std::sync::Arc;
 
+use hart_access::Allowed;
 use hart_host::DeviceInfo;
 use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
 use tokio::sync::{broadcast, mpsc, watch, Mutex};
@@ -23,6 +24,7 @@ use tokio::sync::{broadcast, mpsc, watch, Mutex};
 pub mod clock;
 pub mod config;
 pub mod disturbance;
+pub mod gate;
 pub mod image;
 pub mod lease;
 pub mod line;
@@ -34,7 +36,9 @@ pub mod write;
 pub use clock::Clock;
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use disturbance::{Disturbance, LineCounters};
+pub use gate::{Denied, Requester};
 pub use hart_access::{NotPermitted, WritePolicy, WriteRecord};
+pub use hart_access::{Refusal, Rights};
 pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
 pub use lease::{LeaseTerms, LoopTest};
 pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};
@@ -473,12 +477,82 @@ impl Engine {
         }
     }
 
-    /// Carries a client's request PDU to loop `channel` with `retries`, between polls.
-    /// Never waits for room in the queue: a full queue answers [`LoopOutcome::Busy`].
-    pub async fn forward(&self, channel: usize, pdu: Vec<u8>, retries: u8) -> LoopOutcome {
-        match self.requests.get(channel) {
-            Some(q) => request::submit(q, pdu, retries, LeaseTerms::default()).await,
-            None => LoopOutcome::NoReply,
+    /// Carries a request PDU a client composed to loop `channel` with `retries`,
+    /// between polls, through the gateway's one gate ([`gate`]): the frame is judged by
+    /// the gateway's rule with `from`'s rights (every level of command 77 inside it),
+    /// and a frame that writes is recorded in the audit before it goes and again with
+    /// the device's answer (the innermost reply of a command 77). A refused frame is
+    /// not sent ([`Denied`], audited as `not-permitted` when `from` may write, so the
+    /// refusal is the gateway's rule and not the requester's own rights). Never waits
+    /// for room in the queue: a full queue answers [`LoopOutcome::Busy`].
+    pub async fn forward(
+        &self,
+        channel: usize,
+        pdu: Vec<u8>,
+        retries: u8,
+        from: &Requester,
+    ) -> Result<LoopOutcome, Denied> {
+        let verdict = {
+            let frame = Frame::parse_pdu(&pdu).map_err(|e| Denied::NotAFrame(e.to_string()))?;
+            let device_type = match gate::device_type_of(&frame.address) {
+                Some(t) => Some(t),
+                None => self.device_type_at(channel, &frame.address).await,
+            };
+            match gate::judge(&self.shared.write_policy, from.rights, &frame, device_type) {
+                Ok(a) => a,
+                Err(why) => {
+                    if from.rights.may_write() {
+                        let record =
+                            gate::record_of(from, frame.address.to_string(), frame.command, 0);
+                        self.shared
+                            .write_policy
+                            .audit
+                            .refused(&record, &why.to_string());
+                    }
+                    return Err(Denied::Policy(why));
+                }
+            }
+        };
+        let Some(queue) = self.requests.get(channel) else {
+            return Ok(LoopOutcome::NoReply);
+        };
+        let Allowed::Write(target) = verdict else {
+            return Ok(request::submit(queue, pdu, retries, LeaseTerms::default()).await);
+        };
+        let record = gate::record_of(from, target.device, target.command, target.depth);
+        let audit = &self.shared.write_policy.audit;
+        let id = audit.record(&record);
+        let lease = LeaseTerms {
+            by: format!("{} from {}", record.front_end, record.peer),
+            ..LeaseTerms::default()
+        };
+        let outcome = request::submit(queue, pdu, retries, lease).await;
+        let written = match &outcome {
+            LoopOutcome::Reply(r) => gate::outcome(target.command, target.depth, Some(r)),
+            LoopOutcome::NoReply => gate::outcome(target.command, target.depth, None),
+            LoopOutcome::Busy => hart_access::WriteOutcome::Failed(
+                "not sent: the loop was busy (the client was answered busy)".into(),
+            ),
+        };
+        audit.outcome(id, &record, &written);
+        Ok(outcome)
+    }
+
+    /// The expanded device type of the device at short `address` on loop `channel`,
+    /// when one device found there has that polling address.
+    async fn device_type_at(&self, channel: usize, address: &Address) -> Option<u16> {
+        let Address::Short(a) = address else {
+            return None;
+        };
+        let subs = self.shared.subs.lock().await;
+        let mut found = subs.iter().filter(|s| {
+            s.present
+                && usize::from(s.channel) == channel
+                && s.info.polling_address == Some(a.polling_address)
+        });
+        match (found.next(), found.next()) {
+            (Some(s), None) => Some(s.info.unique_id().expanded_device_type),
+            _ => None,
         }
     }
 
@@ -530,11 +604,6 @@ impl Engine {
                 })
             }
         }
-    }
-
-    /// The request queues, one per loop (for servers that submit PDUs themselves).
-    pub fn request_queues(&self) -> &[mpsc::Sender<LoopRequest>] {
-        &self.requests
     }
 }
 

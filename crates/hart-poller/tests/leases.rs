@@ -271,8 +271,16 @@ fn a_fixed_current_passed_through_raw_is_held_too() {
             40,
             &4.5f32.to_be_bytes(),
         ));
-        let out = engine.forward(0, pdu, 3).await;
-        assert!(matches!(out, hart_poller::LoopOutcome::Reply(_)), "{out:?}");
+        let client = hart_poller::Requester {
+            rights: hart_poller::Rights::ReadWrite,
+            record: who(),
+            unwrapped: 0,
+        };
+        let out = engine.forward(0, pdu, 3, &client).await;
+        assert!(
+            matches!(out, Ok(hart_poller::LoopOutcome::Reply(_))),
+            "{out:?}"
+        );
         assert_eq!(fixed(&engine, p), Some(4.5));
         assert!(until(&engine, Duration::from_secs(4), |e| fixed(e, p).is_none()).await);
     });

@@ -183,8 +183,9 @@ pub(crate) fn reply_json(reply: &[u8]) -> Result<Value, ApiError> {
     Ok(v)
 }
 
-/// Sends `command` with `data` to the device at `position` between the loop's polls
-/// and returns its reply as [`reply_json`] gives it.
+/// Sends `command` with `data` to the device at `position` between the loop's polls,
+/// through the engine's gate as a read, and returns its reply as [`reply_json`] gives
+/// it.
 pub(crate) async fn read(
     engine: &Engine,
     position: usize,
@@ -210,19 +211,31 @@ pub(crate) async fn read(
             data,
         )
     });
+    // The dashboard's reads pass the engine's gate as reads: a command that is not
+    // known to only read is refused, whoever is logged in (writes take the typed path).
+    let reader = hart_poller::Requester::reader("web", "web dashboard read");
     match engine
-        .forward(usize::from(channel), pdu, hart_poller::POLL_RETRIES)
+        .forward(
+            usize::from(channel),
+            pdu,
+            hart_poller::POLL_RETRIES,
+            &reader,
+        )
         .await
     {
-        LoopOutcome::Reply(r) => reply_json(&r),
-        LoopOutcome::NoReply => Err(ApiError::new(
+        Err(why) => Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            format!("the gateway does not send command {command} as a read: {why}"),
+        )),
+        Ok(LoopOutcome::Reply(r)) => reply_json(&r),
+        Ok(LoopOutcome::NoReply) => Err(ApiError::new(
             StatusCode::GATEWAY_TIMEOUT,
             format!(
                 "the device did not answer command {command}; check that it is powered and \
                  on the loop"
             ),
         )),
-        LoopOutcome::Busy => Err(ApiError::new(
+        Ok(LoopOutcome::Busy) => Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             "the loop is busy; try again in a moment",
         )),
