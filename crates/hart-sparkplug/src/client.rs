@@ -134,7 +134,8 @@ pub async fn run(
     let mut options = template.options(&broker);
     options.set_last_will(will.clone());
     let (client, eventloop) = AsyncClient::new(options, 1024);
-    let (backfilled_tx, backfilled_rx) = tokio::sync::mpsc::unbounded_channel();
+    // One page read back at a time: the channel never holds more than one.
+    let (backfilled_tx, backfilled_rx) = tokio::sync::mpsc::channel(1);
     let status = Arc::new(Mutex::new(Status::default()));
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
     let publisher = Publisher {
@@ -146,6 +147,8 @@ pub async fn run(
         will,
         backfilled_tx,
         backfilled_rx,
+        backfill_run: None,
+        backfill_runs: 0,
         url: config.url.clone(),
         broker,
         brokers,
@@ -283,6 +286,47 @@ fn explain(e: &ConnectionError, broker: &Broker) -> String {
     }
 }
 
+/// Samples a read-back page aims at: the time window of the next page halves when a
+/// page held more, and doubles when it held less than a quarter.
+pub const BACKFILL_PAGE: usize = 2_000;
+
+/// The next page of a read-back is read only while fewer messages than this wait to
+/// be handed to the MQTT client: with one page in memory at a time, a read-back of
+/// any length holds at most about this many messages and one page of samples.
+pub const BACKFILL_LOW_WATER: usize = 256;
+
+/// The first page's time window.
+const FIRST_WINDOW_MS: u64 = 1_000;
+/// The shortest window (a page of one window is read whatever it holds).
+const MIN_WINDOW_MS: u64 = 10;
+/// The longest window.
+const MAX_WINDOW_MS: u64 = 3_600_000;
+
+/// A read-back from the historian, page by page.
+#[derive(Debug)]
+struct BackfillRun {
+    /// The start of what is left (ms).
+    from: u64,
+    /// The end (ms, excluded).
+    to: u64,
+    /// The next page's time window (ms).
+    window: u64,
+    /// The end of the page being read, if one is.
+    reading: Option<u64>,
+    /// Samples sent so far.
+    sent: u64,
+    /// Which run (pages of an ended one are ignored).
+    id: u64,
+}
+
+/// One page read back.
+struct Page {
+    id: u64,
+    from: u64,
+    end: u64,
+    samples: Result<Vec<Sample>, String>,
+}
+
 struct Publisher {
     engine: Engine,
     /// The gateway's historian, when it has one: a full store-and-forward backlog
@@ -294,9 +338,13 @@ struct Publisher {
     driver: Driver,
     /// The will of the next (or current) session: its NDEATH.
     will: LastWill,
-    /// Samples read back from the historian ([`Publisher::backfill`]).
-    backfilled_tx: tokio::sync::mpsc::UnboundedSender<Vec<Sample>>,
-    backfilled_rx: tokio::sync::mpsc::UnboundedReceiver<Vec<Sample>>,
+    /// Pages read back from the historian ([`Publisher::backfill`]).
+    backfilled_tx: tokio::sync::mpsc::Sender<Page>,
+    backfilled_rx: tokio::sync::mpsc::Receiver<Page>,
+    /// The read-back under way, page by page.
+    backfill_run: Option<BackfillRun>,
+    /// Read-backs started (each run's `id`).
+    backfill_runs: u64,
     url: String,
     /// The broker of the current (or next) connection.
     broker: Broker,
@@ -336,6 +384,7 @@ impl Publisher {
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             self.hand_over();
+            self.next_page();
             self.publish_status();
             tokio::select! {
                 ev = self.driver.recv() => match ev {
@@ -349,10 +398,7 @@ impl Publisher {
                         return;
                     }
                 },
-                Some(samples) = self.backfilled_rx.recv() => {
-                    let out = self.core.backfilled(samples, SystemTime::now());
-                    self.apply(out);
-                }
+                Some(page) = self.backfilled_rx.recv() => self.page_read(page),
                 c = changes.recv() => match c {
                     Some(c) => {
                         let out = self.core.device(&c.device, c.quality, c.value_time(), self.engine.clock().wall());
@@ -579,6 +625,11 @@ impl Publisher {
             }
         }
         self.core.disconnected(unsent);
+        if let Some(run) = self.backfill_run.take() {
+            // What was not sent (the page being read included) is asked again after
+            // the next births; a page read meanwhile is ignored.
+            self.core.backfill_unfinished(run.from, run.to);
+        }
         self.will = last_will(self.core.will(SystemTime::now()));
     }
 
@@ -603,26 +654,115 @@ impl Publisher {
         }
     }
 
-    /// Reads what the historian kept from `from` to `to` on a blocking thread; the
-    /// samples come back through `backfilled` to the run loop.
+    /// Starts reading back what the historian kept from `from` to `to`, page by page
+    /// ([`Publisher::next_page`]).
     fn backfill(&mut self, from: u64, to: u64) {
+        if self.backfill.is_none() {
+            let out = self.core.backfill_done(SystemTime::now());
+            self.apply(out);
+            return;
+        }
+        let run = match self.backfill_run.take() {
+            Some(r) => BackfillRun {
+                from: r.from.min(from),
+                to: r.to.max(to),
+                ..r
+            },
+            None => BackfillRun {
+                from,
+                to,
+                window: FIRST_WINDOW_MS,
+                reading: None,
+                sent: 0,
+                id: {
+                    self.backfill_runs += 1;
+                    self.backfill_runs
+                },
+            },
+        };
+        self.backfill_run = Some(run);
+    }
+
+    /// Reads the next page of the read-back on a blocking thread, when none is being
+    /// read and the outbox has room: memory holds at most one page and the outbox's
+    /// low water mark of it, whatever the outage's length.
+    fn next_page(&mut self) {
         let Some(source) = self.backfill.clone() else {
             return;
         };
+        let room = self.outbox.len() + self.inflight.len() < BACKFILL_LOW_WATER;
+        let Some(run) = self.backfill_run.as_mut() else {
+            return;
+        };
+        if run.reading.is_some() || !room || !self.connected || !self.core.is_live() {
+            return;
+        }
+        let (from, end) = (run.from, run.to.min(run.from.saturating_add(run.window)));
+        run.reading = Some(end);
+        let id = run.id;
         let tx = self.backfilled_tx.clone();
         tokio::spawn(async move {
-            let read = tokio::task::spawn_blocking(move || source.samples(from, to)).await;
-            match read {
-                Ok(Ok(samples)) => {
-                    let _ = tx.send(samples);
-                }
-                Ok(Err(e)) => tracing::error!(
-                    "mqtt: the samples of the outage kept in the historian could not be read \
-                     back ({e}); they are in the historian, not sent"
-                ),
-                Err(e) => tracing::error!("mqtt: reading back from the historian failed: {e}"),
-            }
+            let read = tokio::task::spawn_blocking(move || source.samples(from, end))
+                .await
+                .unwrap_or_else(|e| Err(format!("the reading task failed: {e}")));
+            let _ = tx
+                .send(Page {
+                    id,
+                    from,
+                    end,
+                    samples: read,
+                })
+                .await;
         });
+    }
+
+    /// A page read back: sent historical, the window fitted to [`BACKFILL_PAGE`], and
+    /// at the end of the range the deaths that waited for it.
+    fn page_read(&mut self, page: Page) {
+        let Some(run) = self.backfill_run.as_mut() else {
+            return;
+        };
+        if run.id != page.id || run.from != page.from || run.reading != Some(page.end) {
+            return; // of a session that has ended
+        }
+        run.reading = None;
+        let now = SystemTime::now();
+        match page.samples {
+            Ok(samples) => {
+                let n = samples.len();
+                run.sent += n as u64;
+                run.window = if n > BACKFILL_PAGE {
+                    (run.window / 2).max(MIN_WINDOW_MS)
+                } else if n < BACKFILL_PAGE / 4 {
+                    run.window.saturating_mul(2).min(MAX_WINDOW_MS)
+                } else {
+                    run.window
+                };
+                run.from = page.end;
+                let done = run.from >= run.to;
+                let sent = run.sent;
+                let out = self.core.backfilled(samples, now);
+                self.apply(out);
+                if done {
+                    self.backfill_run = None;
+                    tracing::info!(
+                        "mqtt: sent {sent} samples read back from the historian as historical data"
+                    );
+                    let out = self.core.backfill_done(now);
+                    self.apply(out);
+                }
+            }
+            Err(e) => {
+                tracing::error!(
+                    "mqtt: the samples of the outage kept in the historian could not be read \
+                     back ({e}); from {} ms on they are in the historian, not sent",
+                    run.from
+                );
+                self.backfill_run = None;
+                let out = self.core.backfill_done(now);
+                self.apply(out);
+            }
+        }
     }
 
     /// The holder of the loop tests DCMDs start, with a primary host: they end when

@@ -184,6 +184,10 @@ pub struct EdgeNode {
     spill: bool,
     /// The times (ms, first and last) of the samples left to the historian.
     spilled: Option<(u64, u64)>,
+    /// A read-back from the historian is under way ([`Output::Backfill`]): the
+    /// deaths of devices that do not answer wait for its end
+    /// ([`EdgeNode::backfill_done`]), so their data up to their death is sent first.
+    backfilling: bool,
 }
 
 impl EdgeNode {
@@ -204,6 +208,7 @@ impl EdgeNode {
             data_qos: 0,
             spill: false,
             spilled: None,
+            backfilling: false,
         }
     }
 
@@ -385,6 +390,7 @@ impl EdgeNode {
         }
         let mut out = vec![];
         let live = self.link == Link::Live;
+        let backfilling = self.backfilling;
         let Some(d) = self.devices.get_mut(&position) else {
             return out;
         };
@@ -407,6 +413,9 @@ impl EdgeNode {
         }
         if alive && (!d.born || units_changed) {
             self.dbirth(position, now, &mut out);
+        } else if d.born && !alive && backfilling {
+            // Dead during the outage: its data up to its death is being read back from
+            // the historian; its death follows that ([`EdgeNode::backfill_done`]).
         } else if d.born && !alive {
             // Its last values (quality "no reply") first, then the death.
             self.ddata(position, now, &mut out);
@@ -440,8 +449,8 @@ impl EdgeNode {
             return out;
         }
         if !samples.is_empty() {
-            tracing::info!(
-                "mqtt: sent {} samples read back from the historian as historical data",
+            tracing::debug!(
+                "mqtt: sending {} samples read back from the historian as historical data",
                 samples.len()
             );
         }
@@ -503,9 +512,7 @@ impl EdgeNode {
         let limit = self.settings.backlog.max(1);
         if self.spill && self.backlog.len() >= limit {
             // The historian has it: the time range is enough to read it back.
-            self.spilled = Some(self.spilled.map_or((sample.at, sample.at), |(from, to)| {
-                (from.min(sample.at), to.max(sample.at))
-            }));
+            self.spill_range(sample.at);
             self.counters.stored += 1;
             if !self.backlog_full_logged {
                 self.backlog_full_logged = true;
@@ -522,8 +529,36 @@ impl EdgeNode {
         self.trim_backlog();
     }
 
+    /// Adds time `at` to the range left to the historian. Memory then keeps only
+    /// samples older than the whole range (the newer ones join it): what the historian
+    /// gives back and what memory sends never overlap, so nothing arrives twice.
+    fn spill_range(&mut self, at: u64) {
+        let (from, to) = self
+            .spilled
+            .map_or((at, at), |(from, to)| (from.min(at), to.max(at)));
+        let mut from = from;
+        while let Some(s) = self.backlog.back() {
+            if s.at < from {
+                break;
+            }
+            from = from.min(s.at);
+            self.backlog.pop_back();
+        }
+        self.spilled = Some((from, to));
+    }
+
     fn trim_backlog(&mut self) {
         let limit = self.settings.backlog.max(1);
+        if self.spill {
+            // The historian has every sample: the newest in memory join the range left
+            // to it (all later than those kept, so the range stays one), none dropped.
+            while self.backlog.len() > limit {
+                if let Some(s) = self.backlog.pop_back() {
+                    self.spill_range(s.at);
+                }
+            }
+            return;
+        }
         while self.backlog.len() > limit {
             self.backlog.pop_front();
             self.counters.dropped += 1;
@@ -600,6 +635,7 @@ impl EdgeNode {
         }
         if let Some((from, to)) = self.spilled.take() {
             // After what memory held: the rest of the outage, from the historian.
+            self.backfilling = true;
             out.push(Output::Backfill {
                 from,
                 to: to.saturating_add(1),
@@ -619,11 +655,52 @@ impl EdgeNode {
             );
         }
         self.backlog_full_logged = false;
-        for &p in &positions {
-            if self.devices.get(&p).is_some_and(|d| !d.alive) {
-                self.ddeath(p, now, out);
-            }
+        if !self.backfilling {
+            self.deaths(now, out);
         }
+    }
+
+    /// DDEATH for every born device that does not answer.
+    fn deaths(&mut self, now: SystemTime, out: &mut Vec<Output>) {
+        let dead: Vec<usize> = self
+            .devices
+            .iter()
+            .filter(|(_, d)| d.born && !d.alive)
+            .map(|(p, _)| *p)
+            .collect();
+        for p in dead {
+            self.ddeath(p, now, out);
+        }
+    }
+
+    /// The read-back asked by [`Output::Backfill`] has been sent whole (or could not be
+    /// read): the devices that died during the outage, whose data up to their death has
+    /// now gone out historical, get their DDEATH.
+    pub fn backfill_done(&mut self, now: SystemTime) -> Vec<Output> {
+        let mut out = vec![];
+        if !std::mem::take(&mut self.backfilling) {
+            return out;
+        }
+        if self.link == Link::Live {
+            self.deaths(now, &mut out);
+        }
+        out
+    }
+
+    /// The session ended before the read-back from `from` to `to` (ms, `to`
+    /// excluded) was sent: it is asked again after the next births.
+    pub fn backfill_unfinished(&mut self, from: u64, to: u64) {
+        self.backfilling = false;
+        if from >= to {
+            return;
+        }
+        self.spill_range(from);
+        self.spill_range(to - 1);
+    }
+
+    /// Whether a read-back from the historian is under way.
+    pub fn is_backfilling(&self) -> bool {
+        self.backfilling
     }
 
     fn dbirth(&mut self, position: usize, now: SystemTime, out: &mut Vec<Output>) {

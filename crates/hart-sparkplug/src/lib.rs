@@ -20,7 +20,7 @@ pub mod edge;
 pub mod metrics;
 pub mod proto;
 
-pub use client::{run, Backfill, Handle, Status};
+pub use client::{run, Backfill, Handle, Status, BACKFILL_LOW_WATER, BACKFILL_PAGE};
 pub use config::{default_edge_node, Broker, MqttConfig, DEFAULT_BACKLOG, DEFAULT_GROUP};
 pub use edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
 

@@ -634,3 +634,103 @@ fn a_full_backlog_spills_to_the_historian_and_is_read_back() {
     }
     assert_eq!(plain.counters().dropped, 7);
 }
+
+/// A device that dies during an outage whose data went to the historian: after the
+/// births, its data up to its death is read back and sent historical while it is still
+/// born, and only then its DDEATH; a tick's feed meanwhile does not kill it early.
+#[test]
+fn a_device_dead_during_the_outage_gets_its_data_before_its_death() {
+    let mut node = EdgeNode::new(Settings {
+        backlog: 2,
+        ..settings()
+    })
+    .with_spill(true);
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    node.device(&device(1, 2, None, 0.0), Quality::Good, t(0), t(0));
+    node.disconnected(vec![]);
+    for i in 1..=10u64 {
+        node.device(&device(0, 1, None, i as f32), Quality::Good, t(i), t(i));
+        if i <= 5 {
+            node.device(&device(1, 2, None, i as f32), Quality::Good, t(i), t(i));
+        }
+    }
+    // Device 1 stops answering at 6.
+    node.device(&device(1, 2, None, 5.0), Quality::NoReply, t(6), t(6));
+    node.will(t(20));
+    let out = node.connected(t(20));
+    let topics: Vec<&str> = publishes(&out).iter().map(|m| m.topic.as_str()).collect();
+    assert!(
+        !topics.iter().any(|t| t.contains("DDEATH")),
+        "no death before the read-back: {topics:?}"
+    );
+    assert!(out.iter().any(|o| matches!(o, Output::Backfill { .. })));
+    assert!(node.is_backfilling());
+    // The gateway's tick feeds the dead device again: still no death.
+    let out = node.device(&device(1, 2, None, 5.0), Quality::NoReply, t(6), t(21));
+    assert!(publishes(&out).is_empty(), "{out:?}");
+    // Its samples from the historian go out historical, under its birth.
+    let sample = |position: usize, i: u64| Sample {
+        position,
+        at: millis(t(i)),
+        metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+    };
+    let out = node.backfilled(vec![sample(1, 3), sample(1, 4), sample(1, 5)], t(22));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 3);
+    assert!(msgs.iter().all(|m| m.topic.contains("/DDATA/")));
+    assert!(msgs
+        .iter()
+        .all(|m| decode(m).metrics[0].is_historical == Some(true)));
+    // The end of the read-back: now its death.
+    let out = node.backfill_done(t(23));
+    let msgs = publishes(&out);
+    assert_eq!(msgs.len(), 1, "{msgs:?}");
+    assert!(msgs[0].topic.contains("/DDEATH/"), "{}", msgs[0].topic);
+    assert!(!node.is_backfilling());
+    assert_eq!(node.counters().dropped, 0);
+}
+
+/// With a historian, samples given back on a disconnect (sent, never acknowledged)
+/// over a full backlog join the range left to the historian instead of being dropped;
+/// a read-back the session did not finish is asked again after the next births.
+#[test]
+fn nothing_the_historian_holds_is_dropped_and_an_unfinished_read_back_is_asked_again() {
+    let mut node = EdgeNode::new(Settings {
+        backlog: 3,
+        ..settings()
+    })
+    .with_spill(true);
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let unsent: Vec<Sample> = (1..=6u64)
+        .map(|i| Sample {
+            position: 0,
+            at: millis(t(i)),
+            metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+        })
+        .collect();
+    node.disconnected(unsent);
+    assert_eq!(node.counters().dropped, 0);
+    assert_eq!(node.backlog_len(), 3);
+    node.will(t(10));
+    let out = node.connected(t(10));
+    let range = out
+        .iter()
+        .find_map(|o| match o {
+            Output::Backfill { from, to } => Some((*from, *to)),
+            _ => None,
+        })
+        .expect("the rest is asked back");
+    assert_eq!(range, (millis(t(4)), millis(t(6)) + 1));
+    // The session ends with the read-back half done: the rest is asked again.
+    node.backfill_unfinished(millis(t(5)), range.1);
+    node.disconnected(vec![]);
+    node.will(t(30));
+    let out = node.connected(t(30));
+    let again = out.iter().find_map(|o| match o {
+        Output::Backfill { from, to } => Some((*from, *to)),
+        _ => None,
+    });
+    assert_eq!(again, Some((millis(t(5)), millis(t(6)) + 1)));
+}

@@ -951,3 +951,173 @@ async fn births_over_tls_with_a_ca_file() {
         })
         .await;
 }
+
+/// A historian for the test: every change the engine commits, kept as the edge node's
+/// sample of the device's whole values, read back by time range; counts the pages asked.
+#[derive(Debug, Default)]
+struct TestHistorian {
+    samples: Mutex<Vec<hart_sparkplug::Sample>>,
+    pages: Mutex<Vec<(u64, u64, usize)>>,
+}
+
+impl hart_sparkplug::Backfill for TestHistorian {
+    fn samples(&self, from: u64, to: u64) -> Result<Vec<hart_sparkplug::Sample>, String> {
+        let out: Vec<_> = self
+            .samples
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|s| (from..to).contains(&s.at))
+            .cloned()
+            .collect();
+        self.pages.lock().unwrap().push((from, to, out.len()));
+        Ok(out)
+    }
+}
+
+/// A broker outage long enough to fill the store-and-forward backlog (20 samples), with
+/// a historian beside the publisher, during which one device stops answering: after
+/// the broker is back, the rest of the outage is read back from the historian page by
+/// page (several pages, not one), the dead device's data up to its death arrives
+/// historical and in order before its DDEATH, nothing is dropped and nothing arrives
+/// twice.
+#[tokio::test(flavor = "current_thread")]
+async fn a_device_dead_during_an_outage_has_its_data_before_its_death() {
+    let Some(t) = tools() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let mut broker = Broker::start(&t, dir.path(), "");
+    let sub = Sub::start(&t, broker.port).await;
+    let local = tokio::task::LocalSet::new();
+    local
+        .run_until(async {
+            let devices = hart_host::transport::Plant::demo().devices().unwrap();
+            let memory = MemoryLoop::new(devices);
+            let faults = memory.faults();
+            let (engine, _) = Engine::start(
+                EngineConfig {
+                    poll: true,
+                    defaults: hart_poller::PollSettings {
+                        period: Duration::from_millis(100),
+                        ..Default::default()
+                    },
+                    ..Default::default()
+                },
+                vec![LoopSpec {
+                    settings: Default::default(),
+                    line: Line::Memory(memory),
+                }],
+            );
+            engine.ready().await;
+            // The historian: every commit, with the device's whole values.
+            let historian = Arc::new(TestHistorian::default());
+            let h = historian.clone();
+            let mut changes = engine.image().changes(1 << 16);
+            tokio::task::spawn_local(async move {
+                while let Some(c) = changes.recv().await {
+                    let at = c
+                        .value_time()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .unwrap()
+                        .as_millis() as u64;
+                    let metrics = hart_sparkplug::metrics::values(&c.device, c.quality)
+                        .into_iter()
+                        .enumerate()
+                        .collect();
+                    // One sample per device and stored time, as the gateway's
+                    // historian reads back (the later commit of the same millisecond).
+                    let mut kept = h.samples.lock().unwrap();
+                    kept.retain(|s| !(s.position == c.device.position && s.at == at));
+                    kept.push(hart_sparkplug::Sample {
+                        position: c.device.position,
+                        at,
+                        metrics,
+                    });
+                }
+            });
+            let node = "gw-dead";
+            let mut cfg = config(&broker.url(), node);
+            cfg.backlog = 20;
+            let handle = hart_sparkplug::run(
+                engine.clone(),
+                cfg,
+                Some(historian.clone() as Arc<dyn hart_sparkplug::Backfill>),
+            )
+            .await
+            .unwrap();
+            sub.wait("the births", |l| {
+                of_node(l, node)
+                    .iter()
+                    .filter(|v| kind(v) == "DBIRTH")
+                    .count()
+                    >= 4
+            })
+            .await;
+            broker.stop();
+            tokio::time::sleep(Duration::from_secs(4)).await;
+            // The valve (polling address 3) stops answering mid-outage.
+            faults.set_connected(3, false);
+            let died = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap()
+                .as_millis() as u64;
+            tokio::time::sleep(Duration::from_secs(6)).await;
+            broker.restart();
+            sub.wait("the dead valve's DDEATH", |l| {
+                of_node(l, node)
+                    .iter()
+                    .filter(|v| kind(v) == "DDEATH")
+                    .count()
+                    >= 1
+            })
+            .await;
+            let s = handle.status();
+            assert_eq!(s.counters.dropped, 0, "{s:?}");
+            let pages = historian.pages.lock().unwrap().clone();
+            assert!(pages.len() > 1, "read back page by page: {pages:?}");
+            let lines = sub.lines();
+            let msgs = of_node(&lines, node);
+            let death = msgs.iter().position(|v| kind(v) == "DDEATH").unwrap();
+            let valve = msgs[death]["topic"]
+                .as_str()
+                .unwrap()
+                .rsplit('/')
+                .next()
+                .unwrap()
+                .to_string();
+            // The valve's historical data: before its death, in order, reaching the
+            // time it stopped answering.
+            let hist: Vec<u64> = msgs
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| {
+                    kind(v) == "DDATA"
+                        && v["topic"].as_str().unwrap().ends_with(&format!("/{valve}"))
+                })
+                .flat_map(|(i, v)| {
+                    metrics(v)
+                        .into_iter()
+                        .filter(|m| m["is_historical"] == true)
+                        .map(move |m| (i, num(&m["timestamp"])))
+                })
+                .map(|(i, ts)| {
+                    assert!(i < death, "historical data of {valve} after its DDEATH");
+                    ts
+                })
+                .collect();
+            assert!(!hist.is_empty(), "{valve} has its outage data");
+            assert!(hist.windows(2).all(|w| w[0] <= w[1]), "{hist:?}");
+            assert!(
+                *hist.last().unwrap() + 3_000 >= died,
+                "up to its death ({died}): {hist:?}"
+            );
+            // Live data goes on while the outage is read back: each stream (live,
+            // historical) is in order, and no sample arrives twice in either.
+            let d = data(&lines, node);
+            for historical in [false, true] {
+                let stream: Vec<_> = d.iter().filter(|x| x.3 == historical).cloned().collect();
+                check_order(&stream);
+            }
+            handle.shutdown().await;
+        })
+        .await;
+}
