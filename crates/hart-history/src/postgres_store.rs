@@ -30,6 +30,10 @@ CREATE TABLE IF NOT EXISTS samples (
 ) PARTITION BY RANGE (time);
 ";
 
+/// The ingest's saved Sparkplug births (made when first used).
+const BIRTHS_TABLE: &str =
+    "CREATE TABLE IF NOT EXISTS ingest_births (topic text PRIMARY KEY, payload bytea NOT NULL)";
+
 /// A PostgreSQL historian database.
 pub struct PgStore {
     config: Config,
@@ -119,6 +123,11 @@ fn day_name(day: i64) -> String {
     s.get(0..10).unwrap_or("0000-00-00").replace('-', "")
 }
 
+/// The longest a statement of the historian may run on the server (a batch insert,
+/// a query, a day's drop) before the server ends it: a blocked server or a lock held
+/// elsewhere then fails the batch (retried) instead of holding the writer.
+pub const STATEMENT_TIMEOUT: Duration = Duration::from_secs(60);
+
 impl PgStore {
     /// Connects to `url` (5 s connect timeout unless the URL sets one) and creates or
     /// checks the schema.
@@ -131,6 +140,17 @@ impl PgStore {
         })?;
         if config.get_connect_timeout().is_none() {
             config.connect_timeout(Duration::from_secs(5));
+        }
+        // A partitioned server is noticed, not waited on for ever: TCP keep-alives
+        // (idle 30 s, the kernel's probes after), and a statement that runs longer than
+        // STATEMENT_TIMEOUT is ended by the server (the URL's own options win).
+        config.keepalives(true);
+        config.keepalives_idle(Duration::from_secs(30));
+        if config.get_options().is_none() {
+            config.options(&format!(
+                "-c statement_timeout={}",
+                STATEMENT_TIMEOUT.as_millis()
+            ));
         }
         let client = config.connect(NoTls).map_err(|e| pg_error(&shown, e))?;
         let mut s = PgStore {
@@ -324,6 +344,38 @@ impl PgStore {
     }
 
     /// Every device with its sample times and count.
+    /// Saves Sparkplug births by topic (the ingest's, [`crate::Store::save_births`]).
+    pub fn save_births(&mut self, births: &[(String, Vec<u8>)]) -> Result<(), Error> {
+        let shown = self.url_shown.clone();
+        let e = |e| pg_error(&shown, e);
+        let mut tx = self.client.transaction().map_err(e)?;
+        tx.batch_execute(BIRTHS_TABLE).map_err(e)?;
+        for (topic, payload) in births {
+            tx.execute(
+                "INSERT INTO ingest_births (topic, payload) VALUES ($1, $2) \
+                 ON CONFLICT (topic) DO UPDATE SET payload = EXCLUDED.payload",
+                &[topic, payload],
+            )
+            .map_err(e)?;
+        }
+        tx.commit().map_err(e)
+    }
+
+    /// The saved births, by topic.
+    pub fn births(&mut self) -> Result<Vec<(String, Vec<u8>)>, Error> {
+        let shown = self.url_shown.clone();
+        let e = |e| pg_error(&shown, e);
+        self.client.batch_execute(BIRTHS_TABLE).map_err(e)?;
+        let rows = self
+            .client
+            .query(
+                "SELECT topic, payload FROM ingest_births ORDER BY topic",
+                &[],
+            )
+            .map_err(e)?;
+        Ok(rows.iter().map(|r| (r.get(0), r.get(1))).collect())
+    }
+
     pub fn devices(&mut self) -> Result<Vec<DeviceSummary>, Error> {
         let shown = self.url_shown.clone();
         let rows = self

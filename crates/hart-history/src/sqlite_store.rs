@@ -33,6 +33,10 @@ CREATE TABLE IF NOT EXISTS samples (
 ) WITHOUT ROWID;
 ";
 
+/// The ingest's saved Sparkplug births (made when first used).
+const BIRTHS_TABLE: &str =
+    "CREATE TABLE IF NOT EXISTS ingest_births (topic TEXT PRIMARY KEY, payload BLOB NOT NULL)";
+
 /// An SQLite historian file.
 pub struct SqliteStore {
     path: PathBuf,
@@ -219,6 +223,37 @@ impl SqliteStore {
     }
 
     /// Every device with its sample times and count.
+    /// Saves Sparkplug births by topic (the ingest's, [`crate::Store::save_births`]).
+    pub fn save_births(&mut self, births: &[(String, Vec<u8>)]) -> Result<(), Error> {
+        let e = |e| sqlite_error(&self.path, e);
+        let tx = self.conn.transaction().map_err(e)?;
+        tx.execute(BIRTHS_TABLE, []).map_err(e)?;
+        for (topic, payload) in births {
+            tx.execute(
+                "INSERT OR REPLACE INTO ingest_births (topic, payload) VALUES (?1, ?2)",
+                rusqlite::params![topic, payload],
+            )
+            .map_err(e)?;
+        }
+        tx.commit().map_err(e)
+    }
+
+    /// The saved births, by topic.
+    pub fn births(&mut self) -> Result<Vec<(String, Vec<u8>)>, Error> {
+        let e = |e| sqlite_error(&self.path, e);
+        self.conn.execute(BIRTHS_TABLE, []).map_err(e)?;
+        let mut st = self
+            .conn
+            .prepare("SELECT topic, payload FROM ingest_births ORDER BY topic")
+            .map_err(e)?;
+        let rows = st
+            .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(e)?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(e)?;
+        Ok(rows)
+    }
+
     pub fn devices(&mut self) -> Result<Vec<DeviceSummary>, Error> {
         let e = |e| sqlite_error(&self.path, e);
         let mut st = self

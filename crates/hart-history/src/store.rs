@@ -177,6 +177,27 @@ impl Store {
         }
     }
 
+    /// Saves the Sparkplug births (NBIRTH, DBIRTH payloads by topic) an ingest has
+    /// taken in, replacing those of the same topic: after a restart, the data the
+    /// broker kept for it is read against them (its metrics carry aliases only).
+    pub fn save_births(&mut self, births: &[(String, Vec<u8>)]) -> Result<(), Error> {
+        if births.is_empty() {
+            return Ok(());
+        }
+        match self {
+            Store::Sqlite(s) => s.save_births(births),
+            Store::Postgres(s) => s.save_births(births),
+        }
+    }
+
+    /// The births saved by [`Store::save_births`], by topic.
+    pub fn births(&mut self) -> Result<Vec<(String, Vec<u8>)>, Error> {
+        match self {
+            Store::Sqlite(s) => s.births(),
+            Store::Postgres(s) => s.births(),
+        }
+    }
+
     /// Every stored device with its first and last sample times and sample count.
     pub fn devices(&mut self) -> Result<Vec<DeviceSummary>, Error> {
         match self {

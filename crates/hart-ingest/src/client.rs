@@ -158,12 +158,42 @@ pub async fn run(
         .await
         .map_err(|e| Error::Config(format!("the historian's writer could not start: {e}")))?
         .map_err(Error::History)?;
+    let writer = std::sync::Arc::new(writer);
     let mut decoder = Decoder::new(&config.group);
+    // The births an earlier run kept, for the data the broker kept meanwhile; births
+    // are saved through a connection of their own, before their messages are
+    // acknowledged.
+    let db = config.db.clone();
+    let (store, kept) = tokio::task::spawn_blocking(move || {
+        let mut store = hart_history::Store::open(&db, true)?;
+        let kept = store.births()?;
+        Ok::<_, hart_history::Error>((store, kept))
+    })
+    .await
+    .map_err(|e| Error::Config(format!("the historian could not be opened: {e}")))?
+    .map_err(Error::History)?;
+    if !kept.is_empty() {
+        tracing::info!(
+            "ingest: {} births kept by an earlier run taken in",
+            kept.len()
+        );
+    }
+    decoder.restore(&kept, SystemTime::now());
+    let store = std::sync::Arc::new(std::sync::Mutex::new(store));
+    let mut births: Vec<(String, Vec<u8>)> = Vec::new();
     let mut current = 0;
     let (client, eventloop) = AsyncClient::new(options(&config, &brokers[0])?, 256);
     // Polled on a task of its own: a select! below must never cancel it mid-connect.
     let mut driver = hart_sparkplug::driver::Driver::spawn(eventloop);
+    // Samples decoded and not yet handed to the writer, and the messages they came
+    // from (with those handed over whose commit failed): acknowledged once committed.
+    let mut taken: Vec<hart_history::Sample> = Vec::new();
     let mut uncommitted: Vec<Publish> = Vec::new();
+    // The commit under way on a blocking thread (database work never runs here).
+    let mut committing: Option<Committing> = None;
+    // Connections made: a commit's acknowledgements belong to the connection its
+    // messages came on.
+    let mut connection: u64 = 0;
     let mut failures: u32 = 0;
     let mut connected = false;
     let mut commit = tokio::time::interval(COMMIT_EVERY);
@@ -172,14 +202,19 @@ pub async fn run(
     // After a refused subscription (a cluster electing leaders refuses for a while).
     let mut resubscribe_at: Option<tokio::time::Instant> = None;
     loop {
+        // While MAX_UNCOMMITTED messages wait for a commit the historian cannot make,
+        // nothing more is taken from the broker, which keeps it: memory stays bounded
+        // and the writer never has to drop what the broker delivered.
+        let room = uncommitted.len() < MAX_UNCOMMITTED;
         tokio::select! {
-            ev = driver.recv() => match ev {
+            ev = driver.recv(), if room => match ev {
                 None => {
                     tracing::error!("ingest: the MQTT client's task ended");
                     break;
                 }
                 Some(Ok(Event::Incoming(Packet::ConnAck(ack)))) => {
                     connected = true;
+                    connection += 1;
                     failures = 0;
                     let b = &brokers[current];
                     tracing::info!(
@@ -206,7 +241,8 @@ pub async fn run(
                 Some(Ok(Event::Incoming(Packet::Publish(p)))) => {
                     match decoder.received(&p.topic, &p.payload, SystemTime::now()) {
                         Ok(out) => {
-                            writer.submit_wait(out.samples);
+                            taken.extend(out.samples);
+                            births.extend(out.birth);
                             for m in out.publish {
                                 tracing::info!("ingest: asking for a rebirth on {}", m.topic);
                                 let _ = client.try_publish(m.topic, QoS::AtMostOnce, false, m.payload);
@@ -214,13 +250,11 @@ pub async fn run(
                         }
                         Err(e) => tracing::warn!("ingest: message ignored: {e}"),
                     }
-                    if p.qos == QoS::AtMostOnce {
-                        // Nothing to acknowledge.
-                    } else {
+                    if p.qos != QoS::AtMostOnce {
                         uncommitted.push(p);
                     }
-                    if uncommitted.len() >= MAX_UNCOMMITTED {
-                        commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
+                    if uncommitted.len() >= MAX_UNCOMMITTED && committing.is_none() {
+                        committing = Committing::start(&writer, &store, &mut taken, &mut births, &mut uncommitted, connection);
                     }
                 }
                 Some(Ok(_)) => {}
@@ -235,7 +269,9 @@ pub async fn run(
                     resubscribe_at = None;
                     failures = failures.saturating_add(1);
                     // Acknowledgements of the lost connection mean nothing in the next:
-                    // the broker sends those messages again.
+                    // the broker sends those messages again (their samples, taken
+                    // already, are written all the same: the historian stores a sample
+                    // once).
                     uncommitted.clear();
                     let mut delay = Duration::from_millis(250u64 << failures.min(7)).min(Duration::from_secs(15));
                     let mut next = None;
@@ -251,21 +287,54 @@ pub async fn run(
                     driver.resume(hart_sparkplug::driver::Resume { options: next, clear: false, after: delay });
                 }
             },
+            done = async { (&mut committing.as_mut().expect("guarded").task).await }, if committing.is_some() => {
+                let c = committing.take().expect("guarded");
+                commit_failing = c.finished(done, &client, &mut uncommitted, &mut births, connection, commit_failing);
+            }
             _ = commit.tick() => {
                 if connected && resubscribe_at.is_some_and(|t| t <= tokio::time::Instant::now()) {
                     resubscribe_at = None;
                     let _ = client.try_subscribe(decoder.filter(), QoS::AtLeastOnce);
                 }
-                if !uncommitted.is_empty() {
-                    commit_failing = commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
+                if committing.is_none() && !(uncommitted.is_empty() && taken.is_empty()) {
+                    committing = Committing::start(&writer, &store, &mut taken, &mut births, &mut uncommitted, connection);
                 }
             }
             _ = stop.changed() => break,
         }
     }
-    // Stop: commit, acknowledge, disconnect (the session stays at the broker).
+    // Stop: the commit under way, then one of what is left; acknowledge; disconnect
+    // (the session stays at the broker).
+    if let Some(mut c) = committing.take() {
+        let done = (&mut c.task).await;
+        commit_failing = c.finished(
+            done,
+            &client,
+            &mut uncommitted,
+            &mut births,
+            connection,
+            commit_failing,
+        );
+    }
+    if let Some(mut c) = Committing::start(
+        &writer,
+        &store,
+        &mut taken,
+        &mut births,
+        &mut uncommitted,
+        connection,
+    ) {
+        let done = (&mut c.task).await;
+        c.finished(
+            done,
+            &client,
+            &mut uncommitted,
+            &mut births,
+            connection,
+            commit_failing,
+        );
+    }
     if connected {
-        commit_and_ack(&writer, &client, &mut uncommitted, commit_failing);
         let _ = client.try_disconnect();
         let _ = tokio::time::timeout(Duration::from_secs(3), async {
             loop {
@@ -277,40 +346,126 @@ pub async fn run(
         })
         .await;
     }
-    let history = tokio::task::spawn_blocking(move || writer.close())
-        .await
-        .unwrap_or_default();
+    // A PostgreSQL connection is closed where it may block.
+    let _ = tokio::task::spawn_blocking(move || drop(store)).await;
+    let history = match std::sync::Arc::try_unwrap(writer) {
+        Ok(w) => tokio::task::spawn_blocking(move || w.close())
+            .await
+            .unwrap_or_default(),
+        Err(w) => w.stats(),
+    };
     Ok(Summary {
         counters: decoder.counters(),
         history,
     })
 }
 
-/// Commits what the writer holds; once committed, acknowledges the messages.
-/// Returns whether the commit failed (logged once until it works again).
-fn commit_and_ack(
-    writer: &Writer,
-    client: &AsyncClient,
-    uncommitted: &mut Vec<Publish>,
-    was_failing: bool,
-) -> bool {
-    match writer.flush() {
-        Ok(()) => {
-            for p in uncommitted.drain(..) {
-                let _ = client.try_ack(&p);
-            }
-            if was_failing {
-                tracing::info!("ingest: the historian takes samples again");
-            }
-            false
+/// A commit under way on a blocking thread: the samples handed to the writer and
+/// flushed there, and the messages they came from, to acknowledge once it is done.
+struct Committing {
+    messages: Vec<Publish>,
+    /// The births saved with it (given back when it fails).
+    births: Vec<(String, Vec<u8>)>,
+    connection: u64,
+    task: tokio::task::JoinHandle<Result<u64, hart_history::Error>>,
+}
+
+impl Committing {
+    /// Hands `taken` to the writer and commits on a blocking thread; `None` when there
+    /// is nothing to commit.
+    fn start(
+        writer: &std::sync::Arc<Writer>,
+        store: &std::sync::Arc<std::sync::Mutex<hart_history::Store>>,
+        taken: &mut Vec<hart_history::Sample>,
+        births: &mut Vec<(String, Vec<u8>)>,
+        uncommitted: &mut Vec<Publish>,
+        connection: u64,
+    ) -> Option<Committing> {
+        if taken.is_empty() && uncommitted.is_empty() && births.is_empty() {
+            return None;
         }
-        Err(e) => {
-            if !was_failing {
-                tracing::warn!(
-                    "ingest: the historian cannot commit ({e}); messages are not acknowledged until it can, so the broker keeps them"
-                );
+        let samples = std::mem::take(taken);
+        let saving = std::mem::take(births);
+        let kept = saving.clone();
+        let w = writer.clone();
+        let store = store.clone();
+        let task = tokio::task::spawn_blocking(move || {
+            let dropped = w.stats().dropped;
+            // The samples to the writer first (a failure below leaves them there, for
+            // the next commit); a message is acknowledged only once the births that
+            // read its data after a restart are kept too.
+            w.submit_wait(samples);
+            store
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .save_births(&saving)?;
+            w.flush()?;
+            Ok(w.stats().dropped.saturating_sub(dropped))
+        });
+        Some(Committing {
+            messages: std::mem::take(uncommitted),
+            births: kept,
+            connection,
+            task,
+        })
+    }
+
+    /// What became of the commit: its messages acknowledged when every sample they
+    /// gave was committed on the connection they came on; given back to wait for the
+    /// next commit when it failed. Returns whether commits are failing (logged once
+    /// until they work again).
+    fn finished(
+        self,
+        done: Result<Result<u64, hart_history::Error>, tokio::task::JoinError>,
+        client: &AsyncClient,
+        uncommitted: &mut Vec<Publish>,
+        births: &mut Vec<(String, Vec<u8>)>,
+        connection: u64,
+        was_failing: bool,
+    ) -> bool {
+        let same = self.connection == connection;
+        match done {
+            Ok(Ok(0)) => {
+                if same {
+                    for p in &self.messages {
+                        let _ = client.try_ack(p);
+                    }
+                }
+                if was_failing {
+                    tracing::info!("ingest: the historian takes samples again");
+                }
+                false
             }
-            true
+            Ok(Ok(dropped)) => {
+                // Not acknowledged: the broker delivers them again after the next
+                // connection, and the historian stores what it missed.
+                tracing::error!(
+                    "ingest: the historian dropped {dropped} samples; the {} messages of this commit are not acknowledged, so the broker delivers them again after a reconnection",
+                    self.messages.len()
+                );
+                false
+            }
+            Ok(Err(e)) => {
+                if !was_failing {
+                    tracing::warn!(
+                        "ingest: the historian cannot commit ({e}); messages are not acknowledged until it can, so the broker keeps them"
+                    );
+                }
+                if same {
+                    // Their samples are with the writer: the next commit covers them.
+                    let newer = std::mem::replace(uncommitted, self.messages);
+                    uncommitted.extend(newer);
+                }
+                let newer = std::mem::replace(births, self.births);
+                births.extend(newer);
+                true
+            }
+            Err(e) => {
+                tracing::error!(
+                    "ingest: the commit's thread failed ({e}); its messages are not acknowledged"
+                );
+                true
+            }
         }
     }
 }

@@ -70,6 +70,9 @@ pub struct Output {
     pub samples: Vec<Sample>,
     /// Messages to publish (an NCMD rebirth request).
     pub publish: Vec<Publish>,
+    /// A birth (NBIRTH or DBIRTH) to keep with the historian, as topic and payload:
+    /// after a restart, [`Decoder::restore`] reads the data the broker kept against it.
+    pub birth: Option<(String, Vec<u8>)>,
 }
 
 /// Counters, for the summary line and tests.
@@ -221,6 +224,22 @@ impl Decoder {
         self.counters
     }
 
+    /// Takes in the births an earlier run kept ([`Output::birth`]): each node's NBIRTH,
+    /// then its DBIRTHs, so that the data the broker kept for the session while the
+    /// ingest was away (its metrics carry aliases only) can be read. Nothing is stored
+    /// or asked, and the counters stay as they were.
+    pub fn restore(&mut self, births: &[(String, Vec<u8>)], now: SystemTime) {
+        let counters = self.counters;
+        let is = |t: &str, kind: &str| t.split('/').nth(2) == Some(kind);
+        for (topic, payload) in births.iter().filter(|(t, _)| is(t, "NBIRTH")) {
+            let _ = self.decode(topic, payload, now);
+        }
+        for (topic, payload) in births.iter().filter(|(t, _)| is(t, "DBIRTH")) {
+            let _ = self.decode(topic, payload, now);
+        }
+        self.counters = counters;
+    }
+
     /// One message received on `topic`, at `now`.
     pub fn received(
         &mut self,
@@ -320,6 +339,9 @@ impl Decoder {
                 }
                 None => {}
             }
+        }
+        if matches!(kind, Kind::NBirth | Kind::DBirth) {
+            out.birth = Some((topic.to_string(), payload.to_vec()));
         }
         match kind {
             Kind::NBirth => {

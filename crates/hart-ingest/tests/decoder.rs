@@ -409,3 +409,34 @@ proptest! {
         let _ = d.received(DB, &p.encode_to_vec(), at(T0));
     }
 }
+
+/// Births are handed out to be kept; a new decoder that takes them in (a restarted
+/// ingest) reads the data the broker kept meanwhile, without asking for a rebirth and
+/// without counting the births again.
+#[test]
+fn kept_births_read_the_data_after_a_restart() {
+    let mut first = Decoder::new("Plant");
+    let nb = first.received(NB, &nbirth(0, 3), at(T0)).unwrap();
+    let db = first.received(DB, &dbirth(1, T0), at(T0)).unwrap();
+    let kept: Vec<(String, Vec<u8>)> = [db.birth.unwrap(), nb.birth.unwrap()].into();
+    assert_eq!(kept[1].0, NB);
+    // Data without births is read only after the restore (DBIRTH listed first here:
+    // the restore takes NBIRTHs first whatever the order).
+    let data = ddata(
+        2,
+        vec![(0, metric::Value::FloatValue(2.5), T0 + 1000, false)],
+    );
+    let mut cold = Decoder::new("Plant");
+    assert!(cold
+        .received(DD, &data, at(T0 + 2000))
+        .unwrap()
+        .samples
+        .is_empty());
+    let mut restarted = Decoder::new("Plant");
+    restarted.restore(&kept, at(T0 + 2000));
+    assert_eq!(restarted.counters().births, 0);
+    let out = restarted.received(DD, &data, at(T0 + 2000)).unwrap();
+    assert!(out.publish.is_empty(), "no rebirth asked");
+    assert_eq!(find(&out.samples, Var::Pv).value, 2.5);
+    assert!(out.birth.is_none());
+}

@@ -8,13 +8,13 @@
 //! same rule. Nothing public sends a frame to a device past both.
 //!
 //! The rule is [`hart_access::Policy::check`] with the gateway's allow-list and declared
-//! device-specific reads ([`WritePolicy`]), and the requester's rights cut to read-only
+//! device-specific reads ([`hart_access::WritePolicy`]), and the requester's rights cut to read-only
 //! when the gateway is read-only: a frame that only reads goes whoever sends it; one
 //! that writes (or is not known to read) needs a requester that may write.
 
 use std::fmt;
 
-use hart_access::{Allowed, Policy, Refusal, Rights, WriteOutcome, WritePolicy, WriteRecord};
+use hart_access::{Allowed, Policy, Refusal, Rights, WriteOutcome, WriteRecord};
 use hart_proto::frame::{Address, Frame};
 
 /// Who sends a frame through the gate, with what rights, and how the audit names them.
@@ -79,23 +79,16 @@ impl fmt::Display for Denied {
 
 impl std::error::Error for Denied {}
 
-/// The gateway's rule as an access [`Policy`], with `rights` cut to read-only when the
-/// gateway is.
+/// The gateway's rule (its access `policy`, and whether it is `read_only`), with
+/// `rights` cut to read-only when the gateway is.
 pub(crate) fn judge(
-    rule: &WritePolicy,
+    policy: &Policy,
+    read_only: bool,
     rights: Rights,
     frame: &Frame<'_>,
     device_type: Option<u16>,
 ) -> Result<Allowed, Refusal> {
-    let policy = Policy {
-        allow: rule.allow.clone(),
-        device_commands: rule.device_commands.clone(),
-    };
-    let rights = if rule.read_only {
-        Rights::ReadOnly
-    } else {
-        rights
-    };
+    let rights = if read_only { Rights::ReadOnly } else { rights };
     policy.check(rights, frame, device_type)
 }
 

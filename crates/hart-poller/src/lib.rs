@@ -122,6 +122,8 @@ pub(crate) struct Shared {
     disturbed: std::sync::Mutex<Vec<Option<String>>>,
     /// The rule for typed writes, and their audit.
     pub(crate) write_policy: WritePolicy,
+    /// The same rule as the access policy frames are judged by ([`gate`]).
+    pub(crate) frame_policy: hart_access::Policy,
     /// Loop tasks that have ended.
     stopped: watch::Sender<usize>,
     /// One lock per device that typed writes take: a read-modify-write sequence
@@ -326,6 +328,10 @@ impl Engine {
             ready: ready_tx,
             failures: std::sync::Mutex::new(vec![None; loops.len()]),
             disturbed: std::sync::Mutex::new(vec![None; loops.len()]),
+            frame_policy: hart_access::Policy {
+                allow: write_policy.allow.clone(),
+                device_commands: write_policy.device_commands.clone(),
+            },
             write_policy,
             stopped: watch::channel(0).0,
             device_locks: Default::default(),
@@ -498,7 +504,13 @@ impl Engine {
                 Some(t) => Some(t),
                 None => self.device_type_at(channel, &frame.address).await,
             };
-            match gate::judge(&self.shared.write_policy, from.rights, &frame, device_type) {
+            match gate::judge(
+                &self.shared.frame_policy,
+                self.shared.write_policy.read_only,
+                from.rights,
+                &frame,
+                device_type,
+            ) {
                 Ok(a) => a,
                 Err(why) => {
                     if from.rights.may_write() {

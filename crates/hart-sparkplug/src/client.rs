@@ -138,7 +138,10 @@ pub async fn run(
     let (backfilled_tx, backfilled_rx) = tokio::sync::mpsc::channel(1);
     let status = Arc::new(Mutex::new(Status::default()));
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let (writes, queue) = tokio::sync::mpsc::unbounded_channel();
+    tokio::spawn(dcmd_writer(engine.clone(), config.url.clone(), queue));
     let publisher = Publisher {
+        writes,
         engine,
         backfill,
         core,
@@ -328,6 +331,8 @@ struct Page {
 }
 
 struct Publisher {
+    /// DCMD writes, to the one task that carries them out in order.
+    writes: tokio::sync::mpsc::UnboundedSender<QueuedWrite>,
     engine: Engine,
     /// The gateway's historian, when it has one: a full store-and-forward backlog
     /// leaves the rest of an outage to it, read back afterwards.
@@ -775,41 +780,65 @@ impl Publisher {
             .map(|h| format!("sparkplug primary host {h}"))
     }
 
+    /// Hands a DCMD's writes to the one task that carries them out, in the order the
+    /// DCMDs came ([`dcmd_writer`]).
     fn write(&mut self, w: WriteRequest) {
-        let engine = self.engine.clone();
-        let peer = self.url.clone();
         let holder = self.primary_holder();
-        tokio::spawn(async move {
-            let origin = hart_access::WriteRecord {
-                front_end: "mqtt",
-                peer,
-                via: w.via.clone(),
-                ..Default::default()
-            };
-            let lease = hart_poller::LeaseTerms {
-                limit: None,
-                holder,
-                by: format!("mqtt DCMD from {}", origin.peer),
-            };
-            for op in &w.ops {
-                match engine
-                    .apply_with(w.position, op, &origin, lease.clone())
-                    .await
-                {
-                    Ok(_) => tracing::info!("mqtt: DCMD for {}: {} done", w.device, op.describe()),
-                    Err(e) => {
-                        tracing::warn!(
-                            "mqtt: DCMD for {}: {} not done: {e}",
-                            w.device,
-                            op.describe()
-                        );
-                        break;
-                    }
+        let w = QueuedWrite { request: w, holder };
+        if self.writes.send(w).is_err() {
+            tracing::error!("mqtt: the DCMD writer has stopped; the DCMD is not carried out");
+        }
+    }
+}
+
+/// A DCMD's writes waiting for the writer task, with the holder of a loop test they
+/// start.
+struct QueuedWrite {
+    request: WriteRequest,
+    holder: Option<String>,
+}
+
+/// Carries out DCMD writes one after another, in the order they came: two DCMDs to
+/// one device never interleave (a range written in two DCMDs ends as the last one
+/// says). A device that does not answer delays the DCMDs queued behind it by its
+/// loop's retries at most.
+async fn dcmd_writer(
+    engine: Engine,
+    peer: String,
+    mut queue: tokio::sync::mpsc::UnboundedReceiver<QueuedWrite>,
+) {
+    while let Some(QueuedWrite { request: w, holder }) = queue.recv().await {
+        let origin = hart_access::WriteRecord {
+            front_end: "mqtt",
+            peer: peer.clone(),
+            via: w.via.clone(),
+            ..Default::default()
+        };
+        let lease = hart_poller::LeaseTerms {
+            limit: None,
+            holder,
+            by: format!("mqtt DCMD from {}", origin.peer),
+        };
+        for op in &w.ops {
+            match engine
+                .apply_with(w.position, op, &origin, lease.clone())
+                .await
+            {
+                Ok(_) => tracing::info!("mqtt: DCMD for {}: {} done", w.device, op.describe()),
+                Err(e) => {
+                    tracing::warn!(
+                        "mqtt: DCMD for {}: {} not done: {e}",
+                        w.device,
+                        op.describe()
+                    );
+                    break;
                 }
             }
-        });
+        }
     }
+}
 
+impl Publisher {
     async fn shutdown(&mut self) {
         if !self.connected {
             return;

@@ -362,6 +362,62 @@ fn two_gateways_one_broker_one_historian() {
     assert_eq!(ids.len(), 4);
 }
 
+/// The ingest killed with SIGKILL five times while a gateway publishes at QoS 1, each
+/// time at another point (between commits, in one, while the broker delivers what was
+/// queued for it), and started again: the shared historian holds, exactly once, every
+/// change the gateway recorded, since a message is acknowledged only once its
+/// samples are committed and the broker keeps the rest for the session.
+#[test]
+fn the_ingest_killed_five_times_loses_nothing() {
+    let Some(mosquitto) = mosquitto() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let _keep = KeepOnFailure(dir.to_path_buf());
+    let port = free_port();
+    std::fs::write(
+        dir.join("mosquitto.conf"),
+        format!("listener {port} 127.0.0.1\nallow_anonymous true\nmax_queued_messages 100000\n"),
+    )
+    .unwrap();
+    let _broker = Kill(
+        Command::new(&mosquitto)
+            .arg("-c")
+            .arg(dir.join("mosquitto.conf"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_port(port, "mosquitto");
+    let url = format!("mqtt://127.0.0.1:{port}");
+    let mut i = ingest(dir, &url);
+    let g = gateway(
+        dir,
+        &url,
+        "gwK",
+        &["pressure", "temperature", "valve"],
+        "1",
+        30,
+    );
+    // Points spread over the commit period (250 ms) and the run: not round numbers.
+    for (n, wait_ms) in [1730u64, 2910, 1370, 3130, 2290].into_iter().enumerate() {
+        std::thread::sleep(Duration::from_millis(wait_ms));
+        drop(i); // SIGKILL, and waited for
+                 // Away for a while: the broker queues for the session meanwhile.
+        std::thread::sleep(Duration::from_millis(300 + 200 * n as u64));
+        i = ingest(dir, &url);
+    }
+    finish(g, dir, "gwK");
+    std::thread::sleep(Duration::from_millis(2000));
+    let summary = stop_ingest(i, dir);
+    eprintln!("{summary}");
+    let shared = series(&dir.join("shared.sqlite"));
+    let own = series(&dir.join("gwK.sqlite"));
+    let n = compare("gwK", &own, &shared);
+    eprintln!("gwK: {n} changes checked");
+    assert!(n > 50, "gwK: only {n} changes");
+}
+
 /// On a failed assertion, the processes' logs and databases are copied to
 /// target/ingest-test-failure/ (the temporary directory goes).
 struct KeepOnFailure(PathBuf);
