@@ -190,6 +190,10 @@ pub struct DeviceImage {
     /// The loop test the engine holds for it ([`crate::lease`]): its fixed current,
     /// when it is released, and whether a release already failed (an alarm).
     pub loop_test: Option<crate::lease::LoopTest>,
+    /// Its going stale has been committed as a change (cleared by the next good
+    /// reply): staleness comes with time alone, so the loop's task commits it, and
+    /// subscribers of [`Image::changes`] see it without reading the image on a timer.
+    pub stale_committed: bool,
 }
 
 impl DeviceImage {
@@ -219,6 +223,7 @@ impl DeviceImage {
             failures: 0,
             loop_disturbed: false,
             loop_test: None,
+            stale_committed: false,
         }
     }
 
@@ -384,6 +389,7 @@ impl DeviceImage {
         if kept && matches!(command, 1 | 2 | 3 | 9) {
             self.updated = Some(wall);
             self.last_good = Some(now);
+            self.stale_committed = false;
             self.last_poll = LastPoll::Answered;
         }
         kept

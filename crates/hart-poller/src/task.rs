@@ -79,6 +79,9 @@ pub(crate) enum Control {
 /// says so): with the line's own retries, a few seconds per device at most.
 pub const STOP_RELEASE_TRIES: u32 = 2;
 
+/// How often a loop's task looks for devices gone stale, to commit it.
+pub const STALE_CHECK: Duration = Duration::from_millis(500);
+
 pub(crate) struct LoopTask {
     pub(crate) channel: u8,
     pub(crate) settings: LoopSettings,
@@ -95,6 +98,8 @@ pub(crate) struct LoopTask {
     first_pass: bool,
     misses: [u8; 64],
     quiet_since: Option<Instant>,
+    /// When to look for devices gone stale next ([`STALE_CHECK`]).
+    next_stale_check: Option<Instant>,
     last_scan: Option<Instant>,
     in_a_row: u32,
     scan_turn: bool,
@@ -132,6 +137,7 @@ impl LoopTask {
             first_pass: true,
             misses: [0; 64],
             quiet_since: None,
+            next_stale_check: None,
             last_scan: None,
             in_a_row: 0,
             scan_turn: true,
@@ -229,7 +235,7 @@ impl LoopTask {
                     self.poll(p).await;
                 }
             } else {
-                let mut wait = self.line.idle_wait();
+                let mut wait = self.line.idle_wait().min(STALE_CHECK);
                 if let Some(w) = scan_wait {
                     wait = wait.min(w);
                 }
@@ -262,6 +268,34 @@ impl LoopTask {
             }
             self.bursts();
             self.judge_line();
+            self.commit_staleness();
+        }
+    }
+
+    /// Commits, as a change, each device of this loop whose values have just gone
+    /// stale (older than its `stale_after`): a quality that changes with time alone
+    /// reaches every subscriber through the change stream, in order with the rest.
+    /// Looked at every [`STALE_CHECK`] at most.
+    fn commit_staleness(&mut self) {
+        let now = self.clock.now();
+        if self.next_stale_check.is_some_and(|t| now < t) {
+            return;
+        }
+        self.next_stale_check = Some(now + STALE_CHECK);
+        let stale: Vec<usize> = self
+            .shared
+            .image
+            .snapshot()
+            .iter()
+            .filter(|d| {
+                d.channel == self.channel
+                    && !d.stale_committed
+                    && d.quality(now) == crate::Quality::Stale
+            })
+            .map(|d| d.position)
+            .collect();
+        for p in stale {
+            self.shared.image.update(p, |d| d.stale_committed = true);
         }
     }
 
