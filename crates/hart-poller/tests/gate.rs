@@ -5,60 +5,26 @@
 //! in memory, with the audit file read back.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
 
-use hart_host::transport::{Plant, PlantDevice};
 use hart_poller::{
-    Denied, Engine, EngineConfig, Line, LoopOutcome, LoopSettings, LoopSpec, MemoryLoop,
-    PollSettings, ReadCommand, Refusal, Requester, Rights, StartOptions, WritePolicy, WriteRecord,
+    Denied, Engine, LoopOutcome, Refusal, Requester, Rights, StartOptions, WritePolicy, WriteRecord,
 };
 use hart_proto::frame::{Address, FrameSpec, MasterKind};
 
-fn local<F: std::future::Future>(f: F) -> F::Output {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    tokio::task::LocalSet::new().block_on(&rt, f)
-}
+mod common;
+use common::{local, transmitter, Setup};
 
-/// A pressure transmitter alone at polling address 0, in memory, under `rule`; ready.
+/// The transmitter under `rule`; ready.
 async fn engine_under(rule: WritePolicy) -> Engine {
-    let plant = Plant {
-        device: vec![PlantDevice {
-            profile: "pressure".into(),
-            poll: 0,
-            burst: None,
-            ..Default::default()
-        }],
-    };
-    let m = MemoryLoop::new(plant.devices().unwrap());
-    let (engine, _) = Engine::start_with(
-        EngineConfig {
-            poll: true,
-            loop_test_limit: None,
-            defaults: PollSettings {
-                period: Duration::from_millis(200),
-                read: ReadCommand::Dynamic,
-                ..Default::default()
-            },
-        },
-        vec![LoopSpec {
-            settings: LoopSettings::default(),
-            line: Line::Memory(m),
-        }],
-        StartOptions {
+    transmitter(Setup {
+        options: StartOptions {
             write_policy: rule,
             ..StartOptions::default()
         },
-    );
-    engine.ready().await;
-    let end = Instant::now() + Duration::from_secs(5);
-    while engine.image().with(0, |d| d.info.is_none()).unwrap_or(true) {
-        assert!(Instant::now() < end, "the device was not found");
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
-    engine
+        ..Setup::default()
+    })
+    .await
+    .0
 }
 
 /// The request frame of `command` with `data` to the engine's device, by unique ID.

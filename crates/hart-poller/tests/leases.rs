@@ -3,70 +3,21 @@
 //! request leaves the running test alone; a release the device does not confirm is
 //! retried and shown until it is.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use hart_host::transport::{Plant, PlantDevice};
-use hart_poller::{
-    Engine, EngineConfig, Faults, LeaseTerms, Line, LoopSettings, LoopSpec, MemoryLoop,
-    PollSettings, ReadCommand, TrafficKind, WriteFailure, WriteOp, WriteRecord,
-};
+use hart_poller::{Engine, Faults, LeaseTerms, TrafficKind, WriteFailure, WriteOp, WriteRecord};
 
-fn local<F: std::future::Future>(f: F) -> F::Output {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    tokio::task::LocalSet::new().block_on(&rt, f)
-}
+mod common;
+use common::{local, transmitter, until, Setup};
 
-/// A pressure transmitter alone at polling address 0 (its loop current is live), in
-/// memory, polled every 200 ms; ready. Returns its position and the fault hooks.
+/// The transmitter, its loop tests limited to `limit` (the engine's default without).
 async fn single_device(limit: Option<Duration>) -> (Engine, usize, Faults) {
-    let plant = Plant {
-        device: vec![PlantDevice {
-            profile: "pressure".into(),
-            poll: 0,
-            burst: None,
-            ..Default::default()
-        }],
-    };
-    let m = MemoryLoop::new(plant.devices().unwrap());
-    let faults = m.faults();
-    let (engine, _) = Engine::start(
-        EngineConfig {
-            poll: true,
-            loop_test_limit: limit,
-            defaults: PollSettings {
-                period: Duration::from_millis(200),
-                read: ReadCommand::Dynamic,
-                ..Default::default()
-            },
-        },
-        vec![LoopSpec {
-            settings: LoopSettings::default(),
-            line: Line::Memory(m),
-        }],
-    );
-    engine.ready().await;
-    assert!(
-        until(&engine, Duration::from_secs(5), |e| e
-            .image()
-            .with(0, |d| d.info.is_some())
-            .unwrap_or(false))
-        .await
-    );
+    let (engine, faults) = transmitter(Setup {
+        loop_test_limit: limit,
+        ..Setup::default()
+    })
+    .await;
     (engine, 0, faults)
-}
-
-async fn until(engine: &Engine, limit: Duration, f: impl Fn(&Engine) -> bool) -> bool {
-    let end = Instant::now() + limit;
-    while Instant::now() < end {
-        if f(engine) {
-            return true;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
-    f(engine)
 }
 
 fn who() -> WriteRecord {

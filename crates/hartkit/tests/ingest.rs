@@ -159,6 +159,28 @@ fn ingest_into(dir: &Path, url: &str, name: &str, db: &str) -> Kill {
     Kill(child)
 }
 
+/// mosquitto on a free loopback port with `extra` lines of configuration, up; and its
+/// URL.
+fn start_mosquitto(mosquitto: &Path, dir: &Path, extra: &str) -> (Kill, String) {
+    let port = free_port();
+    std::fs::write(
+        dir.join("mosquitto.conf"),
+        format!("listener {port} 127.0.0.1\nallow_anonymous true\n{extra}"),
+    )
+    .unwrap();
+    let broker = Kill(
+        Command::new(mosquitto)
+            .arg("-c")
+            .arg(dir.join("mosquitto.conf"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_port(port, "mosquitto");
+    (broker, format!("mqtt://127.0.0.1:{port}"))
+}
+
 /// Waits for a gateway's --run-for to end.
 fn finish(mut g: Kill, dir: &Path, edge: &str) {
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -300,23 +322,7 @@ fn two_gateways_one_broker_one_historian() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let _keep = KeepOnFailure(dir.to_path_buf());
-    let port = free_port();
-    std::fs::write(
-        dir.join("mosquitto.conf"),
-        format!("listener {port} 127.0.0.1\nallow_anonymous true\n"),
-    )
-    .unwrap();
-    let _broker = Kill(
-        Command::new(&mosquitto)
-            .arg("-c")
-            .arg(dir.join("mosquitto.conf"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    wait_port(port, "mosquitto");
-    let url = format!("mqtt://127.0.0.1:{port}");
+    let (_broker, url) = start_mosquitto(&mosquitto, dir, "");
     // gwA starts before the ingest: the ingest sees its data before any birth and
     // asks it for a rebirth (NCMD), which a real edge node answers.
     let a = gateway(dir, &url, "gwA", &["pressure", "pressure"], "0", 8);
@@ -373,23 +379,7 @@ fn the_ingest_killed_five_times_loses_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let _keep = KeepOnFailure(dir.to_path_buf());
-    let port = free_port();
-    std::fs::write(
-        dir.join("mosquitto.conf"),
-        format!("listener {port} 127.0.0.1\nallow_anonymous true\nmax_queued_messages 100000\n"),
-    )
-    .unwrap();
-    let _broker = Kill(
-        Command::new(&mosquitto)
-            .arg("-c")
-            .arg(dir.join("mosquitto.conf"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    wait_port(port, "mosquitto");
-    let url = format!("mqtt://127.0.0.1:{port}");
+    let (_broker, url) = start_mosquitto(&mosquitto, dir, "max_queued_messages 100000\n");
     let mut i = ingest(dir, &url);
     let g = gateway(
         dir,
