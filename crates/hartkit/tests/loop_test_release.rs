@@ -241,3 +241,101 @@ fn sigterm_releases_every_loop_test_before_the_gateway_ends() {
         .iter()
         .all(|r| r["via"].as_str().unwrap().starts_with("gateway stopping")));
 }
+
+/// A read-only gateway refuses a write on every public way to its device: a Modbus
+/// register (exception 1), the web dashboard's API (403), a frame through HART-IP
+/// (response code 16 "access restricted", also inside command 77's path to the loop)
+/// and the OPC UA LoopTest method (BadUserAccessDenied, when the interop venv is
+/// there); afterwards the device, read on its own port, has no fixed current and its
+/// damping unchanged. (Read-write, each of these is audited with its outcome: the test
+/// above, crates/hart-ip-server/tests/access.rs and crates/hart-poller/tests/gate.rs.)
+#[test]
+fn a_read_only_gateway_refuses_every_path_to_the_device() {
+    let a = device();
+    let asyncua = common::interop_python("asyncua");
+    let dir = tempfile::tempdir().unwrap();
+    let pki = dir.path().join("pki");
+    let password = dir.path().join("password");
+    std::fs::write(&password, "read-only-secret\n").unwrap();
+    let before = read_direct(&a.pty, "info");
+    let gw = gateway(
+        &[
+            "--port",
+            &a.pty,
+            "--scan-to",
+            "0",
+            "--read-only",
+            "--transparent",
+            "--hart-ip",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--modbus-write-from",
+            "127.0.0.0/8",
+            "--web",
+            "127.0.0.1:0",
+            "--web-admin-password-file",
+            password.to_str().unwrap(),
+            "--opcua",
+            "127.0.0.1:0",
+            "--opcua-pki",
+            pki.to_str().unwrap(),
+        ],
+        4,
+    );
+    let web = gw.1["web"]
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_string();
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let (_, _, body) = http(&web, "GET", "/api/devices", &[], "");
+        let v: serde_json::Value = serde_json::from_str(&body).unwrap_or_default();
+        if v["devices"][0]["quality"] == "good" {
+            break;
+        }
+        assert!(Instant::now() < end, "the device was not polled: {body}");
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    // Modbus: the fixed_current register, refused with exception 1.
+    assert_eq!(modbus_write_float(&gw.1["modbus"], 1, 6, 5.0), 0x90);
+    // The web API: refused whoever asks.
+    let (status, _, body) = http(
+        &web,
+        "POST",
+        "/api/devices/1/write",
+        &[],
+        r#"{"loop_test_ma": 6, "release_after_s": 60}"#,
+    );
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("read-only"), "{body}");
+    // HART-IP, the device answering at polling address 0 (--transparent): a fixed
+    // current and a damping refused by the gateway, the device never asked.
+    let target = format!("udp://{}", gw.1["hart-ip"]);
+    for (what, value) in [("fixed-current", "5"), ("damping", "3.5")] {
+        let (code, out, err) = hartkit(&["write", "-p", &target, "--poll", "0", what, value]);
+        assert_ne!(code, 0, "{what} let through: {out}{err}");
+        assert!(
+            format!("{out}{err}")
+                .to_lowercase()
+                .contains("access restricted"),
+            "{what}: {out}{err}"
+        );
+    }
+    // OPC UA: the LoopTest method.
+    if let Some(py) = &asyncua {
+        let r = common::interop_json(
+            py,
+            "asyncua_loop_test.py",
+            &["--url", &gw.1["opcua"], "--loop", "loop1", "--ma", "7"],
+        );
+        assert_eq!(r["loop_test"], "BadUserAccessDenied", "{r}");
+    }
+    drop(gw);
+    // The device, on its own port: nothing changed.
+    let r = read_direct(&a.pty, "status");
+    assert_eq!(r["device_status"].as_u64().unwrap() & 0x08, 0, "{r}");
+    let after = read_direct(&a.pty, "info");
+    assert!(before["damping"].is_number(), "{before}");
+    assert_eq!(before["damping"], after["damping"], "{after}");
+}
