@@ -104,6 +104,57 @@ pub struct Gateway {
     history: Option<hart_history::Handle>,
     web: Option<hart_web::WebServer>,
     modbus_tcp: Option<SocketAddr>,
+    /// The runtime of the serial front ends with reply deadlines, when one runs.
+    deadlines: Option<DeadlineRuntime>,
+}
+
+/// A thread with a runtime of its own for the front ends that must answer within a
+/// deadline on a serial line (a PROFIBUS DP slave within its max TSDR of about 10 ms, a
+/// Modbus RTU slave within its master's time-out): nothing of the main runtime (a TLS
+/// handshake, an HTTP request, an audit line written to disk, the historian's feed)
+/// runs between a request and its answer.
+struct DeadlineRuntime {
+    handle: tokio::runtime::Handle,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl DeadlineRuntime {
+    fn start() -> Result<DeadlineRuntime, Error> {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| Error::io(format!("the serial front ends' runtime: {e}")))?;
+        let handle = rt.handle().clone();
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::Builder::new()
+            .name("hart-deadlines".into())
+            .spawn(move || {
+                rt.block_on(async {
+                    let _ = stopped.await;
+                });
+                // Its tasks were aborted by the gateway's stop: a serial read still
+                // blocked on a thread is left to end by itself.
+                rt.shutdown_timeout(std::time::Duration::from_secs(1));
+            })
+            .map_err(|e| Error::io(format!("the serial front ends' thread: {e}")))?;
+        Ok(DeadlineRuntime {
+            handle,
+            stop: Some(stop),
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for DeadlineRuntime {
+    fn drop(&mut self) {
+        // Not joined: the gateway may be dropped on an async thread, which must not
+        // block; the thread ends within a second.
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        drop(self.thread.take());
+    }
 }
 
 /// Opens the loops' lines and starts the engine on them (inside a `LocalSet`).
@@ -178,6 +229,7 @@ impl Gateway {
             history: None,
             web: None,
             modbus_tcp: None,
+            deadlines: None,
         };
         // A front end that cannot start stops what has started.
         if let Err(e) = gw.start_front_ends(config).await {
@@ -250,8 +302,9 @@ impl Gateway {
                 "modbus-rtu: {} {} {}{}{}",
                 port.path, port.baud, 8, port.parity, port.stop_bits
             ));
+            let rt = self.deadline_runtime()?;
             self.tasks
-                .push(tokio::spawn(hart_modbus::serve_rtu_forever(modbus, port)));
+                .push(rt.spawn(hart_modbus::serve_rtu_forever(modbus, port)));
         }
         if let Some(port) = config.profibus {
             if port.path.is_empty() {
@@ -269,11 +322,11 @@ impl Gateway {
                 port.ident_number,
                 if read_only { " (read only)" } else { "" }
             ));
-            self.tasks
-                .push(tokio::spawn(hart_profibus::serve::serve_forever(
-                    engine.clone(),
-                    port,
-                )));
+            let rt = self.deadline_runtime()?;
+            self.tasks.push(rt.spawn(hart_profibus::serve::serve_forever(
+                engine.clone(),
+                port,
+            )));
         }
         if let Some(cfg) = config.opcua {
             let bind = cfg.bind;
@@ -377,6 +430,18 @@ impl Gateway {
     /// The MQTT publisher's state (connected, births out, backlog), if it runs.
     pub fn mqtt_status(&self) -> Option<hart_sparkplug::Status> {
         self.mqtt.as_ref().map(|m| m.status())
+    }
+
+    /// The runtime of the serial front ends with deadlines, started on first use.
+    fn deadline_runtime(&mut self) -> Result<tokio::runtime::Handle, Error> {
+        if self.deadlines.is_none() {
+            self.deadlines = Some(DeadlineRuntime::start()?);
+        }
+        Ok(self
+            .deadlines
+            .as_ref()
+            .map(|d| d.handle.clone())
+            .expect("started above"))
     }
 
     /// Where the web dashboard listens, if it runs.
