@@ -323,10 +323,8 @@ impl Gateway {
                 if read_only { " (read only)" } else { "" }
             ));
             let rt = self.deadline_runtime()?;
-            self.tasks.push(rt.spawn(hart_profibus::serve::serve_forever(
-                engine.clone(),
-                port,
-            )));
+            self.tasks
+                .push(rt.spawn(hart_profibus::serve::serve_forever(engine.clone(), port)));
         }
         if let Some(cfg) = config.opcua {
             let bind = cfg.bind;
