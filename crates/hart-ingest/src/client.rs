@@ -199,6 +199,8 @@ pub async fn run(
     let mut commit = tokio::time::interval(COMMIT_EVERY);
     commit.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut commit_failing = false;
+    // A setting that failed while running (the password file gone): the run ends.
+    let mut failed: Option<Error> = None;
     // After a refused subscription (a cluster electing leaders refuses for a while).
     let mut resubscribe_at: Option<tokio::time::Instant> = None;
     loop {
@@ -277,7 +279,14 @@ pub async fn run(
                     let mut next = None;
                     if brokers.len() > 1 {
                         current = (current + 1) % brokers.len();
-                        next = Some(options(&config, &brokers[current])?);
+                        match options(&config, &brokers[current]) {
+                            Ok(o) => next = Some(o),
+                            // Ended below, where the database connection may close.
+                            Err(e) => {
+                                failed = Some(e);
+                                break;
+                            }
+                        }
                         tracing::info!("ingest: trying the next broker, {}:{}", brokers[current].host, brokers[current].port);
                         if current != 0 {
                             delay = Duration::from_millis(100);
@@ -348,6 +357,9 @@ pub async fn run(
     }
     // A PostgreSQL connection is closed where it may block.
     let _ = tokio::task::spawn_blocking(move || drop(store)).await;
+    if let Some(e) = failed {
+        return Err(e);
+    }
     let history = match std::sync::Arc::try_unwrap(writer) {
         Ok(w) => tokio::task::spawn_blocking(move || w.close())
             .await
