@@ -81,6 +81,9 @@ def main():
         result["first_pvs"] = first
         api_first = {str(x["unit"]): (x["pv"] or {}).get("value")
                      for x in json.load(urllib.request.urlopen(base + "/api/devices"))["devices"]}
+        # The link to device 1, found before the values change: the page updates cells in
+        # place, so this very element is still on the page to click afterwards.
+        link = d.find_element(By.CSS_SELECTOR, '#dev-1 a.tag')
         t0 = time.monotonic()
         # The PVs change on the page without reloading it (it is never reloaded here):
         # within 10 s, every PV the gateway has seen change has changed on the page too
@@ -101,7 +104,7 @@ def main():
         result["live"] = d.find_element(By.ID, "live").text
         d.save_screenshot(os.path.join(a.shots, "plant.png"))
 
-        d.find_element(By.CSS_SELECTOR, '#dev-1 a.tag').click()
+        link.click()
         wait("the device page", lambda: d.find_element(By.TAG_NAME, "body").get_attribute("data-page") == "device", 20)
         wait("the trend", lambda: d.execute_script(
             "var i = document.getElementById('trend'); return i && i.complete && i.naturalWidth > 0;"), 20)

@@ -56,8 +56,25 @@ function live(onPlant) {
 
 function plantPage() {
   var body = document.querySelector("#plant tbody");
+  // Rows are updated cell by cell, so what the user points at (a tag's link, a selection)
+  // stays the same element while its values change; only a changed set of devices
+  // rebuilds the table.
   live(function (plant) {
-    body.innerHTML = plant.devices.map(plantRow).join("");
+    var fresh = document.createElement("tbody");
+    fresh.innerHTML = plant.devices.map(plantRow).join("");
+    var same = body.rows.length === fresh.rows.length;
+    for (var i = 0; same && i < fresh.rows.length; i++) { same = body.rows[i].id === fresh.rows[i].id; }
+    if (!same) { body.innerHTML = fresh.innerHTML; return; }
+    for (var r = 0; r < fresh.rows.length; r++) {
+      var now = body.rows[r].cells, next = fresh.rows[r].cells;
+      if (now.length !== next.length) { body.rows[r].innerHTML = fresh.rows[r].innerHTML; continue; }
+      for (var c = 0; c < next.length; c++) {
+        if (now[c].innerHTML !== next[c].innerHTML) {
+          now[c].innerHTML = next[c].innerHTML;
+          now[c].className = next[c].className;
+        }
+      }
+    }
   });
 }
 
