@@ -368,8 +368,24 @@ fn hart_ip_config(
         } else {
             hart_access::Rights::ReadWrite
         });
+    let max_timer_ms = match opts
+        .max_inactivity
+        .or(file
+            .hart_ip
+            .as_ref()
+            .and_then(|h| h.max_inactivity.map(|d| d.as_secs_f64())))
+    {
+        None => hart_ip_server::DEFAULT_MAX_TIMER_MS,
+        Some(s) if s.is_finite() && (1.0..=4_294_967.0).contains(&s) => (s * 1000.0).round() as u32,
+        Some(s) => {
+            return Err(Error::config(format!(
+                "--max-inactivity / [hart_ip] max_inactivity: {s} s is not a time from 1 s to 4294967 s (the inactivity timer is a 32-bit count of milliseconds)"
+            )))
+        }
+    };
     Ok(hart_ip_server::Config {
         bind: addr,
+        max_timer_ms,
         udp: opts.udp || !opts.tcp,
         tcp: opts.tcp || !opts.udp,
         max_sessions: opts.max_sessions,

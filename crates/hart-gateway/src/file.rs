@@ -107,6 +107,10 @@ pub struct HartIpSection {
     /// `read-write` (the default without).
     #[serde(default)]
     pub plain_rights: Option<hart_access::Rights>,
+    /// Longest inactivity timer a session is granted (default 5 minutes): a client
+    /// asking for more gets this.
+    #[serde(default, with = "humantime_serde")]
+    pub max_inactivity: Option<Duration>,
 }
 
 /// `[modbus]`.

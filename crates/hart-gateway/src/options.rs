@@ -29,6 +29,9 @@ pub struct ServeOptions {
     pub max_sessions: usize,
     /// `--max-sessions-per-host`.
     pub max_sessions_per_host: usize,
+    /// `--max-inactivity` seconds (`max_inactivity` in `[hart_ip]`): the longest
+    /// inactivity timer a HART-IP session is granted.
+    pub max_inactivity: Option<f64>,
     /// `--transparent`.
     pub transparent: bool,
     /// `--scan-to`.

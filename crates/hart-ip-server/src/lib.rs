@@ -78,6 +78,11 @@ pub struct Config {
     pub device_commands: access::DeviceCommands,
     /// Append a JSON line for every accepted write to this file (besides the log).
     pub audit_file: Option<std::path::PathBuf>,
+    /// Longest inactivity timer a session initiate is granted, ms: a client asking for
+    /// more is given this (status 8, "set to nearest possible value"), so a session left
+    /// silent is closed within it whatever the client asked. Default
+    /// [`DEFAULT_MAX_TIMER_MS`] (5 minutes); never below [`MIN_TIMER_MS`].
+    pub max_timer_ms: u32,
 }
 
 impl Default for Config {
@@ -98,6 +103,7 @@ impl Default for Config {
             allow_commands: None,
             device_commands: access::DeviceCommands::default(),
             audit_file: None,
+            max_timer_ms: DEFAULT_MAX_TIMER_MS,
         }
     }
 }
@@ -123,6 +129,22 @@ pub const INITIATE_GRACE: std::time::Duration = std::time::Duration::from_secs(1
 
 /// Shortest inactivity timer the server accepts, ms.
 pub const MIN_TIMER_MS: u32 = 1000;
+
+/// Longest inactivity timer the server grants by default, ms (5 minutes):
+/// [`Config::max_timer_ms`]. Long enough for a host that polls once a minute and sends
+/// keep-alives between; short enough that sessions a client abandons free themselves
+/// in minutes, not the 49.7 days a timer of 0xFFFFFFFF ms would ask for.
+pub const DEFAULT_MAX_TIMER_MS: u32 = 300_000;
+
+/// The inactivity timer granted for one a client `asked` for, ms, with the server's
+/// longest `max` (itself raised to [`MIN_TIMER_MS`] if below): within
+/// [`MIN_TIMER_MS`]..=`max`, and whether it differs from what was asked (the
+/// initiate's status is then 8, "set to nearest possible value", and its body carries
+/// the timer granted).
+pub fn granted_timer(asked: u32, max: u32) -> (u32, bool) {
+    let granted = asked.clamp(MIN_TIMER_MS, max.max(MIN_TIMER_MS));
+    (granted, granted != asked)
+}
 
 /// Counters for the audit log and tests.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]

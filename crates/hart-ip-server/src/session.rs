@@ -9,7 +9,7 @@ use hart_proto::frame::{Frame, FrameType};
 use crate::audit::AuditRecord;
 use crate::io_system::{LoopOutcome, Requester, Route};
 use crate::subscriptions::{subscription_command, Subscriptions};
-use crate::{local_frame, lock, message, unix_now, Counters, Shared, MIN_TIMER_MS};
+use crate::{local_frame, lock, message, unix_now, Counters, Shared};
 use hart_access::{Allowed, Rights, WriteRecord};
 
 /// What to do with one received message of a session.
@@ -388,9 +388,9 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                     responses: 0,
                 }));
             }
-            let timer = asked.max(MIN_TIMER_MS);
+            let (timer, changed) = crate::granted_timer(asked, shared.config.max_timer_ms);
             s.timer = Duration::from_millis(u64::from(timer));
-            let mut st = if timer != asked {
+            let mut st = if changed {
                 status::SET_TO_NEAREST
             } else {
                 status::SUCCESS

@@ -20,6 +20,11 @@ pub(crate) const MAX_IN_FLIGHT: usize = 8;
 /// progress.
 const PENDING_CONNECTIONS: usize = 16;
 
+/// Connections one host may hold beyond its session limit
+/// ([`crate::Config::max_sessions_per_host`]), to be answered "all available sessions
+/// in use" rather than closed.
+const PENDING_PER_HOST: usize = 2;
+
 /// Longest a TLS or DTLS handshake may take before the peer is dropped.
 pub(crate) const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -31,16 +36,23 @@ pub(crate) async fn serve_tcp(
     tls: Option<Arc<crate::Security>>,
 ) {
     // Sessions end with the server.
-    let mut sessions: Vec<AbortOnDrop> = vec![];
+    let mut sessions: Vec<(std::net::IpAddr, AbortOnDrop)> = vec![];
     loop {
         let Ok((stream, peer)) = listener.accept().await else {
             continue;
         };
         let _ = stream.set_nodelay(true);
-        sessions.retain(|s: &AbortOnDrop| !s.0.is_finished());
+        sessions.retain(|(_, s)| !s.0.is_finished());
         // Connections beyond the session limit (and a few in their handshake or
-        // initiate) are closed at once: they could only be refused.
-        if sessions.len() >= shared.config.max_sessions + PENDING_CONNECTIONS {
+        // initiate) are closed at once: they could only be refused. So are those from
+        // a host that already holds its share (and a couple more, so that a client
+        // over its limit still hears status 15 rather than a closed connection): a
+        // connection carries at most one session, so one host's connections, in their
+        // handshake or not, can never keep the others out.
+        let from_host = sessions.iter().filter(|(ip, _)| *ip == peer.ip()).count();
+        if sessions.len() >= shared.config.max_sessions + PENDING_CONNECTIONS
+            || from_host >= shared.config.max_sessions_per_host + PENDING_PER_HOST
+        {
             Counters::count(&shared.stats.sessions_refused);
             drop(stream);
             continue;
@@ -53,7 +65,7 @@ pub(crate) async fn serve_tcp(
             }),
             Some(tls) => tokio::task::spawn_local(tls_session(stream, peer, shared, tls)),
         };
-        sessions.push(AbortOnDrop(task));
+        sessions.push((peer.ip(), AbortOnDrop(task)));
     }
 }
 

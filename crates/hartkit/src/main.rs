@@ -1942,9 +1942,14 @@ struct ServeCli {
     /// Most HART-IP sessions at once.
     #[arg(long, default_value_t = 64)]
     max_sessions: usize,
-    /// Most HART-IP sessions at once from one client address.
+    /// Most HART-IP sessions at once from one client address (UDP and TCP together).
     #[arg(long, default_value_t = 16)]
     max_sessions_per_host: usize,
+    /// Longest HART-IP inactivity timer granted, seconds (default 300): a session
+    /// initiate asking for more is given this (status 8), so abandoned sessions free
+    /// themselves.
+    #[arg(long, value_name = "SECONDS")]
+    max_inactivity: Option<f64>,
     /// Let a loop device at polling address 0 answer there (one loop only); by
     /// default the server itself, a HART I/O system, answers at polling address 0
     /// and reaches that device by its unique ID.
@@ -2010,6 +2015,7 @@ impl ServeCli {
             read_only: self.read_only,
             max_sessions: self.max_sessions,
             max_sessions_per_host: self.max_sessions_per_host,
+            max_inactivity: self.max_inactivity,
             transparent: self.transparent,
             scan_to: self.scan_to,
             psk_file: self.psk_file.clone(),
