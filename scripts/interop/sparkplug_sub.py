@@ -7,6 +7,8 @@ hartkit's Rust code is used. Lines on standard input publish:
   {"topic": T, "metrics": [{"name": ..., "datatype": 11, "boolean_value": true}]}
   {"topic": T, "text": "...", "retain": true}   (STATE JSON, or any bytes as text)
   {"topic": T, "hex": "0aff"}                    (raw bytes)
+  {"topic": T, "zeros": 1200000}                 (that many zero bytes)
+  "qos": 0 or 1 in any of them (default: 1 when retained, 0 otherwise)
 Usage: sparkplug_sub.py PORT CLIENT_ID
 """
 import json
@@ -173,9 +175,12 @@ def main():
             data = p.SerializeToString()
         elif "hex" in req:
             data = bytes.fromhex(req["hex"])
+        elif "zeros" in req:
+            data = bytes(req["zeros"])
         else:
             data = req["text"].encode()
-        c.publish(req["topic"], data, qos=1 if req.get("retain") else 0, retain=bool(req.get("retain"))).wait_for_publish(5)
+        qos = req.get("qos", 1 if req.get("retain") else 0)
+        c.publish(req["topic"], data, qos=qos, retain=bool(req.get("retain"))).wait_for_publish(5)
         emit({"published": req["topic"]})
     c.loop_stop()
 

@@ -27,7 +27,7 @@
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use crate::NetList;
 
@@ -196,7 +196,8 @@ pub const LOG_LINES_PER_SECOND: u32 = 20;
 /// A per-second budget of log lines (the time is given).
 #[derive(Debug, Default)]
 pub struct LogLimit {
-    start: Option<Instant>,
+    /// When the current second began, ms on the caller's clock.
+    start: Option<u64>,
     lines: u32,
     left_out: u64,
 }
@@ -205,14 +206,24 @@ impl LogLimit {
     /// Whether a line may be logged at `now`; and, when a second with lines left out
     /// has ended, how many were left out (to be logged first).
     pub fn allow(&mut self, now: Instant) -> (bool, u64) {
+        // Instants as ms since the first one this process asked about: one clock for
+        // every limit, so the budget is kept in one way for both kinds of time.
+        static BASE: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+        let base = *BASE.get_or_init(|| now);
+        self.allow_ms(now.saturating_duration_since(base).as_millis() as u64)
+    }
+
+    /// [`LogLimit::allow`] with the time as milliseconds on any clock that does not go
+    /// back (a sans-IO core's injected time).
+    pub fn allow_ms(&mut self, now_ms: u64) -> (bool, u64) {
         let mut left_out = 0;
         if self
             .start
-            .is_none_or(|s| now.saturating_duration_since(s) >= Duration::from_secs(1))
+            .is_none_or(|s| now_ms.saturating_sub(s) >= 1000 || now_ms < s)
         {
             left_out = self.left_out;
             *self = LogLimit {
-                start: Some(now),
+                start: Some(now_ms),
                 lines: 0,
                 left_out: 0,
             };
@@ -242,6 +253,7 @@ impl LogLimit {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
 
     fn addr(s: &str) -> SocketAddr {
         s.parse().unwrap()

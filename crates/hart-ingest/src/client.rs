@@ -114,7 +114,12 @@ fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error>
     o.set_clean_session(false);
     o.set_manual_acks(true);
     o.set_keep_alive(Duration::from_secs(10));
-    o.set_max_packet_size(1 << 20, 1 << 20);
+    // Room above the longest message decoded (decoder::MAX_MESSAGE_BYTES), which is
+    // acknowledged and dropped; a longer one is taken once and dropped (the driver).
+    o.set_max_packet_size(
+        2 * crate::decoder::MAX_MESSAGE_BYTES,
+        hart_sparkplug::driver::MAX_OUTGOING,
+    );
     if let Some(u) = &config.username {
         o.set_credentials(u.clone(), password(config)?.unwrap_or_default());
     }
@@ -203,6 +208,7 @@ pub async fn run(
     let mut failed: Option<Error> = None;
     // After a refused subscription (a cluster electing leaders refuses for a while).
     let mut resubscribe_at: Option<tokio::time::Instant> = None;
+    let mut refusals_logged = hart_access::pool::LogLimit::default();
     loop {
         // While MAX_UNCOMMITTED messages wait for a commit the historian cannot make,
         // nothing more is taken from the broker, which keeps it: memory stays bounded
@@ -250,7 +256,17 @@ pub async fn run(
                                 let _ = client.try_publish(m.topic, QoS::AtMostOnce, false, m.payload);
                             }
                         }
-                        Err(e) => tracing::warn!("ingest: message ignored: {e}"),
+                        Err(e) => {
+                            // Logged a few lines a second at most: a flood of bad
+                            // messages is counted, not written out one by one.
+                            let (log, left_out) = refusals_logged.allow(std::time::Instant::now());
+                            if left_out > 0 {
+                                tracing::warn!("ingest: {left_out} more messages ignored in the last second(s), not logged one by one");
+                            }
+                            if log {
+                                tracing::warn!("ingest: message ignored: {e}");
+                            }
+                        }
                     }
                     if p.qos != QoS::AtMostOnce {
                         uncommitted.push(p);

@@ -42,12 +42,29 @@ pub enum Rejected {
     Topic(String),
     /// The payload is not a Sparkplug B protobuf payload.
     Payload(String),
+    /// The payload is longer than [`MAX_MESSAGE_BYTES`]: not decoded.
+    TooLarge {
+        /// Its topic.
+        topic: String,
+        /// Its length, bytes.
+        bytes: usize,
+    },
 }
+
+/// Longest message the ingest decodes, bytes (1 MiB). A Sparkplug B payload of a
+/// gateway is a few kilobytes (a birth of 64 devices under 200 KiB); a longer one is
+/// acknowledged, counted and dropped, so it can never hold the historian up.
+pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
 
 impl std::fmt::Display for Rejected {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Rejected::Topic(m) | Rejected::Payload(m) => f.write_str(m),
+            Rejected::TooLarge { topic, bytes } => write!(
+                f,
+                "a message of {bytes} bytes on {topic}, more than the {MAX_MESSAGE_BYTES} the \
+                 ingest decodes: acknowledged and dropped; check what publishes it"
+            ),
         }
     }
 }
@@ -90,8 +107,10 @@ pub struct Counters {
     pub unknown_alias: u64,
     /// `seq` not the one after the previous message of the node.
     pub seq_gaps: u64,
-    /// Messages refused (bad topic or payload).
+    /// Messages refused (bad topic or payload, too large).
     pub rejected: u64,
+    /// Messages refused for being longer than [`MAX_MESSAGE_BYTES`].
+    pub too_large: u64,
     /// NCMD rebirth requests published.
     pub rebirths: u64,
 }
@@ -247,7 +266,15 @@ impl Decoder {
         payload: &[u8],
         now: SystemTime,
     ) -> Result<Output, Rejected> {
-        let r = self.decode(topic, payload, now);
+        let r = if payload.len() > MAX_MESSAGE_BYTES {
+            self.counters.too_large += 1;
+            Err(Rejected::TooLarge {
+                topic: topic.to_string(),
+                bytes: payload.len(),
+            })
+        } else {
+            self.decode(topic, payload, now)
+        };
         match &r {
             Ok(o) => {
                 self.counters.messages += 1;

@@ -155,8 +155,26 @@ impl WriteOp {
                 upper.map_or(Ok(()), |v| finite(v, "the upper range value"))?;
                 lower.map_or(Ok(()), |v| finite(v, "the lower range value"))
             }
-            WriteOp::Damping(s) => finite(*s, "the damping"),
-            WriteOp::FixedCurrent(ma) => finite(*ma, "the loop current"),
+            WriteOp::Damping(s) => {
+                finite(*s, "the damping")?;
+                if *s < 0.0 {
+                    return Err(WriteFailure::Invalid(format!(
+                        "a damping of {s} s: a damping time is 0 s or more"
+                    )));
+                }
+                Ok(())
+            }
+            WriteOp::FixedCurrent(ma) => {
+                finite(*ma, "the loop current")?;
+                if *ma != 0.0 && !(FIXED_CURRENT_MA.0..=FIXED_CURRENT_MA.1).contains(ma) {
+                    return Err(WriteFailure::Invalid(format!(
+                        "a loop current of {ma} mA: give 0 to leave fixed current mode, or a \
+                         current from {} to {} mA",
+                        FIXED_CURRENT_MA.0, FIXED_CURRENT_MA.1
+                    )));
+                }
+                Ok(())
+            }
             WriteOp::PvUnits(_) | WriteOp::Date(_) => Ok(()),
             WriteOp::Tag(t) => packed(t, 8, "tag"),
             WriteOp::Descriptor(t) => packed(t, 16, "descriptor"),
@@ -169,6 +187,13 @@ impl WriteOp {
         }
     }
 }
+
+/// The loop currents a loop test may fix, mA (0 leaves fixed current mode): every
+/// current a 4-20 mA loop carries, its alarm levels too (NAMUR NE 43: at most 3.6 mA
+/// low, at least 21 mA high), with room for devices that go further. A value outside
+/// is a mistake or an attack (a DCMD of 2^64-1 read as a signed integer is -1 mA),
+/// refused before anything reaches the device.
+pub const FIXED_CURRENT_MA: (f32, f32) = (3.0, 24.0);
 
 /// Who asked, in words, for a loop test's lease: `web session 3 (admin)`.
 fn describe_origin(o: &WriteRecord) -> String {
@@ -489,6 +514,13 @@ mod tests {
         assert!(WriteOp::Tag("far-too-long".into()).validate().is_err());
         assert!(WriteOp::Tag("PT~101".into()).validate().is_err());
         assert!(WriteOp::Damping(f32::NAN).validate().is_err());
+        assert!(WriteOp::Damping(-0.5).validate().is_err());
+        assert!(WriteOp::Damping(0.0).validate().is_ok());
+        assert!(WriteOp::FixedCurrent(-1.0).validate().is_err());
+        assert!(WriteOp::FixedCurrent(1.8e19).validate().is_err());
+        assert!(WriteOp::FixedCurrent(0.0).validate().is_ok());
+        assert!(WriteOp::FixedCurrent(3.6).validate().is_ok());
+        assert!(WriteOp::FixedCurrent(22.0).validate().is_ok());
         assert!(WriteOp::Range {
             upper: Some(f32::INFINITY),
             lower: None,

@@ -185,7 +185,9 @@ impl Template {
         // Sparkplug 3.0 section 2.5: an edge node's session is never persistent.
         options.set_clean_session(true);
         options.set_keep_alive(Duration::from_secs(10));
-        options.set_max_packet_size(1 << 20, 1 << 20);
+        // Commands are small (edge::MAX_COMMAND_BYTES); a longer message is taken
+        // once and dropped (driver.rs).
+        options.set_max_packet_size(1 << 20, crate::driver::MAX_OUTGOING);
         if let Some((u, p)) = &self.credentials {
             options.set_credentials(u.clone(), p.clone());
         }
@@ -417,6 +419,8 @@ impl Publisher {
                 },
                 _ = tick.tick() => {
                     self.resubscribe_if_due();
+                    let out = self.core.tick(SystemTime::now());
+                    self.apply(out);
                     // Qualities that change with time alone (stale): after the changes
                     // waiting, so that nothing older follows the current image.
                     while let Some(c) = changes.try_recv() {
@@ -523,7 +527,10 @@ impl Publisher {
                 self.apply(out);
             }
             Event::Incoming(Packet::Publish(p)) => {
-                let out = self.core.received(&p.topic, &p.payload, SystemTime::now());
+                let how = crate::edge::Delivery { retained: p.retain };
+                let out = self
+                    .core
+                    .delivered(&p.topic, &p.payload, how, SystemTime::now());
                 self.apply(out);
             }
             Event::Incoming(Packet::SubAck(s))

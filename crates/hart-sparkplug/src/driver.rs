@@ -10,10 +10,36 @@
 //! error (or a DISCONNECT the client asked for) the loop waits for a [`Resume`]: the
 //! owner decides what the next connection carries (its will, another broker of a
 //! cluster, nothing of the old session) and when it is tried.
+//!
+//! A message longer than the client takes (`MqttOptions::set_max_packet_size`) ends
+//! the connection before it is read, and a persistent session or a retained message
+//! brings it back at every connection: a loop of reconnections that stops everything
+//! behind it. So after such an error the next connection alone takes messages up to
+//! that length (MQTT's own limit at most), for the owner to acknowledge and drop; the
+//! one after it is back to the usual limit.
 
 use std::time::Duration;
 
-use rumqttc::{ConnectionError, Event, EventLoop, MqttOptions, Outgoing};
+use rumqttc::{ConnectionError, Event, EventLoop, MqttOptions, Outgoing, StateError};
+
+/// The longest packet the edge node and the ingest send, bytes (a page of backfill
+/// is well under it); set with the incoming limit on the options given to
+/// [`Driver::spawn`] and [`Resume`].
+pub const MAX_OUTGOING: usize = 1 << 20;
+
+/// The longest remaining length an MQTT packet can have (a 4-byte variable integer).
+pub const MQTT_MAX_PACKET: usize = 268_435_455;
+
+/// The length of the message that ended the connection for being longer than the
+/// client takes, if that was the cause.
+pub fn oversized(e: &ConnectionError) -> Option<usize> {
+    match e {
+        ConnectionError::MqttState(StateError::Deserialization(
+            rumqttc::mqttbytes::Error::PayloadSizeLimitExceeded(n),
+        )) => Some(*n),
+        _ => None,
+    }
+}
 use tokio::sync::mpsc;
 
 /// What the event loop does before it connects again.
@@ -41,9 +67,15 @@ impl Driver {
         let (tx, events) = mpsc::channel(256);
         let (control, mut control_rx) = mpsc::unbounded_channel::<Resume>();
         let task = tokio::spawn(async move {
+            // The usual incoming limit while one connection takes a longer message.
+            let mut raised: Option<usize> = None;
+            let mut too_long: Option<usize> = None;
             loop {
                 let ev = eventloop.poll().await;
                 let pause = matches!(ev, Err(_) | Ok(Event::Outgoing(Outgoing::Disconnect)));
+                if let Err(e) = &ev {
+                    too_long = oversized(e);
+                }
                 if tx.send(ev).await.is_err() {
                     return;
                 }
@@ -63,6 +95,20 @@ impl Driver {
                 }
                 if let Some(o) = r.options {
                     eventloop.mqtt_options = o;
+                } else if let Some(usual) = raised.take() {
+                    eventloop
+                        .mqtt_options
+                        .set_max_packet_size(usual, MAX_OUTGOING);
+                }
+                if let Some(n) = too_long.take().filter(|n| *n <= MQTT_MAX_PACKET) {
+                    let usual = eventloop.mqtt_options.max_packet_size();
+                    tracing::warn!(
+                        "mqtt: the broker sent a message of {n} bytes, more than the {usual} this \
+                         client takes; the next connection takes it once, to acknowledge and drop \
+                         it (the broker's message_size_limit keeps such messages out)"
+                    );
+                    eventloop.mqtt_options.set_max_packet_size(n, MAX_OUTGOING);
+                    raised.get_or_insert(usual);
                 }
                 if !r.after.is_zero() {
                     tokio::time::sleep(r.after).await;

@@ -161,8 +161,72 @@ pub struct Counters {
     pub dropped: u64,
     /// Births published (NBIRTH and DBIRTH).
     pub births: u64,
-    /// Commands refused or malformed.
+    /// Commands refused or malformed (those below included).
     pub bad_commands: u64,
+    /// Commands refused because the broker delivered them retained: a retained
+    /// command would run again at every connection.
+    pub retained_commands: u64,
+    /// Commands refused because they came faster than [`COMMANDS_PER_SECOND`].
+    pub throttled_commands: u64,
+    /// Rebirths asked for within [`REBIRTH_INTERVAL_MS`] of the last, answered by
+    /// one rebirth when it ends.
+    pub coalesced_rebirths: u64,
+}
+
+/// Longest NCMD or DCMD payload taken, bytes: a command names a few metrics (a
+/// rebirth request is under 100 bytes); a longer one is refused undecoded.
+pub const MAX_COMMAND_BYTES: usize = 64 * 1024;
+
+/// Commands (NCMD and DCMD together) taken per second on average; up to
+/// [`COMMAND_BURST`] at once. More are refused, counted and logged (a few lines a
+/// second at most): a flood of commands cannot queue writes without end or fill
+/// the log.
+pub const COMMANDS_PER_SECOND: u32 = 5;
+
+/// Commands taken at once before [`COMMANDS_PER_SECOND`] applies.
+pub const COMMAND_BURST: u32 = 20;
+
+/// Shortest time between two rebirths asked by NCMD, ms: the first request is answered
+/// at once, more within this time by one rebirth when it ends, so 300 requests cost
+/// two rebirths, not 300.
+pub const REBIRTH_INTERVAL_MS: u64 = 5_000;
+
+/// How the broker delivered a message (its MQTT flags).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Delivery {
+    /// The broker kept it retained and sent it because of a subscription: not a
+    /// command sent now.
+    pub retained: bool,
+}
+
+/// A token bucket in ms of injected time.
+#[derive(Debug, Clone)]
+struct Budget {
+    tokens: f64,
+    at: Option<u64>,
+}
+
+impl Budget {
+    fn new() -> Self {
+        Budget {
+            tokens: f64::from(COMMAND_BURST),
+            at: None,
+        }
+    }
+
+    fn take(&mut self, now_ms: u64) -> bool {
+        if let Some(at) = self.at {
+            let gained = now_ms.saturating_sub(at) as f64 / 1000.0 * f64::from(COMMANDS_PER_SECOND);
+            self.tokens = (self.tokens + gained).min(f64::from(COMMAND_BURST));
+        }
+        self.at = Some(now_ms);
+        if self.tokens >= 1.0 {
+            self.tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
 }
 
 /// The edge node.
@@ -188,6 +252,14 @@ pub struct EdgeNode {
     /// deaths of devices that do not answer wait for its end
     /// ([`EdgeNode::backfill_done`]), so their data up to their death is sent first.
     backfilling: bool,
+    /// Commands taken ([`COMMANDS_PER_SECOND`]).
+    commands: Budget,
+    /// Lines about refused commands ([`hart_access::pool::LogLimit`]).
+    refusals_logged: hart_access::pool::LogLimit,
+    /// When a rebirth asked by NCMD was last published, ms ([`REBIRTH_INTERVAL_MS`]).
+    last_births: Option<u64>,
+    /// A rebirth asked within [`REBIRTH_INTERVAL_MS`], published by [`EdgeNode::tick`].
+    rebirth_pending: bool,
 }
 
 impl EdgeNode {
@@ -209,6 +281,10 @@ impl EdgeNode {
             spill: false,
             spilled: None,
             backfilling: false,
+            commands: Budget::new(),
+            refusals_logged: Default::default(),
+            last_births: None,
+            rebirth_pending: false,
         }
     }
 
@@ -460,13 +536,75 @@ impl EdgeNode {
         out
     }
 
-    /// A message arrived on a subscribed topic.
+    /// A message arrived on a subscribed topic, sent now (not retained).
     pub fn received(&mut self, topic: &str, payload: &[u8], now: SystemTime) -> Vec<Output> {
+        self.delivered(topic, payload, Delivery::default(), now)
+    }
+
+    /// A message arrived on a subscribed topic, delivered as `how` says. Commands
+    /// (NCMD, DCMD) delivered retained, longer than [`MAX_COMMAND_BYTES`] or beyond
+    /// [`COMMANDS_PER_SECOND`] are refused: counted, and logged a few lines a second
+    /// at most.
+    pub fn delivered(
+        &mut self,
+        topic: &str,
+        payload: &[u8],
+        how: Delivery,
+        now: SystemTime,
+    ) -> Vec<Output> {
         let mut out = vec![];
-        if topic == self.topic("NCMD", None) {
+        let ncmd = topic == self.topic("NCMD", None);
+        let dcmd_prefix = self.topic("DCMD", Some(""));
+        let dcmd = topic.strip_prefix(&dcmd_prefix);
+        if payload.len() > MAX_COMMAND_BYTES && !(ncmd || dcmd.is_some()) {
+            self.refuse(now, || {
+                format!(
+                    "mqtt: a message of {} bytes on {topic} ignored: more than the {MAX_COMMAND_BYTES} \
+                     the edge node reads",
+                    payload.len()
+                )
+            });
+            return out;
+        }
+        if ncmd || dcmd.is_some() {
+            let kind = if ncmd { "NCMD" } else { "DCMD" };
+            if how.retained {
+                self.counters.retained_commands += 1;
+                self.refuse(now, || {
+                    format!(
+                        "mqtt: {kind} on {topic} refused: the broker delivered it retained, so it \
+                         is not a command sent now and would run again at every connection; \
+                         commands must be published without the retain flag (clear it with an \
+                         empty retained message on {topic})"
+                    )
+                });
+                return out;
+            }
+            if payload.len() > MAX_COMMAND_BYTES {
+                self.refuse(now, || {
+                    format!(
+                        "mqtt: {kind} on {topic} refused: {} bytes, more than the {MAX_COMMAND_BYTES} \
+                         a command may have",
+                        payload.len()
+                    )
+                });
+                return out;
+            }
+            if !self.commands.take(millis(now)) {
+                self.counters.throttled_commands += 1;
+                self.refuse(now, || {
+                    format!(
+                        "mqtt: {kind} on {topic} refused: more than {COMMANDS_PER_SECOND} commands \
+                         a second (after a burst of {COMMAND_BURST})"
+                    )
+                });
+                return out;
+            }
+        }
+        if ncmd {
             self.ncmd(payload, now, &mut out);
-        } else if let Some(device) = topic.strip_prefix(&self.topic("DCMD", Some(""))) {
-            self.dcmd(device, payload, &mut out);
+        } else if let Some(device) = dcmd {
+            self.dcmd(device, payload, now, &mut out);
         } else if Some(topic) == self.state_topic().as_deref() {
             self.state(payload, now, &mut out);
         } else {
@@ -581,6 +719,7 @@ impl EdgeNode {
     /// NBIRTH, every DBIRTH, the stored samples as historical DDATA, then DDEATH for
     /// the devices that do not answer now.
     fn births(&mut self, now: SystemTime, out: &mut Vec<Output>) {
+        self.rebirth_pending = false;
         self.link = Link::Live;
         self.seq = 0;
         let seq = self.next_seq();
@@ -828,8 +967,7 @@ impl EdgeNode {
         let metrics = match command::decode(payload) {
             Ok(m) => m,
             Err(e) => {
-                self.counters.bad_commands += 1;
-                tracing::warn!("mqtt: NCMD ignored: {e}");
+                self.refuse(now, || format!("mqtt: NCMD ignored: {e}"));
                 return;
             }
         };
@@ -838,8 +976,23 @@ impl EdgeNode {
                 || m.name.is_none() && m.alias == Some(metrics::REBIRTH_ALIAS);
             match (rebirth, &m.value) {
                 (true, CommandValue::Bool(true)) => {
-                    if self.link == Link::Live {
+                    let recent = self
+                        .last_births
+                        .is_some_and(|t| millis(now).saturating_sub(t) < REBIRTH_INTERVAL_MS);
+                    if self.link == Link::Live && recent {
+                        // One rebirth answers every request within the interval.
+                        self.counters.coalesced_rebirths += 1;
+                        if !self.rebirth_pending {
+                            self.rebirth_pending = true;
+                            tracing::info!(
+                                "mqtt: rebirth asked by NCMD within {} s of the last one: \
+                                 one rebirth follows when that time is up",
+                                REBIRTH_INTERVAL_MS / 1000
+                            );
+                        }
+                    } else if self.link == Link::Live {
                         tracing::info!("mqtt: rebirth asked by NCMD: NBIRTH and DBIRTH again");
+                        self.last_births = Some(millis(now));
                         self.births(now, out);
                     } else {
                         tracing::info!(
@@ -850,48 +1003,49 @@ impl EdgeNode {
                 }
                 (true, CommandValue::Bool(false)) => {}
                 (true, v) => {
-                    self.counters.bad_commands += 1;
-                    tracing::warn!(
-                        "mqtt: NCMD {} ignored: it takes the Boolean true, not {v:?}",
-                        metrics::NODE_REBIRTH
-                    );
+                    self.refuse(now, || {
+                        format!(
+                            "mqtt: NCMD {} ignored: it takes the Boolean true, not {v:?}",
+                            metrics::NODE_REBIRTH
+                        )
+                    });
                 }
                 (false, _) => {
-                    self.counters.bad_commands += 1;
-                    tracing::warn!(
-                        "mqtt: NCMD for {} ignored: the node's only command is {}",
-                        m.label(),
-                        metrics::NODE_REBIRTH
-                    );
+                    self.refuse(now, || {
+                        format!(
+                            "mqtt: NCMD for {} ignored: the node's only command is {}",
+                            m.label(),
+                            metrics::NODE_REBIRTH
+                        )
+                    });
                 }
             }
         }
     }
 
-    fn dcmd(&mut self, device: &str, payload: &[u8], out: &mut Vec<Output>) {
+    fn dcmd(&mut self, device: &str, payload: &[u8], now: SystemTime, out: &mut Vec<Output>) {
         let Some((&position, _)) = self.devices.iter().find(|(_, d)| d.id == device) else {
-            self.counters.bad_commands += 1;
-            tracing::warn!(
-                "mqtt: DCMD for device {device:?} ignored: no such device on this edge node; \
+            self.refuse(now, || {
+                format!(
+                    "mqtt: DCMD for device {device:?} ignored: no such device on this edge node; \
                  check the device IDs in the DBIRTH topics"
-            );
+                )
+            });
             return;
         };
         let metrics = match command::decode(payload) {
             Ok(m) => m,
             Err(e) => {
-                self.counters.bad_commands += 1;
-                tracing::warn!("mqtt: DCMD for {device} ignored: {e}");
+                self.refuse(now, || format!("mqtt: DCMD for {device} ignored: {e}"));
                 return;
             }
         };
         match self.write_ops(position, &metrics) {
             Ok(ops) => {
                 if self.settings.read_only {
-                    self.counters.bad_commands += 1;
-                    tracing::warn!(
+                    self.refuse(now, || format!(
                         "mqtt: DCMD for {device} refused: the MQTT front end is read-only ([mqtt] read_only)"
-                    );
+                    ));
                     return;
                 }
                 let via = format!(
@@ -917,8 +1071,7 @@ impl EdgeNode {
                     ..Default::default()
                 };
                 if let Err(why) = self.settings.gateway.judge_all(commands, &asked) {
-                    self.counters.bad_commands += 1;
-                    tracing::warn!("mqtt: DCMD for {device} refused: {why}");
+                    self.refuse(now, || format!("mqtt: DCMD for {device} refused: {why}"));
                     return;
                 }
                 out.push(Output::Write(WriteRequest {
@@ -929,10 +1082,39 @@ impl EdgeNode {
                 }));
             }
             Err(why) => {
-                self.counters.bad_commands += 1;
-                tracing::warn!("mqtt: DCMD for {device} ignored: {why}");
+                self.refuse(now, || format!("mqtt: DCMD for {device} ignored: {why}"));
             }
         }
+    }
+
+    /// A command refused: counted, and logged unless the second's lines are spent
+    /// (how many were left out is logged when the next second begins).
+    fn refuse(&mut self, now: SystemTime, line: impl FnOnce() -> String) {
+        self.counters.bad_commands += 1;
+        let (log, left_out) = self.refusals_logged.allow_ms(millis(now));
+        if left_out > 0 {
+            tracing::warn!(
+                "mqtt: {left_out} more commands refused in the last second(s), not logged one by one"
+            );
+        }
+        if log {
+            tracing::warn!("{}", line());
+        }
+    }
+
+    /// Time passing (call about once a second): the rebirth asked for within
+    /// [`REBIRTH_INTERVAL_MS`] of the last births, once that time is up.
+    pub fn tick(&mut self, now: SystemTime) -> Vec<Output> {
+        let mut out = vec![];
+        let due = self
+            .last_births
+            .is_none_or(|t| millis(now).saturating_sub(t) >= REBIRTH_INTERVAL_MS);
+        if self.rebirth_pending && due && self.link == Link::Live {
+            tracing::info!("mqtt: rebirth asked by NCMD: NBIRTH and DBIRTH again");
+            self.last_births = Some(millis(now));
+            self.births(now, &mut out);
+        }
+        out
     }
 
     /// The typed writes `metrics` ask of the device at `position`.

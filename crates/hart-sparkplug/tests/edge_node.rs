@@ -734,3 +734,107 @@ fn nothing_the_historian_holds_is_dropped_and_an_unfinished_read_back_is_asked_a
     });
     assert_eq!(again, Some((millis(t(5)), millis(t(6)) + 1)));
 }
+
+fn writes(out: &[Output]) -> usize {
+    out.iter().filter(|o| matches!(o, Output::Write(_))).count()
+}
+
+/// Commands the broker delivers retained are refused (they are not sent now, and
+/// would run again at every connection), as are commands longer than a command can
+/// be and commands beyond the rate; values out of range never become a write.
+#[test]
+fn retained_oversized_flooded_and_out_of_range_commands_are_refused() {
+    use hart_sparkplug::edge::{Delivery, COMMANDS_PER_SECOND, COMMAND_BURST, MAX_COMMAND_BYTES};
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let topic = "spBv1.0/Plant/DCMD/gw1/PT-101";
+    let damping = dcmd(vec![float("Config/Damping", 3.25)]);
+    let retained = Delivery { retained: true };
+    assert!(node.delivered(topic, &damping, retained, t(1)).is_empty());
+    assert_eq!(node.counters().retained_commands, 1);
+    let rebirth = dcmd(vec![Metric {
+        name: Some("Node Control/Rebirth".into()),
+        datatype: Some(11),
+        value: Some(V::BooleanValue(true)),
+        ..Default::default()
+    }]);
+    assert!(node
+        .delivered("spBv1.0/Plant/NCMD/gw1", &rebirth, retained, t(1))
+        .is_empty());
+    assert_eq!(node.counters().retained_commands, 2);
+    // Too long: refused undecoded.
+    let mut long = damping.clone();
+    long.resize(MAX_COMMAND_BYTES + 1, 0);
+    assert!(node.received(topic, &long, t(2)).is_empty());
+    // Out of range: a fixed current of -1 mA (2^64-1 read as a signed integer), a
+    // negative damping.
+    for bad in [
+        Metric {
+            name: Some("Config/FixedCurrent".into()),
+            datatype: Some(4),
+            value: Some(V::LongValue(u64::MAX)),
+            ..Default::default()
+        },
+        float("Config/Damping", -1.0),
+    ] {
+        assert_eq!(writes(&node.received(topic, &dcmd(vec![bad]), t(3))), 0);
+    }
+    // The rate: a burst, then COMMANDS_PER_SECOND a second.
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let taken = (0..100)
+        .map(|_| writes(&node.received(topic, &damping, t(10))))
+        .sum::<usize>();
+    assert_eq!(taken, COMMAND_BURST as usize);
+    assert_eq!(
+        node.counters().throttled_commands,
+        100 - u64::from(COMMAND_BURST)
+    );
+    let taken = (0..100)
+        .map(|_| writes(&node.received(topic, &damping, t(1010))))
+        .sum::<usize>();
+    assert_eq!(taken, COMMANDS_PER_SECOND as usize, "one second later");
+}
+
+/// Rebirth requests: the first is answered at once; more within the interval are
+/// answered by one rebirth when it ends ([`EdgeNode::tick`]).
+#[test]
+fn a_flood_of_rebirth_requests_costs_two_rebirths() {
+    use hart_sparkplug::edge::REBIRTH_INTERVAL_MS;
+    let mut node = EdgeNode::new(settings());
+    connected(&mut node, t(0));
+    node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
+    let rebirth = dcmd(vec![Metric {
+        name: Some("Node Control/Rebirth".into()),
+        datatype: Some(11),
+        value: Some(V::BooleanValue(true)),
+        ..Default::default()
+    }]);
+    let nbirths = |out: &[Output]| {
+        publishes(out)
+            .iter()
+            .filter(|m| m.topic.contains("/NBIRTH/"))
+            .count()
+    };
+    let mut births = 0;
+    for i in 0..300u64 {
+        // Spread over 3 s: within the rate, all within the interval.
+        births += nbirths(&node.received("spBv1.0/Plant/NCMD/gw1", &rebirth, t(100 + i * 10)));
+        births += nbirths(&node.tick(t(100 + i * 10)));
+    }
+    assert_eq!(births, 1, "one at once");
+    assert!(node.counters().coalesced_rebirths > 0);
+    assert_eq!(nbirths(&node.tick(t(100 + REBIRTH_INTERVAL_MS - 1))), 0);
+    assert_eq!(
+        nbirths(&node.tick(t(100 + REBIRTH_INTERVAL_MS))),
+        1,
+        "one when the interval ends"
+    );
+    assert_eq!(
+        nbirths(&node.tick(t(100 + 3 * REBIRTH_INTERVAL_MS))),
+        0,
+        "and no more"
+    );
+}

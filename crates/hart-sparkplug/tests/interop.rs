@@ -1121,3 +1121,93 @@ async fn a_device_dead_during_an_outage_has_its_data_before_its_death() {
         })
         .await;
 }
+
+/// What a broker can be made to deliver never runs a command twice or takes the edge
+/// node away: a retained DCMD runs once when it is sent (delivered live, so not
+/// flagged retained) and is refused when the broker hands it back at the next
+/// connection; a retained DCMD over the client's packet limit costs one reconnection,
+/// not one every half second; 300 rebirth requests cost one or two rebirths, not 300.
+#[tokio::test(flavor = "current_thread")]
+async fn retained_oversized_and_flooded_commands_never_repeat_a_write() {
+    let Some(t) = tools() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let broker = Broker::start(&t, dir.path(), "");
+    let mut sub = Sub::start(&t, broker.port).await;
+    let local = tokio::task::LocalSet::new();
+    local
+        .run_until(async {
+            let audit = dir.path().join("audit.jsonl");
+            let engine = engine_with(hart_poller::WritePolicy {
+                audit: hart_access::Audit::new(Some(audit.clone())),
+                ..Default::default()
+            })
+            .await;
+            let handle = hart_sparkplug::run(engine.clone(), config(&broker.url(), "gw5"), None)
+                .await
+                .unwrap();
+            let identified = engine.image().snapshot().iter().filter(|d| d.info.is_some()).count();
+            sub.wait("the births", |l| {
+                of_node(l, "gw5").iter().filter(|v| kind(v) == "DBIRTH").count() >= identified
+            })
+            .await;
+            let devices: Vec<String> = of_node(&sub.lines(), "gw5")
+                .iter()
+                .filter(|v| kind(v) == "DBIRTH")
+                .map(|v| v["topic"].as_str().unwrap().rsplit('/').next().unwrap().to_string())
+                .collect();
+            let births = |l: &[Value]| of_node(l, "gw5").iter().filter(|v| kind(v) == "NBIRTH").count();
+            let damping_lines = || {
+                std::fs::read_to_string(&audit)
+                    .unwrap_or_default()
+                    .lines()
+                    .filter(|l| !l.contains("\"outcome\"") && l.contains("damping 3.25"))
+                    .count()
+            };
+
+            // A retained DCMD: carried out once, live.
+            sub.send(json!({"topic": format!("spBv1.0/Plant/DCMD/gw5/{}", devices[0]), "retain": true,
+                "metrics": [{"name": "Config/Damping", "datatype": 9, "float_value": 3.25}]}));
+            let deadline = Instant::now() + Duration::from_secs(20);
+            while damping_lines() == 0 {
+                assert!(Instant::now() < deadline, "the live DCMD was not carried out");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+
+            // A retained DCMD of 1.2 MB on another device's topic: over the client's
+            // limit, it ends the connection once; the next takes it (and the retained
+            // damping), refuses both as retained, and stays.
+            let before = births(&sub.lines());
+            sub.send(json!({"topic": format!("spBv1.0/Plant/DCMD/gw5/{}", devices[1]), "retain": true,
+                "zeros": 1_200_000}));
+            sub.wait("the births of the next connection", |l| births(l) > before).await;
+            let deadline = Instant::now() + Duration::from_secs(20);
+            while handle.status().counters.retained_commands < 2 {
+                assert!(Instant::now() < deadline, "the retained commands were not refused: {:?}", handle.status());
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            tokio::time::sleep(Duration::from_secs(5)).await;
+            let reconnections = births(&sub.lines()) - before;
+            assert!(reconnections <= 2, "{reconnections} NBIRTHs in 5 s after the oversized command");
+            assert_eq!(damping_lines(), 1, "the retained damping ran again at the next connection");
+            assert!(handle.status().live);
+
+            // 300 rebirth requests: one rebirth at once, one when the interval ends.
+            let before = births(&sub.lines());
+            for _ in 0..300 {
+                sub.send(json!({"topic": "spBv1.0/Plant/NCMD/gw5", "metrics": [
+                    {"name": "Node Control/Rebirth", "datatype": 11, "boolean_value": true}]}));
+            }
+            tokio::time::sleep(Duration::from_secs(8)).await;
+            let rebirths = births(&sub.lines()) - before;
+            assert!((1..=2).contains(&rebirths), "{rebirths} rebirths for 300 requests");
+            let c = handle.status().counters;
+            assert!(c.coalesced_rebirths + c.throttled_commands >= 290, "{c:?}");
+
+            // Clear the retained messages, as an operator would.
+            for d in &devices[..2] {
+                sub.send(json!({"topic": format!("spBv1.0/Plant/DCMD/gw5/{d}"), "retain": true, "text": ""}));
+            }
+            handle.shutdown().await;
+        })
+        .await;
+}
