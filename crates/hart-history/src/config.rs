@@ -44,6 +44,25 @@ pub struct HistoryConfig {
     /// 1 000 000); beyond it the oldest are dropped, counted and logged.
     #[serde(default = "default_backlog")]
     pub backlog: usize,
+    /// SQLite only: what the writer does when its file is removed or replaced under
+    /// it (`"reopen"`, the default: a new file at the path; `"stop"`: history
+    /// stops, with an error).
+    #[serde(default)]
+    pub on_file_lost: FileLost,
+}
+
+/// What the writer does when its SQLite file (or its write-ahead log) is removed or
+/// replaced while it writes: whatever it commits then goes to a file no one can
+/// open any more.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FileLost {
+    /// Create a new file at the path and write on there (logged as an error).
+    #[default]
+    Reopen,
+    /// Stop writing: every later sample is dropped and counted, the error stays in
+    /// the writer's status until the gateway is restarted.
+    Stop,
 }
 
 fn default_batch() -> Duration {
@@ -84,6 +103,7 @@ impl HistoryConfig {
             max_size: None,
             max_batch: default_max_batch(),
             backlog: default_backlog(),
+            on_file_lost: FileLost::default(),
         }
     }
 

@@ -32,7 +32,7 @@ pub mod cli;
 #[doc(hidden)]
 pub mod pgtest;
 
-pub use config::{parse_size, HistoryConfig};
+pub use config::{parse_size, FileLost, HistoryConfig};
 pub use error::Error;
 pub use feed::{run, Handle, Recorder};
 pub use output::{format_devices, format_points, Format};

@@ -43,6 +43,22 @@ pub struct SqliteStore {
     conn: Connection,
     /// Device ids by unique ID, with the tag and loop stored.
     ids: HashMap<String, (i64, String, String)>,
+    /// The file opened and its write-ahead log, as (device, inode): a file removed or
+    /// replaced under the connection is noticed ([`SqliteStore::file_lost`]).
+    opened: Option<(u64, u64)>,
+    wal: Option<(u64, u64)>,
+}
+
+/// The (device, inode) of `path`, if it exists.
+fn identity(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
+fn wal_path(path: &Path) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push("-wal");
+    PathBuf::from(p)
 }
 
 /// A rusqlite error as a historian error about `path`.
@@ -83,9 +99,37 @@ impl SqliteStore {
             path: path.to_path_buf(),
             conn,
             ids: HashMap::new(),
+            opened: identity(path),
+            wal: None,
         };
         s.migrate(create)?;
+        s.wal = identity(&wal_path(path));
         Ok(s)
+    }
+
+    /// What happened to the file or its write-ahead log if either is no longer the
+    /// one this connection has open: `None` while they are. (SQLite keeps writing to
+    /// files unlinked under it, into space no one can open again.)
+    pub fn file_lost(&mut self) -> Option<String> {
+        let now = identity(&self.path);
+        match (self.opened, now) {
+            (Some(_), None) => return Some("was removed".into()),
+            (Some(a), Some(b)) if a != b => return Some("was replaced by another file".into()),
+            _ => {}
+        }
+        let wal = identity(&wal_path(&self.path));
+        match (self.wal, wal) {
+            (Some(_), None) => Some("lost its write-ahead log (-wal file removed)".into()),
+            (Some(a), Some(b)) if a != b => {
+                Some("had its write-ahead log (-wal file) replaced".into())
+            }
+            (None, Some(b)) => {
+                // Created since the file was opened: the log this connection uses.
+                self.wal = Some(b);
+                None
+            }
+            _ => None,
+        }
     }
 
     fn connect(path: &Path, create: bool) -> Result<Connection, Error> {
@@ -169,7 +213,10 @@ impl SqliteStore {
     pub fn reconnect(&mut self) -> Result<(), Error> {
         self.ids.clear();
         self.conn = Self::connect(&self.path, true)?;
-        self.migrate(true)
+        self.opened = identity(&self.path);
+        self.migrate(true)?;
+        self.wal = identity(&wal_path(&self.path));
+        Ok(())
     }
 
     /// Writes a batch in one transaction with prepared statements.

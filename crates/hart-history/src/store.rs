@@ -241,6 +241,16 @@ impl Store {
         }
     }
 
+    /// SQLite: what happened to the file (or its write-ahead log) if it is no longer
+    /// the one open ("was removed", "was replaced by another file"); `None` while it
+    /// is, and always for PostgreSQL.
+    pub fn file_lost(&mut self) -> Option<String> {
+        match self {
+            Store::Sqlite(s) => s.file_lost(),
+            Store::Postgres(_) => None,
+        }
+    }
+
     /// The database's address as given (a PostgreSQL URL without its password).
     pub fn describe(&self) -> String {
         match self {

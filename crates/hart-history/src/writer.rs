@@ -31,6 +31,8 @@ pub struct WriterConfig {
     pub retention: Option<Duration>,
     /// SQLite: delete the oldest days beyond this many bytes.
     pub max_size: Option<u64>,
+    /// SQLite: what to do when the file is removed or replaced under the writer.
+    pub on_file_lost: crate::FileLost,
 }
 
 impl From<&HistoryConfig> for WriterConfig {
@@ -41,6 +43,7 @@ impl From<&HistoryConfig> for WriterConfig {
             backlog: c.backlog,
             retention: c.retention,
             max_size: c.max_size,
+            on_file_lost: c.on_file_lost,
         }
     }
 }
@@ -250,6 +253,9 @@ struct Task {
     dropping: bool,
     next_retention: Instant,
     retention_pending: bool,
+    /// The file was lost and [`crate::FileLost::Stop`] asked for history to stop:
+    /// why.
+    stopped: Option<String>,
 }
 
 impl Task {
@@ -267,6 +273,7 @@ impl Task {
             dropping: false,
             next_retention: now + Duration::from_secs(5),
             retention_pending: false,
+            stopped: None,
         }
     }
 
@@ -315,6 +322,12 @@ impl Task {
     }
 
     fn add(&mut self, v: Vec<Sample>) {
+        if self.stopped.is_some() {
+            self.shared
+                .dropped
+                .fetch_add(v.len() as u64, Ordering::Relaxed);
+            return;
+        }
         self.pending.extend(v);
         let over = self.pending.len().saturating_sub(self.config.backlog);
         if over > 0 {
@@ -365,9 +378,52 @@ impl Task {
         }
     }
 
+    /// Whether the file is still the one the writer opened: when it was removed or
+    /// replaced, a new one is opened at the path, or history stops, as configured.
+    /// Checked before every transaction, so at most one batch goes to a lost file.
+    fn check_file(&mut self) -> Result<(), Error> {
+        if let Some(why) = &self.stopped {
+            return Err(Error::Io(why.clone()));
+        }
+        let Some(lost) = self.store.file_lost() else {
+            return Ok(());
+        };
+        let path = self.store.describe();
+        match self.config.on_file_lost {
+            crate::FileLost::Reopen => {
+                tracing::error!(
+                    "history: {path} {lost} while the gateway wrote to it: a new file is \
+                     opened there (what the old one held is gone with it unless someone moved \
+                     it; [history] on_file_lost = \"stop\" stops history instead)"
+                );
+                self.reconnect = true;
+                Ok(())
+            }
+            crate::FileLost::Stop => {
+                let why = format!(
+                    "history: {path} {lost} while the gateway wrote to it: history stopped \
+                     ([history] on_file_lost = \"stop\"); restart the gateway to write again"
+                );
+                tracing::error!("{why}");
+                let n = self.pending.len() as u64;
+                self.pending.clear();
+                let s = &self.shared;
+                s.dropped.fetch_add(n, Ordering::Relaxed);
+                s.backlog.store(0, Ordering::Relaxed);
+                *s.last_error.lock().unwrap_or_else(|e| e.into_inner()) = Some(why.clone());
+                self.stopped = Some(why.clone());
+                Err(Error::Io(why))
+            }
+        }
+    }
+
     /// One transaction of up to `max_batch` samples.
     fn write_chunk(&mut self) -> Result<(), Error> {
+        self.check_file()?;
         let n = self.pending.len().min(self.config.max_batch);
+        if n == 0 {
+            return Ok(());
+        }
         if self.reconnect {
             if let Err(e) = self.store.reconnect() {
                 self.failed(e.clone(), n);

@@ -651,3 +651,96 @@ fn every_change_committed_before_the_engines_stop_is_stored() {
     assert_eq!(stats.dropped, 0, "{stats:?}");
     assert_eq!(stats.written, expected, "{stats:?}, {changes} changes");
 }
+
+/// Samples stored for device `tag`'s PV in the SQLite file at `db` (opened anew).
+fn stored(db: &str, tag: &str) -> usize {
+    let mut s = Store::open(db, false).unwrap();
+    s.query(&q(tag, Var::Pv, T0, T0 + DAY, None, Agg::Last))
+        .unwrap()
+        .len()
+}
+
+fn remove_with_logs(db: &str) {
+    for suffix in ["", "-wal", "-shm"] {
+        let _ = std::fs::remove_file(format!("{db}{suffix}"));
+    }
+}
+
+/// The reproduction of a review: `rm` of the file and its WAL under a running writer
+/// left every later sample going to deleted files, with nothing logged. The writer
+/// notices before its next transaction and opens a new file at the path; a file put
+/// in its place (a restored backup) is noticed the same way.
+#[test]
+fn sqlite_file_removed_or_replaced_under_the_writer_is_opened_anew() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let w = Writer::start(
+        &db,
+        WriterConfig {
+            batch: Duration::from_millis(50),
+            ..WriterConfig::default()
+        },
+    )
+    .unwrap();
+    let a = key(1, "PT-101");
+    let hour = hour_of_pv(&a);
+    w.submit_wait(hour[..100].to_vec());
+    w.flush().unwrap();
+    remove_with_logs(&db);
+    w.submit_wait(hour[100..200].to_vec());
+    w.flush().unwrap();
+    assert_eq!(
+        stored(&db, "PT-101"),
+        100,
+        "the samples after the removal, in a new file"
+    );
+
+    // Replaced: moved aside and another history put there.
+    let aside = format!("{db}.old");
+    std::fs::rename(&db, &aside).unwrap();
+    let _ = std::fs::remove_file(format!("{db}-wal"));
+    let _ = std::fs::remove_file(format!("{db}-shm"));
+    drop(Store::open(&db, true).unwrap());
+    w.submit_wait(hour[200..300].to_vec());
+    w.flush().unwrap();
+    assert_eq!(
+        stored(&db, "PT-101"),
+        100,
+        "written to the file now at the path"
+    );
+    let st = w.close();
+    assert_eq!(st.dropped, 0, "{st:?}");
+}
+
+/// With `on_file_lost = "stop"`, history stops with an error that stays, and every
+/// later sample is counted as dropped; nothing is written anywhere.
+#[test]
+fn sqlite_file_removed_under_the_writer_can_stop_history() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let w = Writer::start(
+        &db,
+        WriterConfig {
+            batch: Duration::from_millis(50),
+            on_file_lost: hart_history::FileLost::Stop,
+            ..WriterConfig::default()
+        },
+    )
+    .unwrap();
+    let a = key(1, "PT-101");
+    let hour = hour_of_pv(&a);
+    w.submit_wait(hour[..100].to_vec());
+    w.flush().unwrap();
+    remove_with_logs(&db);
+    w.submit_wait(hour[100..200].to_vec());
+    let e = w.flush().unwrap_err();
+    assert!(
+        e.to_string().contains("was removed") && e.to_string().contains("history stopped"),
+        "{e}"
+    );
+    w.submit_wait(hour[200..300].to_vec());
+    let st = w.close();
+    assert_eq!(st.dropped, 200, "{st:?}");
+    assert!(st.last_error.unwrap().contains("history stopped"));
+    assert!(!std::path::Path::new(&db).exists(), "no new file");
+}

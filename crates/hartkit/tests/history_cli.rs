@@ -153,3 +153,41 @@ fn mistakes_say_what_to_give() {
         "{err}"
     );
 }
+
+/// `rm` of the history file and its logs under a running gateway: the gateway opens a
+/// new file at the path and goes on storing the plant there.
+#[test]
+fn a_history_file_removed_under_the_gateway_is_opened_anew() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("plant.sqlite");
+    let db_s = db.to_str().unwrap();
+    let mut gw = serve_history(&db, &["--poll-period", "0.5"]);
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    for suffix in ["", "-wal", "-shm"] {
+        std::fs::remove_file(format!("{db_s}{suffix}")).unwrap();
+    }
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    let tags = loop {
+        if db.exists() {
+            let (code, out, _) = hartkit(&["history", "devices", "--db", db_s, "--json"]);
+            if code == 0 {
+                let devices: Vec<Value> = serde_json::from_str(&out).unwrap();
+                let tags: Vec<String> = devices
+                    .iter()
+                    .filter_map(|d| d["tag"].as_str().map(str::to_string))
+                    .collect();
+                if tags.len() >= 3 {
+                    break tags;
+                }
+            }
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no new history file with the plant at {db_s}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    let _ = gw.0.kill();
+    let _ = gw.0.wait();
+    assert!(tags.iter().any(|t| t == "TT-200"), "{tags:?}");
+}
