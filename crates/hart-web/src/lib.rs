@@ -19,8 +19,11 @@
 //! Access: reading needs nothing; writing needs a login with the administrator's
 //! password (`--web-admin-password-file`), a session cookie (HttpOnly,
 //! SameSite=Strict) and a CSRF token on every form and API write; every write goes
-//! through the engine's one write path and its audit. The assets are compiled in: the
-//! dashboard needs no other file and no internet.
+//! through the engine's one write path and its audit. Failed logins are throttled per
+//! address and across addresses. The dashboard answers only to its own names
+//! ([`hosts`]: its addresses, `localhost`, `[web] hosts`), against DNS rebinding, and
+//! bounds its connections per address and in all ([`limits`]). The assets are compiled
+//! in: the dashboard needs no other file and no internet.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;

@@ -943,7 +943,7 @@ async fn closed_after(c: &mut tokio::net::TcpStream) -> Duration {
 fn partial_heads_and_idle_connections_are_closed_at_their_limits() {
     local(async {
         let header = Duration::from_millis(800);
-        let idle = Duration::from_millis(2500);
+        let idle = Duration::from_secs(5);
         let s = server_with("timeouts", false, |c| {
             c.limits.header_timeout = header;
             c.limits.idle_timeout = idle;
