@@ -619,6 +619,8 @@ fn failed_logins_are_throttled() {
         )
         .await;
         assert_json_error(&r, 429);
+        let wait: u64 = r.header("retry-after").unwrap().parse().unwrap();
+        assert!((1..=60).contains(&wait), "{wait}");
     });
 }
 
@@ -1246,5 +1248,75 @@ fn a_psk_identity_with_write_rights_logs_in_with_its_key() {
         assert!(audit.contains("\"identity\":\"tech1\""), "{audit}");
         assert!(get(a, "/login").await.text().contains("name=\"identity\""));
         web.stop();
+    });
+}
+
+/// Over HTTPS the same connection wrapper serves (the TLS stream inside it): a page for
+/// the dashboard's own name, 421 for another.
+#[test]
+fn https_serves_through_the_same_limits_and_names() {
+    use openssl::{
+        asn1::Asn1Time, ec::EcGroup, ec::EcKey, hash::MessageDigest, nid::Nid, pkey::PKey,
+        ssl::SslConnector, ssl::SslMethod, ssl::SslVerifyMode, x509::X509,
+    };
+    let group = EcGroup::from_curve_name(Nid::X9_62_PRIME256V1).unwrap();
+    let key = PKey::from_ec_key(EcKey::generate(&group).unwrap()).unwrap();
+    let mut name = openssl::x509::X509NameBuilder::new().unwrap();
+    name.append_entry_by_text("CN", "127.0.0.1").unwrap();
+    let name = name.build();
+    let mut b = X509::builder().unwrap();
+    b.set_version(2).unwrap();
+    b.set_subject_name(&name).unwrap();
+    b.set_issuer_name(&name).unwrap();
+    b.set_pubkey(&key).unwrap();
+    b.set_not_before(&Asn1Time::days_from_now(0).unwrap())
+        .unwrap();
+    b.set_not_after(&Asn1Time::days_from_now(1).unwrap())
+        .unwrap();
+    b.sign(&key, MessageDigest::sha256()).unwrap();
+    let dir = tempdir::Dir::new("https-limits");
+    let files = hart_web::TlsFiles {
+        cert: dir.0.join("cert.pem"),
+        key: dir.0.join("key.pem"),
+    };
+    std::fs::write(&files.cert, b.build().to_pem().unwrap()).unwrap();
+    std::fs::write(&files.key, key.private_key_to_pem_pkcs8().unwrap()).unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, async {
+        let s = server_with("https", false, |c| c.tls = Some(files)).await;
+        let addr = s.addr;
+        let get = move |host: String| {
+            let mut c = SslConnector::builder(SslMethod::tls_client()).unwrap();
+            c.set_verify(SslVerifyMode::NONE);
+            c.set_alpn_protos(b"\x08http/1.1").unwrap();
+            let tcp = std::net::TcpStream::connect(addr).unwrap();
+            tcp.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+            let mut tls = c.build().connect("127.0.0.1", tcp).unwrap();
+            use std::io::{Read, Write};
+            write!(
+                tls,
+                "GET /api/devices/1 HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
+            )
+            .unwrap();
+            let mut out = vec![];
+            let _ = tls.read_to_end(&mut out);
+            String::from_utf8_lossy(&out).into_owned()
+        };
+        let own = tokio::task::spawn_blocking({
+            let get = get.clone();
+            move || get(addr.to_string())
+        })
+        .await
+        .unwrap();
+        assert!(own.starts_with("HTTP/1.1 200"), "{own}");
+        let other =
+            tokio::task::spawn_blocking(move || get(format!("rebind.example:{}", addr.port())))
+                .await
+                .unwrap();
+        assert!(other.starts_with("HTTP/1.1 421"), "{other}");
     });
 }
