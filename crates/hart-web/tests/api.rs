@@ -1306,12 +1306,9 @@ fn https_serves_through_the_same_limits_and_names() {
             let _ = tls.read_to_end(&mut out);
             String::from_utf8_lossy(&out).into_owned()
         };
-        let own = tokio::task::spawn_blocking({
-            let get = get.clone();
-            move || get(addr.to_string())
-        })
-        .await
-        .unwrap();
+        let own = tokio::task::spawn_blocking(move || get(addr.to_string()))
+            .await
+            .unwrap();
         assert!(own.starts_with("HTTP/1.1 200"), "{own}");
         let other =
             tokio::task::spawn_blocking(move || get(format!("rebind.example:{}", addr.port())))
