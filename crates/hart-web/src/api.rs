@@ -220,6 +220,7 @@ fn visitor<'a>(state: &AppState, session: Option<&'a SessionView>) -> Visitor<'a
 /// tool that sends no Origin): a browser's Origin must be the dashboard's name it was
 /// sent to (its `Host`, one of the allowed names) or a name of `[web] hosts` given with
 /// its port.
+///
 /// Checked for every request but GET, HEAD, OPTIONS and TRACE, before its handler.
 fn same_origin(state: &AppState, headers: &HeaderMap, host: &str) -> Result<(), ApiError> {
     let Some(origin) = headers.get(header::ORIGIN) else {
