@@ -8,7 +8,11 @@
 //! scanners, crashed clients and clients that open a connection per request:
 //!
 //! * at most `max_connections` at once and at most `max_per_address` from one address
-//!   (priority addresses are exempt from both the per-address limit and eviction);
+//!   (priority addresses are exempt from both the per-address limit and eviction); a
+//!   host at its limit is refused, or, when the front end says so
+//!   ([`Admission::evict_at_address_limit`]), one of that host's own connections is
+//!   closed for the new one, ranked as below (the web dashboard: a browser behind a
+//!   proxy or a NAT shared with a broken client still gets in);
 //! * a full pool evicts one connection to admit the new one: of the class the front
 //!   end ranks lowest (its `rank` function: a class, then the time it has been so;
 //!   `None` for a connection that must not be closed, such as one being answered),
@@ -40,6 +44,9 @@ pub struct Admission<'a> {
     pub max_per_address: usize,
     /// Addresses whose connections are never evicted nor limited per address.
     pub priority: &'a NetList,
+    /// At the per-address limit, close that host's lowest-ranked connection for the
+    /// new one instead of refusing it (refused all the same when `rank` spares all).
+    pub evict_at_address_limit: bool,
 }
 
 /// One open connection.
@@ -101,12 +108,20 @@ impl<S> Pool<S> {
             .values()
             .filter(|e| same_host(e.peer.ip(), peer.ip()))
             .count();
-        if !priority && from_here >= limits.max_per_address {
-            return Err(Refused::PerAddress(from_here));
-        }
         let mut evicted = None;
-        if self.entries.len() >= limits.max_connections {
-            let victim = self.victim(rank);
+        if !priority && from_here >= limits.max_per_address {
+            let own = host(peer.ip());
+            let victim = limits
+                .evict_at_address_limit
+                .then(|| self.victim(Some(own), &rank))
+                .flatten();
+            let Some(id) = victim else {
+                return Err(Refused::PerAddress(from_here));
+            };
+            evicted = self.entries.remove(&id).map(|e| (id, e));
+        }
+        if evicted.is_none() && self.entries.len() >= limits.max_connections {
+            let victim = self.victim(None, &rank);
             let Some(id) = victim else {
                 return Err(Refused::Full(self.entries.len()));
             };
@@ -126,14 +141,19 @@ impl<S> Pool<S> {
         Ok((id, evicted))
     }
 
-    /// The connection to close for a new one: of the lowest class, from the host with
-    /// the most connections in it, the oldest; never a priority one nor one `rank`
-    /// spares.
-    fn victim(&self, rank: impl Fn(&Entry<S>) -> Option<(u8, Instant)>) -> Option<u64> {
+    /// The connection to close for a new one (of host `only`'s, if given): of the
+    /// lowest class, from the host with the most connections in it, the oldest; never a
+    /// priority one nor one `rank` spares.
+    fn victim(
+        &self,
+        only: Option<IpAddr>,
+        rank: &impl Fn(&Entry<S>) -> Option<(u8, Instant)>,
+    ) -> Option<u64> {
         let candidates: Vec<(u64, IpAddr, u8, Instant)> = self
             .entries
             .iter()
             .filter(|(_, e)| !e.priority)
+            .filter(|(_, e)| only.is_none_or(|h| host(e.peer.ip()) == h))
             .filter_map(|(id, e)| rank(e).map(|(class, t)| (*id, host(e.peer.ip()), class, t)))
             .collect();
         let lowest = candidates.iter().map(|c| c.2).min()?;
@@ -269,6 +289,7 @@ mod tests {
             max_connections: 3,
             max_per_address: 2,
             priority: &priority,
+            evict_at_address_limit: false,
         };
         let t0 = Instant::now();
         let at = |s: u64| t0 + Duration::from_secs(s);
@@ -319,6 +340,7 @@ mod tests {
             max_connections: 4,
             max_per_address: 16,
             priority: &none,
+            evict_at_address_limit: false,
         };
         let t0 = Instant::now();
         let at = |ms: u64| t0 + Duration::from_millis(ms);
@@ -371,6 +393,7 @@ mod tests {
             max_connections: 10,
             max_per_address: 1,
             priority: &none,
+            evict_at_address_limit: false,
         };
         let mut pool: Pool<()> = Pool::default();
         let now = Instant::now();
@@ -393,5 +416,52 @@ mod tests {
         assert_eq!(log.allow(t0), (false, 0));
         assert_eq!(log.allow(t0), (false, 0));
         assert_eq!(log.allow(t0 + Duration::from_secs(1)), (true, 2));
+    }
+
+    #[test]
+    fn at_its_limit_a_host_can_be_made_to_close_its_own_connections() {
+        let none = NetList::empty();
+        let mut limits = Admission {
+            max_connections: 10,
+            max_per_address: 2,
+            priority: &none,
+            evict_at_address_limit: true,
+        };
+        let t0 = Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        // The state: None for a connection being answered, else its class.
+        let rank = |e: &Entry<Option<u8>>| e.state.map(|c| (c, e.opened));
+        let mut pool: Pool<Option<u8>> = Pool::default();
+        let (other, _) = pool
+            .admit(addr("10.0.0.2:1"), &limits, at(0), Some(0), rank)
+            .unwrap();
+        let (busy, _) = pool
+            .admit(addr("10.0.0.1:1"), &limits, at(1), None, rank)
+            .unwrap();
+        let (idle, _) = pool
+            .admit(addr("10.0.0.1:2"), &limits, at(2), Some(2), rank)
+            .unwrap();
+        // 10.0.0.1 is at its limit: its idle one goes (not the older one of another
+        // host, not its busy one).
+        let (new, ev) = pool
+            .admit(addr("10.0.0.1:3"), &limits, at(3), None, rank)
+            .unwrap();
+        assert_eq!(ev.map(|(id, _)| id), Some(idle));
+        // Now both of its connections are busy: refused.
+        assert_eq!(
+            pool.admit(addr("10.0.0.1:4"), &limits, at(4), Some(0), rank)
+                .err(),
+            Some(Refused::PerAddress(2))
+        );
+        assert!(pool.get(other).is_some() && pool.get(busy).is_some());
+        assert!(pool.get(new).is_some());
+        // Without the option, a host at its limit is refused whatever it holds.
+        limits.evict_at_address_limit = false;
+        pool.get_mut(new).unwrap().state = Some(0);
+        assert_eq!(
+            pool.admit(addr("10.0.0.1:5"), &limits, at(5), Some(0), rank)
+                .err(),
+            Some(Refused::PerAddress(2))
+        );
     }
 }

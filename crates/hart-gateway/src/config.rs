@@ -660,9 +660,11 @@ fn web_config(
         if opts.web_admin_password_file.is_some()
             || opts.web_cert.is_some()
             || opts.web_key.is_some()
+            || !opts.web_hosts.is_empty()
         {
             return Err(Error::config(
-                "--web-admin-password-file, --web-cert and --web-key go with --web ADDR[:PORT]",
+                "--web-admin-password-file, --web-cert, --web-key and --web-host go with \
+                 --web ADDR[:PORT]",
             ));
         }
         return Ok(None);
@@ -683,6 +685,33 @@ fn web_config(
             ));
         }
         web.memory_window = w;
+    }
+    web.hosts = section
+        .hosts
+        .iter()
+        .map(|h| (h, "[web] hosts"))
+        .chain(opts.web_hosts.iter().map(|h| (h, "--web-host")))
+        .map(|(h, from)| {
+            h.parse::<hart_web::hosts::HostName>()
+                .map_err(|e| Error::config(format!("{from}: {e}")))
+        })
+        .collect::<Result<_, _>>()?;
+    let d = hart_web::limits::Limits::default();
+    web.limits = hart_web::limits::Limits {
+        max_connections: section.max_connections.unwrap_or(d.max_connections).max(1),
+        max_per_address: section.max_per_address.unwrap_or(d.max_per_address).max(1),
+        priority: hart_access::NetList::parse(&section.priority)
+            .map_err(|e| Error::config(format!("[web] priority: {e}")))?,
+        header_timeout: section.header_timeout.unwrap_or(d.header_timeout),
+        idle_timeout: section.idle_timeout.unwrap_or(d.idle_timeout),
+    };
+    for (name, t) in [
+        ("header_timeout", web.limits.header_timeout),
+        ("idle_timeout", web.limits.idle_timeout),
+    ] {
+        if t < Duration::from_millis(100) || t > Duration::from_secs(3600) {
+            return Err(Error::config(format!("[web] {name}: give 100ms to 1h")));
+        }
     }
     // The HART-IP server's identities with write rights may log in with their keys.
     if let Some(p) = &opts.psk_file {

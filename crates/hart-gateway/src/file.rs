@@ -211,4 +211,27 @@ pub struct WebSection {
     /// for trends without a historian (default 1h).
     #[serde(default, with = "humantime_serde")]
     pub memory_window: Option<std::time::Duration>,
+    /// Names the dashboard answers to besides its own addresses and `localhost`
+    /// (`plant-gw.example`, `plant-gw.example:8443`), as `--web-host`: a request to any
+    /// other `Host` is refused (DNS rebinding), and so is a write from another origin.
+    #[serde(default)]
+    pub hosts: Vec<String>,
+    /// Most connections at once (default 512); a full pool closes one that has not
+    /// completed a request, else one idle, to admit a new one.
+    #[serde(default)]
+    pub max_connections: Option<usize>,
+    /// Most connections from one address (default 16; priority hosts aside).
+    #[serde(default)]
+    pub max_per_address: Option<usize>,
+    /// Hosts (addresses or networks) whose connections are never closed to admit
+    /// others nor limited per address: a reverse proxy, the control room.
+    #[serde(default)]
+    pub priority: Vec<String>,
+    /// A request's head must come whole within this, and its body within this after
+    /// it (default 10s).
+    #[serde(default, with = "humantime_serde")]
+    pub header_timeout: Option<std::time::Duration>,
+    /// A kept-alive connection without a request this long is closed (default 60s).
+    #[serde(default, with = "humantime_serde")]
+    pub idle_timeout: Option<std::time::Duration>,
 }

@@ -104,6 +104,9 @@ pub struct ServeOptions {
     pub web_cert: Option<PathBuf>,
     /// `--web-key FILE`: the PEM private key of `--web-cert`.
     pub web_key: Option<PathBuf>,
+    /// `--web-host NAME...`: names the dashboard answers to besides its addresses and
+    /// `localhost` (added to `[web] hosts`).
+    pub web_hosts: Vec<String>,
     /// `--json`: the console view (no front end) prints JSON lines.
     pub json: bool,
 }

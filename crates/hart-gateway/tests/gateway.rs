@@ -243,13 +243,58 @@ fn the_web_dashboard_starts_from_options_and_the_file() {
         let config = GatewayConfig::from_options(&ServeOptions {
             sim: Some(vec![]),
             instant: true,
-            config: Some(file),
+            config: Some(file.clone()),
             ..ServeOptions::default()
         })
         .unwrap();
         let web = config.web.unwrap();
         assert_eq!(web.memory_window, Duration::from_secs(7200));
         assert!(web.history_db.unwrap().ends_with("h.sqlite"));
+        assert_eq!(web.limits, hart_web::limits::Limits::default());
+        assert!(web.hosts.is_empty());
+        // Its names and connection limits, from [web] and --web-host.
+        std::fs::write(
+            &file,
+            "[web]\nbind = \"0.0.0.0:8080\"\nhosts = [\"plant-gw.example\", \"proxy.example:443\"]\n\
+             max_connections = 100\nmax_per_address = 4\npriority = [\"10.0.0.0/24\"]\n\
+             header_timeout = \"5s\"\nidle_timeout = \"2m\"\n",
+        )
+        .unwrap();
+        let config = GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            instant: true,
+            config: Some(file.clone()),
+            web_hosts: vec!["gw.plant.example".into()],
+            ..ServeOptions::default()
+        })
+        .unwrap();
+        let web = config.web.unwrap();
+        let names: Vec<String> = web.hosts.iter().map(|h| h.to_string()).collect();
+        assert_eq!(
+            names,
+            ["plant-gw.example", "proxy.example:443", "gw.plant.example"]
+        );
+        assert_eq!(web.limits.max_connections, 100);
+        assert_eq!(web.limits.max_per_address, 4);
+        assert!(web.limits.priority.contains("10.0.0.7".parse().unwrap()));
+        assert_eq!(web.limits.header_timeout, Duration::from_secs(5));
+        assert_eq!(web.limits.idle_timeout, Duration::from_secs(120));
+        for (bad, says) in [
+            ("hosts = [\"http://plant-gw.example/\"]", "[web] hosts"),
+            ("idle_timeout = \"0s\"", "idle_timeout"),
+            ("priority = [\"not a network\"]", "[web] priority"),
+        ] {
+            std::fs::write(&file, format!("[web]\nbind = \"127.0.0.1:0\"\n{bad}\n")).unwrap();
+            let e = GatewayConfig::from_options(&ServeOptions {
+                sim: Some(vec![]),
+                config: Some(file.clone()),
+                ..ServeOptions::default()
+            })
+            .err()
+            .unwrap();
+            assert_eq!(e.kind, ErrorKind::Config, "{e}");
+            assert!(e.message.contains(says), "{bad}: {e}");
+        }
         let _ = std::fs::remove_dir_all(&dir);
         // Mistakes.
         for opts in [
@@ -267,6 +312,17 @@ fn the_web_dashboard_starts_from_options_and_the_file() {
             ServeOptions {
                 sim: Some(vec![]),
                 web: Some("not an address".into()),
+                ..ServeOptions::default()
+            },
+            ServeOptions {
+                sim: Some(vec![]),
+                web_hosts: vec!["gw.example".into()],
+                ..ServeOptions::default()
+            },
+            ServeOptions {
+                sim: Some(vec![]),
+                web: Some("127.0.0.1:0".into()),
+                web_hosts: vec!["gw.example/".into()],
                 ..ServeOptions::default()
             },
         ] {

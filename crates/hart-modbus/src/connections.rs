@@ -135,6 +135,7 @@ impl Pool {
             max_connections: limits.max_connections,
             max_per_address: limits.max_per_address,
             priority: &limits.priority,
+            evict_at_address_limit: false,
         };
         let close = Arc::new(Notify::new());
         let fresh = Conn {

@@ -21,6 +21,7 @@ use serde_json::{json, Value};
 use crate::auth::{self, SessionView, LOGIN_COOKIE, SESSION_COOKIE};
 use crate::device::{self, Planned};
 use crate::html::Visitor;
+use crate::limits::LocalAddr;
 use crate::pages::{self, Banner};
 use crate::state::{lock, AppState, MAX_EVENT_STREAMS};
 use crate::svg::{self, Series};
@@ -71,8 +72,77 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
         .route("/api/session", get(api_session))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(MAX_BODY))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            check_names,
+        ))
         .layer(axum::middleware::from_fn(security_headers))
         .with_state(state)
+}
+
+/// The names a request was sent to: its `Host` (or HTTP/2 `:authority`, or both when
+/// both are given) must be one of the dashboard's; a request that changes something
+/// with an `Origin` must come from an allowed origin (crate::hosts).
+async fn check_names(
+    State(state): St,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let allowed = allowed(&state, req.extensions().get::<LocalAddr>());
+    let host = req
+        .headers()
+        .get(header::HOST)
+        .map(|h| h.to_str().unwrap_or("(not text)").to_string());
+    let authority = req.uri().authority().map(|a| a.as_str().to_string());
+    let api = req.uri().path().starts_with("/api/");
+    let names: Vec<&String> = host.iter().chain(authority.iter()).collect();
+    if names.is_empty() {
+        return refuse_host(api, None);
+    }
+    if let Some(bad) = names.iter().find(|n| !allowed.authority(n)) {
+        return refuse_host(api, Some(bad));
+    }
+    if !req.method().is_safe() {
+        if let Err(e) = same_origin(&state, req.headers(), names[0]) {
+            return e.into_response();
+        }
+    }
+    next.run(req).await
+}
+
+/// What the names of a request are checked against.
+fn allowed<'a>(state: &'a AppState, local: Option<&LocalAddr>) -> crate::hosts::Allowed<'a> {
+    crate::hosts::Allowed {
+        names: &state.config.hosts,
+        bind: state.config.bind,
+        local: local.map(|l| l.0),
+    }
+}
+
+/// 421 for a request to a name that is not the dashboard's, saying how to allow it.
+fn refuse_host(api: bool, host: Option<&str>) -> Response {
+    let message = match host {
+        Some(h) => {
+            let name = crate::hosts::split_authority(h)
+                .map_or_else(|| h.to_string(), |(n, _)| n.to_string());
+            format!(
+                "this dashboard does not answer to the name {h:?}: if it is a name of this \
+                 gateway, add it to the gateway's configuration ([web] hosts = [\"{name}\"], \
+                 or --web-host {name}); see docs/web.md"
+            )
+        }
+        None => "the request names no Host: give the Host header".to_string(),
+    };
+    if api {
+        ApiError::new(StatusCode::MISDIRECTED_REQUEST, message).into_response()
+    } else {
+        (
+            StatusCode::MISDIRECTED_REQUEST,
+            [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
+            format!("421 Misdirected Request: {message}\n"),
+        )
+            .into_response()
+    }
 }
 
 /// Headers on every answer: no framing, no sniffing, scripts and styles from the
@@ -147,21 +217,23 @@ fn visitor<'a>(state: &AppState, session: Option<&'a SessionView>) -> Visitor<'a
 }
 
 /// A request that changes something came from one of the gateway's own pages (or a
-/// tool that sends no Origin): a browser's Origin must name the Host.
-fn same_origin(headers: &HeaderMap) -> Result<(), ApiError> {
-    let Some(origin) = headers.get(header::ORIGIN).and_then(|o| o.to_str().ok()) else {
+/// tool that sends no Origin): a browser's Origin must be the dashboard's name it was
+/// sent to (its `Host`, one of the allowed names) or a name of `[web] hosts` given with
+/// its port.
+///
+/// Checked for every request but GET, HEAD, OPTIONS and TRACE, before its handler.
+fn same_origin(state: &AppState, headers: &HeaderMap, host: &str) -> Result<(), ApiError> {
+    let Some(origin) = headers.get(header::ORIGIN) else {
         return Ok(());
     };
-    let host = headers
-        .get(header::HOST)
-        .and_then(|h| h.to_str().ok())
-        .unwrap_or("");
-    let origin_host = origin.split_once("://").map_or("", |(_, h)| h);
-    if origin_host == host {
+    let origin = origin.to_str().unwrap_or("(not text)");
+    if allowed(state, None).origin(origin, host) {
         Ok(())
     } else {
         Err(ApiError::forbidden(format!(
-            "cross-site request refused (Origin {origin}, Host {host})"
+            "cross-site request refused (Origin {origin}, Host {host}): a change must come \
+             from the dashboard's own pages; behind a proxy, give its name with its port in \
+             [web] hosts"
         )))
     }
 }
@@ -183,7 +255,6 @@ fn authorize_write(
             "writes are off: start the gateway with --web-admin-password-file FILE",
         ));
     }
-    same_origin(headers)?;
     let Some(s) = session(state, headers) else {
         return Err(ApiError::new(
             StatusCode::UNAUTHORIZED,
@@ -322,13 +393,15 @@ async fn login_page(State(state): St, headers: HeaderMap) -> Response {
         .into_response()
 }
 
-/// Checks a login; on success, the session cookie's `Set-Cookie` and the session.
+/// Checks a login; on success, the `Set-Cookie` values (the session's, the trusted
+/// browser's) and the session.
 fn log_in(
     state: &AppState,
     peer: SocketAddr,
+    headers: &HeaderMap,
     identity: Option<&str>,
     password: Option<&str>,
-) -> Result<(String, SessionView), ApiError> {
+) -> Result<(Vec<String>, SessionView), ApiError> {
     if !state.writes() {
         return Err(ApiError::forbidden(
             "writes are off on this gateway (no --web-admin-password-file, no PSK identity \
@@ -336,17 +409,35 @@ fn log_in(
         ));
     }
     let identity = identity.map(str::trim).filter(|i| !i.is_empty());
+    let browser = auth::cookie(headers, auth::TRUSTED_COOKIE);
+    let browser = browser.as_deref();
     let now = Instant::now();
     let mut sessions = lock(&state.sessions);
-    if let Some(wait) = sessions.refused_for(peer.ip(), now) {
-        return Err(ApiError::new(
-            StatusCode::TOO_MANY_REQUESTS,
-            format!(
-                "too many failed logins from {}: try again in {} s",
-                peer.ip(),
-                wait.as_secs() + 1
-            ),
-        ));
+    match sessions.refused_for(peer.ip(), browser, now) {
+        None => {}
+        Some(auth::Throttled::Address(wait)) => {
+            let s = wait.as_secs() + 1;
+            return Err(ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "too many failed logins from {}: try again in {s} s",
+                    peer.ip()
+                ),
+            )
+            .retry_after(s));
+        }
+        Some(auth::Throttled::Everyone(wait)) => {
+            let s = wait.as_secs() + 1;
+            return Err(ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "too many failed logins to this gateway in the last minute, from \
+                     several addresses (password guessing?): logins from browsers that \
+                     have not logged in here before wait; try again in {s} s"
+                ),
+            )
+            .retry_after(s));
+        }
     }
     // An identity logs in with its pre-shared key; no identity, the administrator with
     // the password.
@@ -365,7 +456,7 @@ fn log_in(
             .map(|_| "administrator".to_string()),
     };
     let Some(who) = who else {
-        sessions.failed(peer.ip(), now);
+        sessions.failed(peer.ip(), browser, now);
         tracing::warn!("web: a failed login from {peer}");
         return Err(ApiError::new(
             StatusCode::UNAUTHORIZED,
@@ -376,7 +467,7 @@ fn log_in(
             },
         ));
     };
-    sessions.succeeded(peer.ip());
+    let trusted = sessions.succeeded(peer.ip(), browser, now);
     let (token, view) = sessions.create(now, &who).ok_or_else(|| {
         ApiError::new(
             StatusCode::INTERNAL_SERVER_ERROR,
@@ -384,10 +475,16 @@ fn log_in(
         )
     })?;
     tracing::info!("web: {who} logged in from {peer} (session {})", view.number);
-    Ok((
-        auth::set_cookie(SESSION_COOKIE, &token, state.secure, None),
-        view,
-    ))
+    let mut cookies = vec![auth::set_cookie(SESSION_COOKIE, &token, state.secure, None)];
+    if let Some(t) = trusted {
+        cookies.push(auth::set_cookie(
+            auth::TRUSTED_COOKIE,
+            &t,
+            state.secure,
+            Some(auth::TRUSTED_LIFE.as_secs()),
+        ));
+    }
+    Ok((cookies, view))
 }
 
 async fn login_form(
@@ -399,7 +496,6 @@ async fn login_form(
     let writes = state.writes();
     let outcome = async {
         let body = body.map_err(|e| ApiError::new(e.status(), e.body_text()))?;
-        same_origin(&headers)?;
         let fields = form_fields(&body)?;
         let cookie = auth::cookie(&headers, LOGIN_COOKIE).unwrap_or_default();
         if !fields
@@ -413,20 +509,20 @@ async fn login_form(
         log_in(
             &state,
             peer,
+            &headers,
             fields.get("identity").map(String::as_str),
             fields.get("password").map(String::as_str),
         )
     }
     .await;
     match outcome {
-        Ok((cookie, _)) => (
-            AppendHeaders([
-                (header::SET_COOKIE, cookie),
-                (
-                    header::SET_COOKIE,
-                    auth::set_cookie(LOGIN_COOKIE, "", state.secure, Some(0)),
-                ),
-            ]),
+        Ok((cookies, _)) => (
+            AppendHeaders(
+                cookies
+                    .into_iter()
+                    .chain([auth::set_cookie(LOGIN_COOKIE, "", state.secure, Some(0))])
+                    .map(|c| (header::SET_COOKIE, c)),
+            ),
             Redirect::to("/"),
         )
             .into_response(),
@@ -435,7 +531,7 @@ async fn login_form(
                 .filter(|t| t.len() == 64)
                 .or_else(auth::random_token)
                 .unwrap_or_default();
-            (
+            let mut res = (
                 e.status,
                 [(
                     header::SET_COOKIE,
@@ -448,7 +544,11 @@ async fn login_form(
                     !state.config.psk_logins.is_empty(),
                 )),
             )
-                .into_response()
+                .into_response();
+            if let Some(s) = e.retry_after {
+                res.headers_mut().insert(header::RETRY_AFTER, s.into());
+            }
+            res
         }
     }
 }
@@ -474,7 +574,7 @@ async fn logout_form(
             .get("csrf")
             .is_some_and(|c| auth::token_matches(c, &s.csrf))
     });
-    if !ok || same_origin(&headers).is_err() {
+    if !ok {
         return ApiError::forbidden("log out from the gateway's own page").into_response();
     }
     (
@@ -855,16 +955,16 @@ async fn api_login(
     headers: HeaderMap,
     body: Result<Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<Response, ApiError> {
-    same_origin(&headers)?;
     let fields = json_fields(&headers, body)?;
-    let (cookie, view) = log_in(
+    let (cookies, view) = log_in(
         &state,
         peer,
+        &headers,
         fields.get("identity").map(String::as_str),
         fields.get("password").map(String::as_str),
     )?;
     Ok((
-        [(header::SET_COOKIE, cookie)],
+        AppendHeaders(cookies.into_iter().map(|c| (header::SET_COOKIE, c))),
         Json(
             json!({"logged_in": true, "csrf": view.csrf, "session": view.number, "who": view.who}),
         ),
@@ -873,7 +973,6 @@ async fn api_login(
 }
 
 async fn api_logout(State(state): St, headers: HeaderMap) -> Result<Response, ApiError> {
-    same_origin(&headers)?;
     let Some(s) = session(&state, &headers) else {
         return Err(ApiError::new(StatusCode::UNAUTHORIZED, "not logged in"));
     };

@@ -2,10 +2,21 @@
 //!
 //! The administrator's password comes from a file (its first line). A login makes a
 //! session: a random token in a cookie (HttpOnly, SameSite=Strict, Secure over HTTPS)
-//! and a random CSRF token that every form and API write must carry. Failed logins
-//! from one address are slowed down and then refused for a while.
+//! and a random CSRF token that every form and API write must carry.
+//!
+//! Password guessing is throttled twice:
+//!
+//! * per address: after [`MAX_FAILURES`] failed logins within [`FAILURE_WINDOW`], that
+//!   address's logins are refused (429) until the window passes;
+//! * across addresses (an attacker with many addresses): when [`GLOBAL_MAX_FAILURES`]
+//!   logins failed within the last [`FAILURE_WINDOW`], wherever from, logins are
+//!   refused (429, `Retry-After`) until the oldest of them leaves the window: guessing
+//!   gets at most that many tries a minute, however many addresses it has. A browser
+//!   that has logged in here before (its [`TRUSTED_COOKIE`], given at each good login,
+//!   random and kept by the server) is exempt, so that an attack does not lock the
+//!   operators out; a cookie loses that after [`MAX_FAILURES`] failures of its own.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::net::IpAddr;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -21,9 +32,20 @@ pub(crate) const SESSION_COOKIE: &str = "hartkit_session";
 pub(crate) const LOGIN_COOKIE: &str = "hartkit_login";
 /// Sessions kept at most; the least recently used goes first.
 const MAX_SESSIONS: usize = 64;
+/// The cookie of a browser that has logged in here, exempt from the throttle across
+/// addresses.
+pub(crate) const TRUSTED_COOKIE: &str = "hartkit_browser";
 /// Failed logins from one address within [`FAILURE_WINDOW`] before it is refused.
-const MAX_FAILURES: u32 = 5;
-const FAILURE_WINDOW: Duration = Duration::from_secs(60);
+pub const MAX_FAILURES: u32 = 5;
+/// The window of the login throttles.
+pub const FAILURE_WINDOW: Duration = Duration::from_secs(60);
+/// Failed logins from all addresses within [`FAILURE_WINDOW`] before logins from
+/// browsers not trusted are refused.
+pub const GLOBAL_MAX_FAILURES: usize = 20;
+/// Browsers remembered as having logged in, at most (the oldest goes first).
+const MAX_TRUSTED: usize = 256;
+/// How long a browser stays trusted after its last good login.
+pub const TRUSTED_LIFE: Duration = Duration::from_secs(30 * 86_400);
 /// A session lasts at most this long, however used.
 const SESSION_LIFE: Duration = Duration::from_secs(12 * 3600);
 
@@ -141,6 +163,20 @@ pub(crate) struct Sessions {
     by_token: HashMap<String, Session>,
     next: u64,
     failures: HashMap<IpAddr, (Instant, u32)>,
+    /// When the last failed logins were, from any address (at most
+    /// [`GLOBAL_MAX_FAILURES`], oldest first).
+    recent_failures: VecDeque<Instant>,
+    /// Browsers that have logged in: cookie value to (last good login, failures since).
+    trusted: HashMap<String, (Instant, u32)>,
+}
+
+/// Why a login is not even tried.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Throttled {
+    /// Its address failed too often; wait this long.
+    Address(Duration),
+    /// Logins failed too often from all addresses; wait this long.
+    Everyone(Duration),
 }
 
 impl Sessions {
@@ -199,19 +235,51 @@ impl Sessions {
         self.by_token.remove(token);
     }
 
-    /// How long `ip` must wait before trying again, if it failed too often.
-    pub(crate) fn refused_for(&mut self, ip: IpAddr, now: Instant) -> Option<Duration> {
-        let (since, n) = *self.failures.get(&ip)?;
-        let elapsed = now.saturating_duration_since(since);
-        if elapsed >= FAILURE_WINDOW {
-            self.failures.remove(&ip);
+    /// Whether `ip` must wait before trying again, and how long: its own failures
+    /// first, then everyone's unless the browser is trusted (`browser`: its
+    /// [`TRUSTED_COOKIE`]).
+    pub(crate) fn refused_for(
+        &mut self,
+        ip: IpAddr,
+        browser: Option<&str>,
+        now: Instant,
+    ) -> Option<Throttled> {
+        if let Some(&(since, n)) = self.failures.get(&ip) {
+            let elapsed = now.saturating_duration_since(since);
+            if elapsed >= FAILURE_WINDOW {
+                self.failures.remove(&ip);
+            } else if n >= MAX_FAILURES {
+                return Some(Throttled::Address(FAILURE_WINDOW - elapsed));
+            }
+        }
+        if browser.is_some_and(|b| self.trusted(b, now)) {
             return None;
         }
-        (n >= MAX_FAILURES).then(|| FAILURE_WINDOW - elapsed)
+        while self
+            .recent_failures
+            .front()
+            .is_some_and(|t| now.saturating_duration_since(*t) >= FAILURE_WINDOW)
+        {
+            self.recent_failures.pop_front();
+        }
+        if self.recent_failures.len() < GLOBAL_MAX_FAILURES {
+            return None;
+        }
+        let oldest = *self.recent_failures.front()?;
+        Some(Throttled::Everyone(
+            FAILURE_WINDOW.saturating_sub(now.saturating_duration_since(oldest)),
+        ))
     }
 
-    /// A failed login from `ip`.
-    pub(crate) fn failed(&mut self, ip: IpAddr, now: Instant) {
+    /// Whether `browser` (a [`TRUSTED_COOKIE`]) is of a browser that logged in here.
+    fn trusted(&self, browser: &str, now: Instant) -> bool {
+        self.trusted.get(browser).is_some_and(|&(t, n)| {
+            n < MAX_FAILURES && now.saturating_duration_since(t) < TRUSTED_LIFE
+        })
+    }
+
+    /// A failed login from `ip` (from the browser of cookie `browser`).
+    pub(crate) fn failed(&mut self, ip: IpAddr, browser: Option<&str>, now: Instant) {
         if self.failures.len() > 10_000 {
             self.failures
                 .retain(|_, (t, _)| now.saturating_duration_since(*t) < FAILURE_WINDOW);
@@ -221,11 +289,44 @@ impl Sessions {
             *e = (now, 0);
         }
         e.1 += 1;
+        self.recent_failures.push_back(now);
+        while self.recent_failures.len() > GLOBAL_MAX_FAILURES {
+            self.recent_failures.pop_front();
+        }
+        if let Some(t) = browser.and_then(|b| self.trusted.get_mut(b)) {
+            t.1 += 1;
+        }
     }
 
-    /// A good login from `ip` forgets its failures.
-    pub(crate) fn succeeded(&mut self, ip: IpAddr) {
+    /// A good login from `ip` forgets its failures; the browser is trusted from now
+    /// on: the value of its [`TRUSTED_COOKIE`] (the one it has, if it is trusted
+    /// already; `None` when the system gives no random numbers).
+    pub(crate) fn succeeded(
+        &mut self,
+        ip: IpAddr,
+        browser: Option<&str>,
+        now: Instant,
+    ) -> Option<String> {
         self.failures.remove(&ip);
+        if let Some(b) = browser.filter(|b| self.trusted.contains_key(*b)) {
+            self.trusted.insert(b.to_string(), (now, 0));
+            return Some(b.to_string());
+        }
+        self.trusted
+            .retain(|_, (t, _)| now.saturating_duration_since(*t) < TRUSTED_LIFE);
+        if self.trusted.len() >= MAX_TRUSTED {
+            if let Some(oldest) = self
+                .trusted
+                .iter()
+                .min_by_key(|(_, (t, _))| *t)
+                .map(|(b, _)| b.clone())
+            {
+                self.trusted.remove(&oldest);
+            }
+        }
+        let token = random_token()?;
+        self.trusted.insert(token.clone(), (now, 0));
+        Some(token)
     }
 }
 
@@ -255,11 +356,51 @@ mod tests {
         let ip: IpAddr = "127.0.0.1".parse().unwrap();
         let mut s = Sessions::default();
         for _ in 0..MAX_FAILURES {
-            assert!(s.refused_for(ip, t0).is_none());
-            s.failed(ip, t0);
+            assert!(s.refused_for(ip, None, t0).is_none());
+            s.failed(ip, None, t0);
         }
-        assert!(s.refused_for(ip, t0 + Duration::from_secs(1)).is_some());
-        assert!(s.refused_for(ip, t0 + FAILURE_WINDOW).is_none());
+        assert!(matches!(
+            s.refused_for(ip, None, t0 + Duration::from_secs(1)),
+            Some(Throttled::Address(_))
+        ));
+        assert!(s.refused_for(ip, None, t0 + FAILURE_WINDOW).is_none());
+    }
+
+    #[test]
+    fn failures_from_many_addresses_slow_every_untrusted_login() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let mut s = Sessions::default();
+        // An operator's browser logged in yesterday... well, a moment ago.
+        let operator: IpAddr = "10.0.0.9".parse().unwrap();
+        let cookie = s.succeeded(operator, None, t0).unwrap();
+        // Guesses from many addresses, each below its own limit.
+        for n in 0..GLOBAL_MAX_FAILURES as u64 {
+            let ip = IpAddr::from([192, 0, 2, (n % 250) as u8 + 1]);
+            assert!(s.refused_for(ip, None, at(n * 1000)).is_none(), "{n}");
+            s.failed(ip, None, at(n * 1000));
+        }
+        // Now a new address waits until the oldest failure leaves the window...
+        let fresh: IpAddr = "198.51.100.1".parse().unwrap();
+        let wait = s.refused_for(fresh, None, at(20_000));
+        assert_eq!(wait, Some(Throttled::Everyone(Duration::from_secs(40))));
+        assert!(s.refused_for(fresh, Some("forged"), at(20_000)).is_some());
+        // ...but the operator's browser does not.
+        assert!(s.refused_for(operator, Some(&cookie), at(20_000)).is_none());
+        // A sliding window: one failure has left it a minute later.
+        assert!(s.refused_for(fresh, None, at(60_000)).is_none());
+        // Five failures with the cookie, and it is trusted no more.
+        for _ in 0..MAX_FAILURES {
+            s.failed(operator, Some(&cookie), at(60_000));
+        }
+        assert!(s
+            .refused_for("10.0.0.10".parse().unwrap(), Some(&cookie), at(60_000))
+            .is_some());
+        // A good login trusts it again (the same cookie).
+        assert_eq!(
+            s.succeeded(operator, Some(&cookie), at(61_000)).as_deref(),
+            Some(cookie.as_str())
+        );
     }
 
     #[test]

@@ -19,8 +19,11 @@
 //! Access: reading needs nothing; writing needs a login with the administrator's
 //! password (`--web-admin-password-file`), a session cookie (HttpOnly,
 //! SameSite=Strict) and a CSRF token on every form and API write; every write goes
-//! through the engine's one write path and its audit. The assets are compiled in: the
-//! dashboard needs no other file and no internet.
+//! through the engine's one write path and its audit. Failed logins are throttled per
+//! address and across addresses. The dashboard answers only to its own names
+//! ([`hosts`]: its addresses, `localhost`, `[web] hosts`), against DNS rebinding, and
+//! bounds its connections per address and in all ([`limits`]). The assets are compiled
+//! in: the dashboard needs no other file and no internet.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -33,6 +36,7 @@ mod api;
 mod auth;
 mod device;
 mod error;
+pub mod hosts;
 mod html;
 pub mod limits;
 mod pages;
@@ -66,6 +70,12 @@ pub struct WebConfig {
     /// The HART-IP server's pre-shared keys with write rights: each identity may log in
     /// with its key (hex) as the password, and its writes are audited under its name.
     pub psk_logins: Vec<PskLogin>,
+    /// Names the dashboard answers to besides its own addresses and `localhost`
+    /// (`[web] hosts`, `--web-host`): a request whose `Host` is none of them is
+    /// refused, and so is a write whose `Origin` is another site ([`hosts`]).
+    pub hosts: Vec<hosts::HostName>,
+    /// The connection limits ([`limits`]).
+    pub limits: limits::Limits,
 }
 
 /// An identity that may log in with its pre-shared key.
@@ -97,6 +107,8 @@ impl WebConfig {
             memory_window: Duration::from_secs(3600),
             session_idle: Duration::from_secs(3600),
             psk_logins: vec![],
+            hosts: vec![],
+            limits: limits::Limits::default(),
         }
     }
 }
@@ -179,14 +191,15 @@ pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error
     let handle = axum_server::Handle::new();
     let h = handle.clone();
     // Sockets: the event streams and the connection limit, with room for the rest.
-    hart_host::load::raise_open_file_limit(limits::MAX_CONNECTIONS as u64 + 256);
+    let conn_limits = state.config.limits.clone();
+    hart_host::load::raise_open_file_limit(conn_limits.max_connections as u64 + 256);
     match tls {
         Some(tls) => {
             let mut server = axum_server::from_tcp(listener)
                 .acceptor(axum_server::tls_openssl::OpenSSLAcceptor::new(tls))
-                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .map(|a| limits::Limit::new(a, conn_limits))
                 .handle(h);
-            header_timeout(server.http_builder());
+            own_time_limits(server.http_builder());
             tokio::spawn(async move {
                 if let Err(e) = server.serve(app).await {
                     tracing::error!("web: the HTTPS server stopped: {e}");
@@ -195,9 +208,9 @@ pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error
         }
         None => {
             let mut server = axum_server::from_tcp(listener)
-                .map(|a| limits::Limit::new(a, limits::MAX_CONNECTIONS))
+                .map(|a| limits::Limit::new(a, conn_limits))
                 .handle(h);
-            header_timeout(server.http_builder());
+            own_time_limits(server.http_builder());
             tokio::spawn(async move {
                 if let Err(e) = server.serve(app).await {
                     tracing::error!("web: the HTTP server stopped: {e}");
@@ -213,12 +226,14 @@ pub async fn start(engine: Engine, config: WebConfig) -> Result<WebServer, Error
     })
 }
 
-/// Closes a connection that has not sent a request's head within
-/// [`limits::HEADER_TIMEOUT`].
-fn header_timeout(b: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt::TokioExecutor>) {
+/// Leaves the time limits of a request's head and of idle connections to
+/// [`limits`]: hyper's `header_read_timeout` runs from the moment it waits for a head,
+/// so it would close kept-alive connections at the head's limit rather than the idle
+/// one.
+fn own_time_limits(b: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt::TokioExecutor>) {
     b.http1()
         .timer(hyper_util::rt::TokioTimer::new())
-        .header_read_timeout(limits::HEADER_TIMEOUT);
+        .header_read_timeout(None);
 }
 
 /// The HTTPS configuration of `files` (OpenSSL, TLS 1.2 and 1.3 with Mozilla's

@@ -85,6 +85,33 @@ async fn server_on(
     password: bool,
     policy: hart_poller::WritePolicy,
 ) -> Server {
+    server_full(plant, name, password, policy, |_| {}).await
+}
+
+/// A dashboard on the demo plant, its settings changed by `configure`.
+async fn server_with(
+    name: &str,
+    password: bool,
+    configure: impl FnOnce(&mut hart_web::WebConfig),
+) -> Server {
+    server_full(
+        hart_host::transport::Plant::demo(),
+        name,
+        password,
+        Default::default(),
+        configure,
+    )
+    .await
+}
+
+/// A dashboard on `plant`, its settings changed by `configure`.
+async fn server_full(
+    plant: hart_host::transport::Plant,
+    name: &str,
+    password: bool,
+    policy: hart_poller::WritePolicy,
+    configure: impl FnOnce(&mut hart_web::WebConfig),
+) -> Server {
     let dir = tempdir::Dir::new(name);
     let audit = dir.0.join("audit.jsonl");
     let engine = engine_on(
@@ -101,6 +128,7 @@ async fn server_on(
         std::fs::write(&p, format!("{PASSWORD}\n")).unwrap();
         config.admin_password_file = Some(p);
     }
+    configure(&mut config);
     let web = hart_web::start(engine, config).await.unwrap();
     let addr = web.addr;
     std::mem::forget(web);
@@ -155,9 +183,28 @@ async fn request(
     headers: &[(&str, &str)],
     body: &[u8],
 ) -> Reply {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    request_on(s, &addr.to_string(), method, path, headers, body).await
+}
+
+/// A connection to `addr` from `source` (any of 127/8 on Linux).
+async fn connect_from(source: &str, addr: SocketAddr) -> std::io::Result<tokio::net::TcpStream> {
+    let s = tokio::net::TcpSocket::new_v4()?;
+    s.bind(SocketAddr::new(source.parse().unwrap(), 0))?;
+    s.connect(addr).await
+}
+
+/// One request on connection `s` with `Host: host` (`Connection: close`).
+async fn request_on(
+    mut s: tokio::net::TcpStream,
+    host: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Reply {
     let mut head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nContent-Length: {}\r\n",
         body.len()
     );
     for (k, v) in headers {
@@ -572,6 +619,8 @@ fn failed_logins_are_throttled() {
         )
         .await;
         assert_json_error(&r, 429);
+        let wait: u64 = r.header("retry-after").unwrap().parse().unwrap();
+        assert!((1..=60).contains(&wait), "{wait}");
     });
 }
 
@@ -702,8 +751,9 @@ fn a_loop_test_is_released_by_itself() {
 fn live_views_are_bounded() {
     local(async {
         let s = server("streams", false, false).await;
-        let open = |addr: SocketAddr| async move {
-            let mut c = tokio::net::TcpStream::connect(addr).await.unwrap();
+        // Each view from an address of its own group of 16 (the per-address limit).
+        let open = |addr: SocketAddr, from: String| async move {
+            let mut c = connect_from(&from, addr).await.unwrap();
             c.write_all(format!("GET /api/events HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
                 .await
                 .unwrap();
@@ -715,20 +765,28 @@ fn live_views_are_bounded() {
             (c, String::from_utf8_lossy(&buf[..n]).into_owned())
         };
         let mut held = vec![];
-        for _ in 0..256 {
-            let (c, head) = open(s.addr).await;
+        for n in 0..256 {
+            let (c, head) = open(s.addr, format!("127.0.2.{}", n / 16 + 1)).await;
             assert!(head.starts_with("HTTP/1.1 200"), "{head}");
             held.push(c);
         }
-        let (_, head) = open(s.addr).await;
+        let (_, head) = open(s.addr, "127.0.3.1".into()).await;
         assert!(head.starts_with("HTTP/1.1 503"), "{head}");
+        // A 17th connection from an address whose 16 are all views is not admitted.
+        let mut c = connect_from("127.0.2.1", s.addr).await.unwrap();
+        let _ = c.write_all(b"GET /api/devices HTTP/1.1\r\n\r\n").await;
+        let mut sink = vec![];
+        let _ = tokio::time::timeout(Duration::from_secs(10), c.read_to_end(&mut sink))
+            .await
+            .expect("closed at once");
+        assert!(sink.is_empty(), "{}", String::from_utf8_lossy(&sink));
         // A view closed frees its place (once the server's next event finds it gone).
         held.pop();
         drop(held.pop());
         let mut freed = false;
         for _ in 0..20 {
             tokio::time::sleep(Duration::from_millis(500)).await;
-            let (c, head) = open(s.addr).await;
+            let (c, head) = open(s.addr, "127.0.3.2".into()).await;
             if head.starts_with("HTTP/1.1 200") {
                 freed = true;
                 held.push(c);
@@ -744,11 +802,12 @@ fn silent_connections_do_not_lock_browsers_out() {
     local(async {
         hart_host::load::raise_open_file_limit(4096);
         let s = server("silent", false, false).await;
-        // More silent connections than the server keeps: a port scanner's, a crashed
-        // client's.
+        // More silent connections than the server keeps, from 40 addresses, each
+        // within the per-address limit: port scanners', crashed clients'.
         let mut silent = vec![];
-        for _ in 0..hart_web::limits::MAX_CONNECTIONS + 100 {
-            silent.push(tokio::net::TcpStream::connect(s.addr).await.unwrap());
+        for n in 0..hart_web::limits::MAX_CONNECTIONS + 100 {
+            let from = format!("127.0.1.{}", n / hart_web::limits::MAX_PER_ADDRESS + 1);
+            silent.push(connect_from(&from, s.addr).await.unwrap());
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
         // A browser still gets in at once: the oldest silent ones make room.
@@ -767,6 +826,353 @@ fn silent_connections_do_not_lock_browsers_out() {
             .expect("closed, not waiting")
             .unwrap_or(0);
         assert_eq!(n, 0);
+    });
+}
+
+/// The dashboard taken by one host (issue 39): 500 connections from 127.0.0.1, each
+/// sending one byte and then nothing, reopened as soon as they are closed, while a
+/// browser on 127.0.0.2 asks for pages. The flood holds its 16 places at most (the
+/// per-address limit: its newest connections close its own oldest) of a pool of 256
+/// here; the browser gets every answer. Run on two worker threads, as the gateway; each request may take up
+/// to 30 s (a loaded machine), but none may fail.
+#[test]
+fn one_host_flooding_slow_connections_does_not_keep_others_out() {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, async {
+        hart_host::load::raise_open_file_limit(4096);
+        // A pool smaller than the flood, so that it would be taken without the
+        // per-address limit.
+        let s = server_with("flood", false, |c| c.limits.max_connections = 256).await;
+        let addr = s.addr;
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let closed = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let mut flood = vec![];
+        for _ in 0..500 {
+            let (stop, closed) = (stop.clone(), closed.clone());
+            flood.push(tokio::spawn(async move {
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let Ok(mut c) = connect_from("127.0.0.1", addr).await else {
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                        continue;
+                    };
+                    if c.write_all(b"G").await.is_ok() {
+                        // Until the server closes it (refused, evicted or timed out).
+                        let mut sink = [0u8; 64];
+                        while let Ok(n) = c.read(&mut sink).await {
+                            if n == 0 {
+                                break;
+                            }
+                        }
+                    }
+                    closed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    // Reopened at once (a pause for the machine's other tests).
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                }
+            }));
+        }
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let mut answered = 0;
+        for n in 0..20 {
+            let c = tokio::time::timeout(Duration::from_secs(30), connect_from("127.0.0.2", addr))
+                .await
+                .unwrap_or_else(|_| panic!("request {n}: no connection within 30 s"))
+                .unwrap();
+            let path = if n % 2 == 0 { "/" } else { "/api/devices/1" };
+            let r = tokio::time::timeout(
+                Duration::from_secs(30),
+                request_on(c, &addr.to_string(), "GET", path, &[], b""),
+            )
+            .await
+            .unwrap_or_else(|_| panic!("request {n}: no answer within 30 s"));
+            assert_eq!(r.status, 200, "request {n}: {}", r.text());
+            answered += 1;
+            tokio::time::sleep(Duration::from_millis(250)).await;
+        }
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(answered, 20);
+        assert!(
+            closed.load(std::sync::atomic::Ordering::Relaxed) >= 500,
+            "the flood's connections were closed by the server: {}",
+            closed.load(std::sync::atomic::Ordering::Relaxed)
+        );
+        for f in flood {
+            f.abort();
+        }
+    });
+}
+
+/// Reads one HTTP/1.1 answer with a Content-Length from `c`: its status.
+async fn read_answer(c: &mut tokio::net::TcpStream) -> u16 {
+    let mut raw = vec![];
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = c.read(&mut buf).await.unwrap();
+        assert!(n > 0, "closed before a whole answer");
+        raw.extend_from_slice(&buf[..n]);
+        let Some(split) = raw.windows(4).position(|w| w == b"\r\n\r\n") else {
+            continue;
+        };
+        let head = String::from_utf8_lossy(&raw[..split]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length:"))
+            .map(|v| v.trim().parse().unwrap())
+            .expect("a Content-Length");
+        if raw.len() >= split + 4 + length {
+            return head.split_whitespace().nth(1).unwrap().parse().unwrap();
+        }
+    }
+}
+
+/// Waits for the server to close `c`; how long it took.
+async fn closed_after(c: &mut tokio::net::TcpStream) -> Duration {
+    let started = std::time::Instant::now();
+    let mut sink = vec![];
+    let _ = tokio::time::timeout(Duration::from_secs(30), c.read_to_end(&mut sink))
+        .await
+        .expect("the server closes it");
+    started.elapsed()
+}
+
+/// The time limits, shortened: a head begun and not finished is closed after the
+/// head's limit, on a new connection and on a kept-alive one; a kept-alive connection
+/// without a request is closed after the idle limit, not the head's.
+#[test]
+fn partial_heads_and_idle_connections_are_closed_at_their_limits() {
+    local(async {
+        let header = Duration::from_millis(800);
+        let idle = Duration::from_secs(5);
+        let s = server_with("timeouts", false, |c| {
+            c.limits.header_timeout = header;
+            c.limits.idle_timeout = idle;
+        })
+        .await;
+        let host = s.addr.to_string();
+        // Part of a head.
+        let mut c = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        c.write_all(format!("GET / HTTP/1.1\r\nHost: {host}\r\nX-A: ").as_bytes())
+            .await
+            .unwrap();
+        let waited = closed_after(&mut c).await;
+        assert!(waited >= header - Duration::from_millis(100), "{waited:?}");
+        // A request answered, then nothing: idle, closed at the idle limit.
+        let mut c = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        let head = format!("GET /api/devices/1 HTTP/1.1\r\nHost: {host}\r\n\r\n");
+        c.write_all(head.as_bytes()).await.unwrap();
+        assert_eq!(read_answer(&mut c).await, 200);
+        let waited = closed_after(&mut c).await;
+        assert!(waited >= idle - Duration::from_millis(100), "{waited:?}");
+        // Within the idle limit, the connection serves another request.
+        let mut c = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        c.write_all(head.as_bytes()).await.unwrap();
+        assert_eq!(read_answer(&mut c).await, 200);
+        tokio::time::sleep(header + Duration::from_millis(500)).await;
+        c.write_all(head.as_bytes()).await.unwrap();
+        assert_eq!(read_answer(&mut c).await, 200);
+        // Then part of a third head: closed at the head's limit.
+        c.write_all(b"GET / HTTP/1.1\r\n").await.unwrap();
+        let waited = closed_after(&mut c).await;
+        assert!(
+            waited >= header - Duration::from_millis(100) && waited < idle,
+            "{waited:?}"
+        );
+    });
+}
+
+/// DNS rebinding: a request to a name that is not the dashboard's is refused (421,
+/// saying how to allow it); `[web] hosts` allows it. A write from another origin is
+/// refused (403), from the dashboard's own accepted.
+#[test]
+fn foreign_hosts_and_origins_are_refused() {
+    local(async {
+        let s = server("hosts", true, false).await;
+        let a = s.addr;
+        let port = a.port();
+        let on = |host: String,
+                  method: &'static str,
+                  path: &'static str,
+                  headers: Vec<(&'static str, String)>,
+                  body: String| async move {
+            let c = tokio::net::TcpStream::connect(a).await.unwrap();
+            let h: Vec<(&str, &str)> = headers.iter().map(|(k, v)| (*k, v.as_str())).collect();
+            request_on(c, &host, method, path, &h, body.as_bytes()).await
+        };
+        let r = on(
+            format!("rebind.example:{port}"),
+            "GET",
+            "/",
+            vec![],
+            String::new(),
+        )
+        .await;
+        assert_eq!(r.status, 421, "{}", r.text());
+        assert!(
+            r.text().contains("\"rebind.example:") && r.text().contains("[web] hosts"),
+            "{}",
+            r.text()
+        );
+        let r = on(
+            format!("rebind.example:{port}"),
+            "GET",
+            "/api/devices",
+            vec![],
+            String::new(),
+        )
+        .await;
+        assert_json_error(&r, 421);
+        // Its own names.
+        for host in [
+            a.to_string(),
+            format!("localhost:{port}"),
+            "127.0.0.1".into(),
+        ] {
+            let r = on(host.clone(), "GET", "/api/devices/1", vec![], String::new()).await;
+            assert_eq!(r.status, 200, "{host}: {}", r.text());
+        }
+        let login = format!(r#"{{"password": "{PASSWORD}"}}"#);
+        let json = ("Content-Type", "application/json".to_string());
+        // A write (a login) from another site's page, or another port of this host.
+        for origin in [
+            format!("http://rebind.example:{port}"),
+            "http://127.0.0.1:1".to_string(),
+            "null".to_string(),
+        ] {
+            let r = on(
+                a.to_string(),
+                "POST",
+                "/api/login",
+                vec![json.clone(), ("Origin", origin.clone())],
+                login.clone(),
+            )
+            .await;
+            assert_json_error(&r, 403);
+        }
+        let r = on(
+            a.to_string(),
+            "POST",
+            "/api/login",
+            vec![json.clone(), ("Origin", format!("http://{a}"))],
+            login.clone(),
+        )
+        .await;
+        assert_eq!(r.status, 200, "{}", r.text());
+
+        // With the name configured.
+        let s = server_with("hosts2", true, |c| {
+            c.hosts = vec!["plant-gw.example".parse().unwrap()];
+        })
+        .await;
+        let a = s.addr;
+        let port = a.port();
+        let on = |host: String,
+                  method: &'static str,
+                  path: &'static str,
+                  headers: Vec<(&'static str, String)>,
+                  body: String| async move {
+            let c = tokio::net::TcpStream::connect(a).await.unwrap();
+            let h: Vec<(&str, &str)> = headers.iter().map(|(k, v)| (*k, v.as_str())).collect();
+            request_on(c, &host, method, path, &h, body.as_bytes()).await
+        };
+        let named = format!("plant-gw.example:{port}");
+        assert_eq!(
+            on(named.clone(), "GET", "/", vec![], String::new())
+                .await
+                .status,
+            200
+        );
+        assert_eq!(
+            on(
+                format!("rebind.example:{port}"),
+                "GET",
+                "/",
+                vec![],
+                String::new()
+            )
+            .await
+            .status,
+            421
+        );
+        let r = on(
+            named.clone(),
+            "POST",
+            "/api/login",
+            vec![json.clone(), ("Origin", format!("http://{named}"))],
+            login.clone(),
+        )
+        .await;
+        assert_eq!(r.status, 200, "{}", r.text());
+        let r = on(
+            named.clone(),
+            "POST",
+            "/api/login",
+            vec![
+                json.clone(),
+                ("Origin", format!("http://rebind.example:{port}")),
+            ],
+            login.clone(),
+        )
+        .await;
+        assert_json_error(&r, 403);
+    });
+}
+
+/// Password guessing from many addresses, each below its own limit: after 20
+/// failures in a minute, a login from a browser that has not logged in here before
+/// waits (429, Retry-After), even with the right password; the operator's browser,
+/// which has, logs in.
+#[test]
+fn failed_logins_from_many_addresses_slow_new_browsers() {
+    local(async {
+        let s = server("globalthrottle", true, false).await;
+        let a = s.addr;
+        let host = a.to_string();
+        let login = |from: &'static str, password: &'static str, cookie: Option<String>| {
+            let host = host.clone();
+            async move {
+                let c = connect_from(from, a).await.unwrap();
+                let body = format!(r#"{{"password": "{password}"}}"#);
+                let mut h = vec![("Content-Type", "application/json".to_string())];
+                if let Some(c) = cookie {
+                    h.push(("Cookie", c));
+                }
+                let h: Vec<(&str, &str)> = h.iter().map(|(k, v)| (*k, v.as_str())).collect();
+                request_on(c, &host, "POST", "/api/login", &h, body.as_bytes()).await
+            }
+        };
+        // The operator logged in before: the browser's cookie says so.
+        let r = login("127.0.0.2", PASSWORD, None).await;
+        assert_eq!(r.status, 200, "{}", r.text());
+        let browser = format!("hartkit_browser={}", r.cookies()["hartkit_browser"]);
+        // 20 guesses from five addresses, four each (the per-address limit is five).
+        for from in [
+            "127.0.0.10",
+            "127.0.0.11",
+            "127.0.0.12",
+            "127.0.0.13",
+            "127.0.0.14",
+        ] {
+            for _ in 0..4 {
+                assert_json_error(&login(from, "guess", None).await, 401);
+            }
+        }
+        // A new browser, with the right password, waits.
+        let r = login("127.0.0.3", PASSWORD, None).await;
+        assert_json_error(&r, 429);
+        let wait: u64 = r.header("retry-after").unwrap().parse().unwrap();
+        assert!((1..=60).contains(&wait), "{wait}");
+        assert!(r.json()["error"]
+            .as_str()
+            .unwrap()
+            .contains("several addresses"));
+        // So does a further guess from a new address.
+        assert_json_error(&login("127.0.0.15", "guess", None).await, 429);
+        // The operator's browser does not.
+        let r = login("127.0.0.2", PASSWORD, Some(browser)).await;
+        assert_eq!(r.status, 200, "{}", r.text());
     });
 }
 
@@ -842,5 +1248,72 @@ fn a_psk_identity_with_write_rights_logs_in_with_its_key() {
         assert!(audit.contains("\"identity\":\"tech1\""), "{audit}");
         assert!(get(a, "/login").await.text().contains("name=\"identity\""));
         web.stop();
+    });
+}
+
+/// Over HTTPS the same connection wrapper serves (the TLS stream inside it): a page for
+/// the dashboard's own name, 421 for another.
+#[test]
+fn https_serves_through_the_same_limits_and_names() {
+    use openssl::{
+        asn1::Asn1Time, ec::EcGroup, ec::EcKey, hash::MessageDigest, nid::Nid, pkey::PKey,
+        ssl::SslConnector, ssl::SslMethod, ssl::SslVerifyMode, x509::X509,
+    };
+    let group = EcGroup::from_curve_name(Nid::X9_62_PRIME256V1).unwrap();
+    let key = PKey::from_ec_key(EcKey::generate(&group).unwrap()).unwrap();
+    let mut name = openssl::x509::X509NameBuilder::new().unwrap();
+    name.append_entry_by_text("CN", "127.0.0.1").unwrap();
+    let name = name.build();
+    let mut b = X509::builder().unwrap();
+    b.set_version(2).unwrap();
+    b.set_subject_name(&name).unwrap();
+    b.set_issuer_name(&name).unwrap();
+    b.set_pubkey(&key).unwrap();
+    b.set_not_before(&Asn1Time::days_from_now(0).unwrap())
+        .unwrap();
+    b.set_not_after(&Asn1Time::days_from_now(1).unwrap())
+        .unwrap();
+    b.sign(&key, MessageDigest::sha256()).unwrap();
+    let dir = tempdir::Dir::new("https-limits");
+    let files = hart_web::TlsFiles {
+        cert: dir.0.join("cert.pem"),
+        key: dir.0.join("key.pem"),
+    };
+    std::fs::write(&files.cert, b.build().to_pem().unwrap()).unwrap();
+    std::fs::write(&files.key, key.private_key_to_pem_pkcs8().unwrap()).unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    tokio::task::LocalSet::new().block_on(&rt, async {
+        let s = server_with("https", false, |c| c.tls = Some(files)).await;
+        let addr = s.addr;
+        let get = move |host: String| {
+            let mut c = SslConnector::builder(SslMethod::tls_client()).unwrap();
+            c.set_verify(SslVerifyMode::NONE);
+            c.set_alpn_protos(b"\x08http/1.1").unwrap();
+            let tcp = std::net::TcpStream::connect(addr).unwrap();
+            tcp.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+            let mut tls = c.build().connect("127.0.0.1", tcp).unwrap();
+            use std::io::{Read, Write};
+            write!(
+                tls,
+                "GET /api/devices/1 HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
+            )
+            .unwrap();
+            let mut out = vec![];
+            let _ = tls.read_to_end(&mut out);
+            String::from_utf8_lossy(&out).into_owned()
+        };
+        let own = tokio::task::spawn_blocking(move || get(addr.to_string()))
+            .await
+            .unwrap();
+        assert!(own.starts_with("HTTP/1.1 200"), "{own}");
+        let other =
+            tokio::task::spawn_blocking(move || get(format!("rebind.example:{}", addr.port())))
+                .await
+                .unwrap();
+        assert!(other.starts_with("HTTP/1.1 421"), "{other}");
     });
 }

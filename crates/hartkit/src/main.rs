@@ -1908,6 +1908,11 @@ struct ServeCli {
     /// The PEM private key of --web-cert.
     #[arg(long, value_name = "FILE")]
     web_key: Option<std::path::PathBuf>,
+    /// A name the web dashboard answers to besides its own addresses and localhost
+    /// (plant-gw.example, or plant-gw.example:8443 for that port only); repeat for more.
+    /// Requests to any other Host are refused (DNS rebinding), as [web] hosts.
+    #[arg(long = "web-host", value_name = "NAME")]
+    web_hosts: Vec<String>,
     /// Print the Modbus map (units and registers) once the devices are found, and exit
     /// (with --profibus: the PROFIBUS stations and modules).
     #[arg(long)]
@@ -2050,6 +2055,7 @@ impl ServeCli {
             web_admin_password_file: self.web_admin_password_file.clone(),
             web_cert: self.web_cert.clone(),
             web_key: self.web_key.clone(),
+            web_hosts: self.web_hosts.clone(),
             json: self.json,
         }
     }
