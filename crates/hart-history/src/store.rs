@@ -140,7 +140,7 @@ pub struct RetentionOutcome {
 /// A historian database: SQLite or PostgreSQL, the same schema and queries.
 pub enum Store {
     /// An SQLite file in WAL mode.
-    Sqlite(SqliteStore),
+    Sqlite(Box<SqliteStore>),
     /// A PostgreSQL database with a table partitioned by day.
     Postgres(Box<PgStore>),
 }
@@ -151,9 +151,8 @@ impl Store {
     pub fn open(db: &str, create: bool) -> Result<Store, Error> {
         match StoreKind::of(db) {
             StoreKind::Postgres => PgStore::open(db, create).map(|s| Store::Postgres(Box::new(s))),
-            StoreKind::Sqlite => {
-                SqliteStore::open(std::path::Path::new(db), create).map(Store::Sqlite)
-            }
+            StoreKind::Sqlite => SqliteStore::open(std::path::Path::new(db), create)
+                .map(|s| Store::Sqlite(Box::new(s))),
         }
     }
 
