@@ -47,6 +47,9 @@ pub struct SqliteStore {
     /// replaced under the connection is noticed ([`SqliteStore::file_lost`]).
     opened: Option<(u64, u64)>,
     wal: Option<(u64, u64)>,
+    /// The connection was let go of ([`SqliteStore::release`]): every write fails
+    /// (asking for a reconnection) until [`SqliteStore::reconnect`].
+    released: bool,
 }
 
 /// The (device, inode) of `path`, if it exists.
@@ -101,6 +104,7 @@ impl SqliteStore {
             ids: HashMap::new(),
             opened: identity(path),
             wal: None,
+            released: false,
         };
         s.migrate(create)?;
         s.wal = identity(&wal_path(path));
@@ -209,18 +213,76 @@ impl SqliteStore {
         &self.path
     }
 
-    /// Opens the file again.
+    /// Opens the file again. The old connection is closed first: SQLite shares one
+    /// index of the write-ahead log between the connections of a process, and one
+    /// left open on a lost log makes every new one fail.
     pub fn reconnect(&mut self) -> Result<(), Error> {
         self.ids.clear();
+        self.close();
         self.conn = Self::connect(&self.path, true)?;
+        self.released = false;
         self.opened = identity(&self.path);
         self.migrate(true)?;
         self.wal = identity(&wal_path(&self.path));
         Ok(())
     }
 
+    /// Lets go of a file found lost ([`SqliteStore::file_lost`]): when the write-ahead
+    /// log at the path is still this connection's, it is written into the file this
+    /// connection has open (the one moved or removed) and emptied, so that a file put
+    /// at the path (a restored backup) is not overwritten by the old log's pages when
+    /// it is opened; then the connection is closed. Writes fail until
+    /// [`SqliteStore::reconnect`].
+    pub fn release(&mut self) {
+        if self.wal.is_some() && identity(&wal_path(&self.path)) == self.wal {
+            let _ = self
+                .conn
+                .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()));
+        }
+        self.close();
+    }
+
+    fn close(&mut self) {
+        if self.released {
+            return;
+        }
+        if let Ok(spare) = Connection::open_in_memory() {
+            let old = std::mem::replace(&mut self.conn, spare);
+            let _ = old.close();
+            self.released = true;
+        }
+    }
+
+    /// An error for a write after [`SqliteStore::release`] (one that asks for a
+    /// reconnection).
+    fn released_error(&self) -> Error {
+        Error::Io(format!(
+            "history database {}: closed after the file was lost; opening it again",
+            self.path.display()
+        ))
+    }
+
+    /// Before a write outside the writer (the ingest's births): a file found lost is
+    /// let go of and opened anew at the path, logged.
+    fn current(&mut self) -> Result<(), Error> {
+        if let Some(lost) = self.file_lost() {
+            tracing::error!(
+                "history: {} {lost}: opening a new file there",
+                self.path.display()
+            );
+            self.release();
+        }
+        if self.released {
+            self.reconnect()?;
+        }
+        Ok(())
+    }
+
     /// Writes a batch in one transaction with prepared statements.
     pub fn insert(&mut self, samples: &[Sample]) -> Result<(), Error> {
+        if self.released {
+            return Err(self.released_error());
+        }
         let r = self.insert_inner(samples);
         if r.is_err() {
             // Ids learned in the rolled-back transaction may not exist.
@@ -272,6 +334,7 @@ impl SqliteStore {
     /// Every device with its sample times and count.
     /// Saves Sparkplug births by topic (the ingest's, [`crate::Store::save_births`]).
     pub fn save_births(&mut self, births: &[(String, Vec<u8>)]) -> Result<(), Error> {
+        self.current()?;
         let e = |e| sqlite_error(&self.path, e);
         let tx = self.conn.transaction().map_err(e)?;
         tx.execute(BIRTHS_TABLE, []).map_err(e)?;
@@ -455,6 +518,9 @@ impl SqliteStore {
         max_size: Option<u64>,
         deadline: Instant,
     ) -> Result<RetentionOutcome, Error> {
+        if self.released {
+            return Err(self.released_error());
+        }
         let path = self.path.clone();
         let e = |e| sqlite_error(&path, e);
         let mut out = RetentionOutcome::default();

@@ -250,6 +250,14 @@ impl Store {
         }
     }
 
+    /// SQLite: lets go of a file found lost ([`SqliteStore::release`]); nothing for
+    /// PostgreSQL.
+    pub fn release(&mut self) {
+        if let Store::Sqlite(s) = self {
+            s.release();
+        }
+    }
+
     /// The database's address as given (a PostgreSQL URL without its password).
     pub fn describe(&self) -> String {
         match self {

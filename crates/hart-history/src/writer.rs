@@ -256,6 +256,8 @@ struct Task {
     /// The file was lost and [`crate::FileLost::Stop`] asked for history to stop:
     /// why.
     stopped: Option<String>,
+    /// A lost file was logged and is being opened anew (logged once per loss).
+    reopening: bool,
 }
 
 impl Task {
@@ -274,6 +276,7 @@ impl Task {
             next_retention: now + Duration::from_secs(5),
             retention_pending: false,
             stopped: None,
+            reopening: false,
         }
     }
 
@@ -352,6 +355,9 @@ impl Task {
 
     /// Writes everything pending now, whatever the backoff.
     fn flush(&mut self) -> Result<(), Error> {
+        if let Some(why) = &self.stopped {
+            return Err(Error::Io(why.clone()));
+        }
         self.backoff = None;
         while !self.pending.is_empty() {
             self.write_chunk()?;
@@ -385,10 +391,16 @@ impl Task {
         if let Some(why) = &self.stopped {
             return Err(Error::Io(why.clone()));
         }
+        if self.reopening {
+            // Logged already; the reconnection below (or its retries) opens it.
+            return Ok(());
+        }
         let Some(lost) = self.store.file_lost() else {
             return Ok(());
         };
         let path = self.store.describe();
+        // The old log's pages go into the old file, never into one now at the path.
+        self.store.release();
         match self.config.on_file_lost {
             crate::FileLost::Reopen => {
                 tracing::error!(
@@ -396,6 +408,7 @@ impl Task {
                      opened there (what the old one held is gone with it unless someone moved \
                      it; [history] on_file_lost = \"stop\" stops history instead)"
                 );
+                self.reopening = true;
                 self.reconnect = true;
                 Ok(())
             }
@@ -430,6 +443,9 @@ impl Task {
                 return Err(e);
             }
             self.reconnect = false;
+            if std::mem::take(&mut self.reopening) {
+                tracing::info!("history: {} opened anew", self.store.describe());
+            }
         }
         let chunk = &self.pending.make_contiguous()[..n];
         match self.store.insert(chunk) {
@@ -486,6 +502,10 @@ impl Task {
 
     fn maybe_retention(&mut self) {
         if self.config.retention.is_none() && self.config.max_size.is_none() {
+            return;
+        }
+        // Never through a lost file (or a stopped history).
+        if self.check_file().is_err() || self.reconnect {
             return;
         }
         if self.backoff.is_some() {

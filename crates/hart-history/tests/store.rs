@@ -666,24 +666,28 @@ fn remove_with_logs(db: &str) {
     }
 }
 
-/// The reproduction of a review: `rm` of the file and its WAL under a running writer
-/// left every later sample going to deleted files, with nothing logged. The writer
-/// notices before its next transaction and opens a new file at the path; a file put
-/// in its place (a restored backup) is noticed the same way.
-#[test]
-fn sqlite_file_removed_or_replaced_under_the_writer_is_opened_anew() {
-    let dir = tempfile::tempdir().unwrap();
-    let db = sqlite_path(&dir);
-    let w = Writer::start(
-        &db,
+/// A writer that commits only when flushed (its batch period is long).
+fn flushed_writer(db: &str, on_file_lost: hart_history::FileLost) -> Writer {
+    Writer::start(
+        db,
         WriterConfig {
-            batch: Duration::from_millis(50),
+            batch: Duration::from_secs(3600),
+            on_file_lost,
             ..WriterConfig::default()
         },
     )
-    .unwrap();
-    let a = key(1, "PT-101");
-    let hour = hour_of_pv(&a);
+    .unwrap()
+}
+
+/// The reproduction of a review: `rm` of the file and its WAL under a running writer
+/// left every later sample going to deleted files, with nothing logged. The writer
+/// notices before its next transaction and opens a new file at the path.
+#[test]
+fn sqlite_file_removed_under_the_writer_is_opened_anew() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let w = flushed_writer(&db, hart_history::FileLost::Reopen);
+    let hour = hour_of_pv(&key(1, "PT-101"));
     w.submit_wait(hour[..100].to_vec());
     w.flush().unwrap();
     remove_with_logs(&db);
@@ -694,22 +698,64 @@ fn sqlite_file_removed_or_replaced_under_the_writer_is_opened_anew() {
         100,
         "the samples after the removal, in a new file"
     );
-
-    // Replaced: moved aside and another history put there.
-    let aside = format!("{db}.old");
-    std::fs::rename(&db, &aside).unwrap();
-    let _ = std::fs::remove_file(format!("{db}-wal"));
-    let _ = std::fs::remove_file(format!("{db}-shm"));
-    drop(Store::open(&db, true).unwrap());
     w.submit_wait(hour[200..300].to_vec());
     w.flush().unwrap();
+    assert_eq!(stored(&db, "PT-101"), 200, "and on after it");
+    assert_eq!(w.close().dropped, 0);
+}
+
+/// Only the write-ahead log removed: the connection left open on it would make every
+/// new one fail (SQLite shares the log's index within a process); the writer lets go
+/// of it first, so the file is opened again and keeps what it held.
+#[test]
+fn sqlite_wal_removed_under_the_writer_is_recovered() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let w = flushed_writer(&db, hart_history::FileLost::Reopen);
+    let hour = hour_of_pv(&key(1, "PT-101"));
+    w.submit_wait(hour[..100].to_vec());
+    w.flush().unwrap();
+    std::fs::remove_file(format!("{db}-wal")).unwrap();
+    w.submit_wait(hour[100..200].to_vec());
+    w.flush().unwrap();
+    w.submit_wait(hour[200..300].to_vec());
+    w.flush().unwrap();
+    let st = w.close();
+    assert_eq!(st.dropped, 0, "{st:?}");
+    assert!(
+        stored(&db, "PT-101") >= 200,
+        "the samples after the loss are in the file"
+    );
+}
+
+/// A backup restored by moving it over the file (`mv`), the live -wal and -shm left
+/// at the path: the writer writes the old log into the file moved away, so the
+/// backup is not overwritten by it, and writes on into the backup.
+#[test]
+fn sqlite_backup_moved_over_the_file_is_kept_and_written_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = sqlite_path(&dir);
+    let backup = dir.path().join("backup.sqlite").display().to_string();
+    {
+        let w = Writer::start(&backup, WriterConfig::default()).unwrap();
+        w.submit_wait(hour_of_pv(&key(2, "TT-200"))[..50].to_vec());
+        w.flush().unwrap();
+        w.close();
+    }
+    let w = flushed_writer(&db, hart_history::FileLost::Reopen);
+    let hour = hour_of_pv(&key(1, "PT-101"));
+    w.submit_wait(hour[..100].to_vec());
+    w.flush().unwrap();
+    std::fs::rename(&backup, &db).unwrap();
+    w.submit_wait(hour[100..200].to_vec());
+    w.flush().unwrap();
+    w.close();
+    assert_eq!(stored(&db, "TT-200"), 50, "the backup's samples are kept");
     assert_eq!(
         stored(&db, "PT-101"),
         100,
-        "written to the file now at the path"
+        "the writer went on in the backup"
     );
-    let st = w.close();
-    assert_eq!(st.dropped, 0, "{st:?}");
 }
 
 /// With `on_file_lost = "stop"`, history stops with an error that stays, and every
@@ -718,17 +764,8 @@ fn sqlite_file_removed_or_replaced_under_the_writer_is_opened_anew() {
 fn sqlite_file_removed_under_the_writer_can_stop_history() {
     let dir = tempfile::tempdir().unwrap();
     let db = sqlite_path(&dir);
-    let w = Writer::start(
-        &db,
-        WriterConfig {
-            batch: Duration::from_millis(50),
-            on_file_lost: hart_history::FileLost::Stop,
-            ..WriterConfig::default()
-        },
-    )
-    .unwrap();
-    let a = key(1, "PT-101");
-    let hour = hour_of_pv(&a);
+    let w = flushed_writer(&db, hart_history::FileLost::Stop);
+    let hour = hour_of_pv(&key(1, "PT-101"));
     w.submit_wait(hour[..100].to_vec());
     w.flush().unwrap();
     remove_with_logs(&db);
@@ -739,6 +776,7 @@ fn sqlite_file_removed_under_the_writer_can_stop_history() {
         "{e}"
     );
     w.submit_wait(hour[200..300].to_vec());
+    assert!(w.flush().is_err(), "it stays stopped");
     let st = w.close();
     assert_eq!(st.dropped, 200, "{st:?}");
     assert!(st.last_error.unwrap().contains("history stopped"));
