@@ -269,6 +269,9 @@ pub async fn run(
                         }
                     }
                     if p.qos != QoS::AtMostOnce {
+                        // Kept only to be acknowledged: its packet id, not its payload.
+                        let mut p = p;
+                        p.payload = Default::default();
                         uncommitted.push(p);
                     }
                     if uncommitted.len() >= MAX_UNCOMMITTED && committing.is_none() {

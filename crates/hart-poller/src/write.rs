@@ -426,7 +426,8 @@ impl Engine {
                 d
             }
             WriteOp::Damping(s) => f32s(&[*s]),
-            WriteOp::FixedCurrent(ma) => f32s(&[*ma]),
+            // -0.0 leaves fixed current mode as 0.0 does: sent as 0.0.
+            WriteOp::FixedCurrent(ma) => f32s(&[if *ma == 0.0 { 0.0 } else { *ma }]),
             WriteOp::PvUnits(u) => vec![*u],
             WriteOp::Message(t) => PackedString::<24>::new(t)
                 .map_err(|_| WriteFailure::Invalid(format!("message {t:?}")))?

@@ -14,9 +14,11 @@
 //! A message longer than the client takes (`MqttOptions::set_max_packet_size`) ends
 //! the connection before it is read, and a persistent session or a retained message
 //! brings it back at every connection: a loop of reconnections that stops everything
-//! behind it. So after such an error the next connection alone takes messages up to
-//! that length (MQTT's own limit at most), for the owner to acknowledge and drop; the
-//! one after it is back to the usual limit.
+//! behind it. So after such an error the client takes messages up to that length from
+//! then on (up to [`MAX_RAISED_PACKET`]), for the owner to acknowledge and drop: one
+//! reconnection per new, longer message, never a loop. Longer still is beyond what it
+//! will hold in memory: that is logged as an error naming the broker's
+//! `message_size_limit`, which keeps such messages out.
 
 use std::time::Duration;
 
@@ -27,8 +29,9 @@ use rumqttc::{ConnectionError, Event, EventLoop, MqttOptions, Outgoing, StateErr
 /// [`Driver::spawn`] and [`Resume`].
 pub const MAX_OUTGOING: usize = 1 << 20;
 
-/// The longest remaining length an MQTT packet can have (a 4-byte variable integer).
-pub const MQTT_MAX_PACKET: usize = 268_435_455;
+/// The longest message the client is ever raised to take after one ended a
+/// connection for being too long (64 MiB): the memory one message may cost.
+pub const MAX_RAISED_PACKET: usize = 64 << 20;
 
 /// The length of the message that ended the connection for being longer than the
 /// client takes, if that was the cause.
@@ -67,8 +70,9 @@ impl Driver {
         let (tx, events) = mpsc::channel(256);
         let (control, mut control_rx) = mpsc::unbounded_channel::<Resume>();
         let task = tokio::spawn(async move {
-            // The usual incoming limit while one connection takes a longer message.
-            let mut raised: Option<usize> = None;
+            // The incoming limit raised after a longer message (kept for every later
+            // connection, whatever options the owner gives).
+            let mut floor: usize = 0;
             let mut too_long: Option<usize> = None;
             loop {
                 let ev = eventloop.poll().await;
@@ -95,20 +99,31 @@ impl Driver {
                 }
                 if let Some(o) = r.options {
                     eventloop.mqtt_options = o;
-                } else if let Some(usual) = raised.take() {
+                }
+                if let Some(n) = too_long.take() {
+                    let usual = eventloop.mqtt_options.max_packet_size();
+                    if n <= MAX_RAISED_PACKET {
+                        tracing::warn!(
+                            "mqtt: the broker sent a message of {n} bytes, more than the {usual} this \
+                             client took; from now on it takes messages up to that length, to \
+                             acknowledge and drop them (the broker's message_size_limit keeps such \
+                             messages out)"
+                        );
+                        floor = floor.max(n);
+                    } else {
+                        tracing::error!(
+                            "mqtt: the broker sent a message of {n} bytes, more than the \
+                             {MAX_RAISED_PACKET} this client will ever hold; it ends every connection \
+                             it is delivered on: set the broker's message_size_limit (mosquitto) \
+                             below {MAX_RAISED_PACKET}, or remove the message (a retained one: publish \
+                             an empty retained message on its topic)"
+                        );
+                    }
+                }
+                if floor > eventloop.mqtt_options.max_packet_size() {
                     eventloop
                         .mqtt_options
-                        .set_max_packet_size(usual, MAX_OUTGOING);
-                }
-                if let Some(n) = too_long.take().filter(|n| *n <= MQTT_MAX_PACKET) {
-                    let usual = eventloop.mqtt_options.max_packet_size();
-                    tracing::warn!(
-                        "mqtt: the broker sent a message of {n} bytes, more than the {usual} this \
-                         client takes; the next connection takes it once, to acknowledge and drop \
-                         it (the broker's message_size_limit keeps such messages out)"
-                    );
-                    eventloop.mqtt_options.set_max_packet_size(n, MAX_OUTGOING);
-                    raised.get_or_insert(usual);
+                        .set_max_packet_size(floor, MAX_OUTGOING);
                 }
                 if !r.after.is_zero() {
                     tokio::time::sleep(r.after).await;

@@ -191,6 +191,13 @@ pub const COMMAND_BURST: u32 = 20;
 /// two rebirths, not 300.
 pub const REBIRTH_INTERVAL_MS: u64 = 5_000;
 
+/// Whether `now` (ms) is within [`REBIRTH_INTERVAL_MS`] after `t`. A clock stepped
+/// back before `t` does not count as recent: a wall clock set back by hours must not
+/// hold rebirths back for hours.
+fn recent(t: u64, now: u64) -> bool {
+    now >= t && now - t < REBIRTH_INTERVAL_MS
+}
+
 /// How the broker delivered a message (its MQTT flags).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Delivery {
@@ -215,9 +222,15 @@ impl Budget {
     }
 
     fn take(&mut self, now_ms: u64) -> bool {
-        if let Some(at) = self.at {
-            let gained = now_ms.saturating_sub(at) as f64 / 1000.0 * f64::from(COMMANDS_PER_SECOND);
-            self.tokens = (self.tokens + gained).min(f64::from(COMMAND_BURST));
+        match self.at {
+            // The clock stepped back: what was gained cannot be told; start afresh
+            // rather than refuse every command until it catches up.
+            Some(at) if now_ms < at => self.tokens = f64::from(COMMAND_BURST),
+            Some(at) => {
+                let gained = (now_ms - at) as f64 / 1000.0 * f64::from(COMMANDS_PER_SECOND);
+                self.tokens = (self.tokens + gained).min(f64::from(COMMAND_BURST));
+            }
+            None => {}
         }
         self.at = Some(now_ms);
         if self.tokens >= 1.0 {
@@ -976,9 +989,7 @@ impl EdgeNode {
                 || m.name.is_none() && m.alias == Some(metrics::REBIRTH_ALIAS);
             match (rebirth, &m.value) {
                 (true, CommandValue::Bool(true)) => {
-                    let recent = self
-                        .last_births
-                        .is_some_and(|t| millis(now).saturating_sub(t) < REBIRTH_INTERVAL_MS);
+                    let recent = self.last_births.is_some_and(|t| recent(t, millis(now)));
                     if self.link == Link::Live && recent {
                         // One rebirth answers every request within the interval.
                         self.counters.coalesced_rebirths += 1;
@@ -1106,9 +1117,7 @@ impl EdgeNode {
     /// [`REBIRTH_INTERVAL_MS`] of the last births, once that time is up.
     pub fn tick(&mut self, now: SystemTime) -> Vec<Output> {
         let mut out = vec![];
-        let due = self
-            .last_births
-            .is_none_or(|t| millis(now).saturating_sub(t) >= REBIRTH_INTERVAL_MS);
+        let due = self.last_births.is_none_or(|t| !recent(t, millis(now)));
         if self.rebirth_pending && due && self.link == Link::Live {
             tracing::info!("mqtt: rebirth asked by NCMD: NBIRTH and DBIRTH again");
             self.last_births = Some(millis(now));

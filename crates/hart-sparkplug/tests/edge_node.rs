@@ -837,4 +837,11 @@ fn a_flood_of_rebirth_requests_costs_two_rebirths() {
         0,
         "and no more"
     );
+    // The wall clock stepped back an hour: a request is answered at once, not an hour
+    // later.
+    let back = t(100 + 3 * REBIRTH_INTERVAL_MS) - Duration::from_secs(3600);
+    assert_eq!(
+        nbirths(&node.received("spBv1.0/Plant/NCMD/gw1", &rebirth, back)),
+        1
+    );
 }
