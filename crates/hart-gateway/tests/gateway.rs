@@ -343,3 +343,43 @@ fn the_web_dashboard_starts_from_options_and_the_file() {
         assert!(e.message.contains("--web-admin-password-file"), "{e}");
     });
 }
+
+/// The longest HART-IP inactivity timer: 5 minutes unless `--max-inactivity` or
+/// `[hart_ip] max_inactivity` says otherwise (the option wins); a time outside
+/// 1 s..=4294967 s is refused, naming both places.
+#[test]
+fn the_longest_hart_ip_timer_comes_from_the_option_or_the_file() {
+    let dir = std::env::temp_dir().join(format!("hart-gw-timer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("gw.toml");
+    let timer = |opt: Option<f64>, section: &str| {
+        std::fs::write(
+            &file,
+            format!("[hart_ip]\nbind = \"127.0.0.1:0\"\n{section}\n"),
+        )
+        .unwrap();
+        GatewayConfig::from_options(&ServeOptions {
+            sim: Some(vec![]),
+            config: Some(file.clone()),
+            max_inactivity: opt,
+            ..ServeOptions::default()
+        })
+        .map(|c| c.hart_ip.unwrap().max_timer_ms)
+    };
+    assert_eq!(
+        timer(None, "").unwrap(),
+        hart_ip_server::DEFAULT_MAX_TIMER_MS
+    );
+    assert_eq!(timer(None, "max_inactivity = \"90s\"").unwrap(), 90_000);
+    assert_eq!(timer(Some(2.5), "max_inactivity = \"90s\"").unwrap(), 2_500);
+    for (opt, section) in [
+        (Some(0.5), ""),
+        (None, "max_inactivity = \"500ms\""),
+        (Some(f64::NAN), ""),
+    ] {
+        let e = timer(opt, section).err().unwrap();
+        assert_eq!(e.kind, ErrorKind::Config, "{e}");
+        assert!(e.message.contains("max_inactivity"), "{e}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
