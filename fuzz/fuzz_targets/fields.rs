@@ -1,12 +1,13 @@
-//! Requests and replies built from JSON fields (hartkit::fields, what `hartkit command N
+//! Requests and replies built from JSON fields (hart_proto::json::fields, what `hartkit command N
 //! '{...}'` and Python's `encode_request` take from users): the first two bytes pick
 //! the command and direction. The rest is read twice: as JSON text, which must build
 //! or be refused with an error, never a panic, and whatever builds must decode; and as
 //! command data, whose decoded view must build back into data with the same view.
 #![no_main]
 use hart_proto::command::COMMANDS;
-use hartkit::json::JsonVisitor;
-use hartkit::{fields, Decoded};
+use hart_proto::decode::Decoded;
+use hart_proto::json::fields;
+use hart_proto::json::JsonVisitor;
 use libfuzzer_sys::fuzz_target;
 
 fn view(d: &Decoded) -> serde_json::Value {

@@ -407,6 +407,30 @@ pub async fn open_async(target: &str) -> Result<AnyTransport, String> {
     open_async_with(target, None).await
 }
 
+/// Opens a master client on `target` (the `--port` syntax of [`parse`]) in `role`.
+///
+/// A target that does not read, or a secure HART-IP target without a pre-shared key,
+/// is [`HostError::Usage`] (exit status 2); one that reads but cannot be opened or
+/// connected (a port missing, a server refusing the handshake) is [`HostError::Io`]
+/// (exit status 5). The command line, the Python package and every other tool that
+/// takes a target open it here.
+pub async fn connect(
+    target: &str,
+    psk: Option<&hart_ip_tls::Psk>,
+    role: hart_proto::MasterKind,
+) -> Result<crate::Client<AnyTransport>, crate::HostError> {
+    let parsed = parse(target).map_err(crate::HostError::Usage)?;
+    if matches!(parsed, Target::HartIp { secure: true, .. }) && psk.is_none() {
+        return Err(crate::HostError::Usage(format!(
+            "--port {target}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
+        )));
+    }
+    let t = open_async_with(target, psk)
+        .await
+        .map_err(|e| crate::HostError::Io(std::io::Error::other(e)))?;
+    Ok(crate::Client::with_role(t, role))
+}
+
 /// Opens any target; `psk` is the key for HART-IP version 2 targets
 /// (`tls://HOST[:PORT]`, `dtls://HOST[:PORT]`), which need one.
 pub async fn open_async_with(

@@ -1,18 +1,16 @@
 //! The `--json` view of a frame. Field names are a contract other tools read; see
 //! `docs/frame-json.md`. Needs the `json` feature.
 
+pub mod fields;
+
 use crate::frame::{Address, Frame};
+use crate::hex;
 use crate::wire::{Field, Meaning, Value, Visitor};
 use serde_json::{json, Map, Value as Json};
 
 use alloc::format;
 use alloc::string::{String, ToString};
 use alloc::vec::Vec;
-
-/// Upper-case hex, no separators.
-fn hex_compact(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02X}")).collect()
-}
 
 /// A float as JSON: the shortest decimal that reads back as the same `f32`
 /// (so 23.4 stays 23.4), `null` when not finite (e.g. the HART NaN 0x7FA00000).
@@ -52,7 +50,7 @@ pub fn frame(f: &Frame<'_>) -> Json {
     m.insert("delimiter".into(), json!(f.delimiter_byte));
     m.insert("frame_type".into(), json!(f.frame_type().name()));
     m.insert("address".into(), address(&f.address));
-    m.insert("expansion".into(), json!(hex_compact(f.expansion)));
+    m.insert("expansion".into(), json!(hex::compact(f.expansion)));
     m.insert("command".into(), json!(f.command));
     if f.command_byte == crate::frame::EXTENDED_COMMAND {
         m.insert("command_byte".into(), json!(f.command_byte));
@@ -66,9 +64,9 @@ pub fn frame(f: &Frame<'_>) -> Json {
             json!(f.is_communication_error()),
         );
     }
-    m.insert("data".into(), json!(hex_compact(f.data)));
+    m.insert("data".into(), json!(hex::compact(f.data)));
     m.insert("checksum_ok".into(), json!(f.checksum_ok()));
-    m.insert("trailing".into(), json!(hex_compact(f.trailing)));
+    m.insert("trailing".into(), json!(hex::compact(f.trailing)));
     match crate::decode::decode_body(f) {
         Some(Ok(d)) => {
             let mut v = JsonVisitor::default();
@@ -104,7 +102,7 @@ pub fn value(v: &Value<'_>) -> Json {
         Value::Uint(u) => json!(u),
         Value::Float(x) => float(*x),
         Value::Str(s) => json!(s),
-        Value::Hex(b) => json!(hex_compact(b)),
+        Value::Hex(b) => json!(hex::compact(b)),
         Value::Date(d) => json!(d.to_string()),
         Value::Bool(b) => json!(b),
     }

@@ -46,10 +46,14 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
+#[cfg(feature = "std")]
+pub mod annotate;
 pub mod command;
 pub mod decode;
 pub mod deframer;
 pub mod frame;
+#[cfg(feature = "std")]
+pub mod hex;
 #[cfg(feature = "json")]
 pub mod json;
 pub mod tables;

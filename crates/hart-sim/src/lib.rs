@@ -25,6 +25,8 @@ mod analog;
 pub mod bus;
 pub mod cable;
 pub mod device;
+#[cfg(feature = "json")]
+mod json;
 
 pub use hart_modem::channel::{AnalogProfile, LoopModel};
 pub use hart_modem::line::{AnalogDisturbance, LineOptions};

@@ -93,7 +93,7 @@ enum Op {
 
 /// A device as Python sees it.
 fn device_json(d: &DeviceInfo) -> Value {
-    let mut v = hartkit::json::JsonVisitor::with_words();
+    let mut v = hart_proto::json::JsonVisitor::with_words();
     d.identity.describe("identity", 0, &mut v);
     json!({
         "unique_id": d.unique_id().to_string(),
@@ -104,7 +104,7 @@ fn device_json(d: &DeviceInfo) -> Value {
         "revision": d.revision(),
         "manufacturer_id": d.manufacturer_id(),
         "expanded_device_type": d.identity.expanded_device_type,
-        "device_id": hartkit::hex::compact(&d.identity.device_id.0),
+        "device_id": hart_proto::hex::compact(&d.identity.device_id.0),
         "io_channel": d.io_channel,
         "identity": v.finish(),
     })
@@ -114,7 +114,7 @@ fn device_json(d: &DeviceInfo) -> Value {
 fn reply_json(command: u16, r: &hart_host::Reply) -> Value {
     let decoded = match hart_proto::command::decode_response(command, &r.data) {
         Some(Ok(resp)) => {
-            let mut v = hartkit::json::JsonVisitor::with_words();
+            let mut v = hart_proto::json::JsonVisitor::with_words();
             resp.describe(&mut v);
             v.finish()
         }
@@ -131,10 +131,10 @@ fn reply_json(command: u16, r: &hart_host::Reply) -> Value {
         "response_code_name": hart_proto::tables::response_code_name(command, r.response_code),
         "device_status": r.device_status,
         "device_status_set": status,
-        "data": hartkit::hex::compact(&r.data),
-        "pdu": hartkit::hex::compact(&r.pdu),
+        "data": hart_proto::hex::compact(&r.data),
+        "pdu": hart_proto::hex::compact(&r.pdu),
         "decoded": decoded,
-        "additional_status": r.additional_status.as_deref().map(hartkit::hex::compact),
+        "additional_status": r.additional_status.as_deref().map(hart_proto::hex::compact),
     })
 }
 
@@ -223,7 +223,7 @@ impl Worker {
                 Ok(Value::Array(
                     bursts
                         .iter()
-                        .map(|b| json!(hartkit::hex::compact(b)))
+                        .map(|b| json!(hart_proto::hex::compact(b)))
                         .collect(),
                 ))
             }
@@ -404,14 +404,18 @@ pub fn open_loop(
                 }
             };
             rt.block_on(async move {
-                let client =
-                    match hartkit::host::client(&target, psk.as_ref(), None, 0, secondary).await {
-                        Ok(c) => c,
-                        Err((m, _)) => {
-                            let _ = opened_tx.send(Err(m));
-                            return;
-                        }
-                    };
+                let role = if secondary {
+                    hart_proto::MasterKind::Secondary
+                } else {
+                    hart_proto::MasterKind::Primary
+                };
+                let client = match hart_host::target::connect(&target, psk.as_ref(), role).await {
+                    Ok(c) => c,
+                    Err(e) => {
+                        let _ = opened_tx.send(Err(e.to_string()));
+                        return;
+                    }
+                };
                 use hart_host::transport::Transport as _;
                 let _ = opened_tx.send(Ok(client.transport().describe()));
                 let mut w = Worker {

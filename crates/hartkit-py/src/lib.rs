@@ -273,7 +273,7 @@ impl Frame {
     /// does not fit the command's layout.
     #[getter]
     fn decoded(&self, py: Python<'_>) -> PyResult<Option<Py<PyAny>>> {
-        match hartkit::decode_body(&self.parsed()) {
+        match hart_proto::decode::decode_body(&self.parsed()) {
             None => Ok(None),
             Some(Err(e)) => Err(FrameError::new_err(format!(
                 "command {} data: {e}",
@@ -291,9 +291,9 @@ impl Frame {
     /// (docs/frame-json.md), with `decoded` in words.
     fn to_dict(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
         let f = self.parsed();
-        let mut j = hartkit::json::frame(&f);
-        if let Some(Ok(d)) = hartkit::decode_body(&f) {
-            let mut v = hartkit::json::JsonVisitor::with_words();
+        let mut j = hart_proto::json::frame(&f);
+        if let Some(Ok(d)) = hart_proto::decode::decode_body(&f) {
+            let mut v = hart_proto::json::JsonVisitor::with_words();
             d.describe(&mut v);
             j["decoded"] = v.finish();
         }
@@ -302,7 +302,7 @@ impl Frame {
 
     /// The annotated view of `hartkit frame decode`: every byte explained.
     fn explain(&self) -> String {
-        hartkit::annotate::frame(&self.parsed())
+        hart_proto::annotate::frame(&self.parsed())
     }
 
     fn __bytes__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
@@ -320,7 +320,7 @@ impl Frame {
             f.frame_type().name(),
             f.command,
             addr,
-            hartkit::hex::compact(f.pdu)
+            hart_proto::hex::compact(f.pdu)
         )
     }
 }
@@ -333,7 +333,7 @@ fn decode_reply(py: Python<'_>, command: u16, data: &[u8]) -> PyResult<Option<Py
         py,
         command,
         hart_proto::command::decode_response(command, data)
-            .map(|r| r.map(hartkit::Decoded::Response)),
+            .map(|r| r.map(hart_proto::decode::Decoded::Response)),
     )
 }
 
@@ -345,7 +345,7 @@ fn decode_request(py: Python<'_>, command: u16, data: &[u8]) -> PyResult<Option<
         py,
         command,
         hart_proto::command::decode_request(command, data)
-            .map(|r| r.map(hartkit::Decoded::Request)),
+            .map(|r| r.map(hart_proto::decode::Decoded::Request)),
     )
 }
 
@@ -360,7 +360,7 @@ fn encode_request(
     fields: &Bound<'_, PyAny>,
 ) -> PyResult<Py<PyBytes>> {
     let j = fields_json(fields)?;
-    hartkit::fields::request_bytes(command, &j)
+    hart_proto::json::fields::request_bytes(command, &j)
         .map(|b| PyBytes::new(py, &b).unbind())
         .map_err(|e| FrameError::new_err(format!("command {command} request: {e}")))
 }
@@ -370,7 +370,7 @@ fn encode_request(
 #[pyfunction]
 fn encode_reply(py: Python<'_>, command: u16, fields: &Bound<'_, PyAny>) -> PyResult<Py<PyBytes>> {
     let j = fields_json(fields)?;
-    hartkit::fields::response_bytes(command, &j)
+    hart_proto::json::fields::response_bytes(command, &j)
         .map(|b| PyBytes::new(py, &b).unbind())
         .map_err(|e| FrameError::new_err(format!("command {command} reply: {e}")))
 }
@@ -386,7 +386,7 @@ fn fields_json(fields: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
 fn decode(
     py: Python<'_>,
     command: u16,
-    d: Option<Result<hartkit::Decoded, hart_proto::wire::DecodeError>>,
+    d: Option<Result<hart_proto::decode::Decoded, hart_proto::wire::DecodeError>>,
 ) -> PyResult<Option<Py<PyAny>>> {
     match d {
         None => Ok(None),
@@ -538,7 +538,7 @@ fn sim_bench(
         let r = hart_sim::run(&cfg);
         (r, t.elapsed().as_secs_f64())
     });
-    to_py(py, &hartkit::sim::report_json(&cfg, &report, wall))
+    to_py(py, &report.to_json(&cfg, wall))
 }
 
 /// A key given from Python: 16 bytes, or 32 hex digits.

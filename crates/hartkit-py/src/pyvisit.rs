@@ -61,7 +61,7 @@ impl<'py> PyVisitor<'py> {
                 shortest.into_pyobject(py)?.into_any()
             }
             Value::Str(s) => s.into_pyobject(py)?.into_any(),
-            Value::Hex(b) => hartkit::hex::compact(b).into_pyobject(py)?.into_any(),
+            Value::Hex(b) => hart_proto::hex::compact(b).into_pyobject(py)?.into_any(),
             Value::Date(d) => d.to_string().into_pyobject(py)?.into_any(),
             Value::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
         })

@@ -115,9 +115,10 @@ pub fn serve_hart_ip(
                     Some(targets) => {
                         let mut clients = Vec::new();
                         for t in &targets {
-                            match hartkit::host::client(t, None, None, 0, false).await {
+                            let primary = hart_proto::MasterKind::Primary;
+                            match hart_host::target::connect(t, None, primary).await {
                                 Ok(c) => clients.push(c),
-                                Err((m, _)) => {
+                                Err(m) => {
                                     let _ = ready_tx.send(Err(format!("loop {t}: {m}")));
                                     return;
                                 }

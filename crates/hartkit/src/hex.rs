@@ -1,4 +1,4 @@
-//! Hex input and output.
+//! Hex input (the command line's syntax) and output (hart-proto's writer).
 
 /// Parses hex bytes from one or more arguments. Spaces, colons, dashes, commas and
 /// `0x` prefixes are allowed between bytes; a byte's two digits must be adjacent.
@@ -52,19 +52,7 @@ pub fn parse(args: &[impl AsRef<str>]) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// Upper-case hex without separators.
-pub fn compact(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02X}")).collect()
-}
-
-/// Upper-case hex with a space between bytes.
-pub fn spaced(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02X}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
+pub use hart_proto::hex::{compact, spaced};
 
 #[cfg(test)]
 mod tests {

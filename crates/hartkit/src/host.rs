@@ -47,28 +47,14 @@ pub async fn client(
     verbose: u8,
     secondary: bool,
 ) -> Result<Client<AnyTransport>, Failure> {
-    // A target that does not read, or a secure one without a key, is a usage error
-    // (exit 2); one that reads but cannot be opened or connected (a port missing, a
-    // server refusing the handshake) an I/O error (exit 5).
-    let target = hart_host::target::parse(port).map_err(usage)?;
-    if matches!(
-        target,
-        hart_host::target::Target::HartIp { secure: true, .. }
-    ) && psk.is_none()
-    {
-        return Err(usage(format!(
-            "--port {port}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
-        )));
-    }
-    let t = hart_host::target::open_async_with(port, psk)
-        .await
-        .map_err(|e| (e, 5))?;
     let kind = if secondary {
         hart_proto::MasterKind::Secondary
     } else {
         hart_proto::MasterKind::Primary
     };
-    let mut c = Client::with_role(t, kind);
+    let mut c = hart_host::target::connect(port, psk, kind)
+        .await
+        .map_err(|e| (e.to_string(), e.exit_code()))?;
     let mut file = match trace {
         Some(p) => Some(
             std::fs::File::create(p).map_err(|e| usage(format!("--trace {}: {e}", p.display())))?,

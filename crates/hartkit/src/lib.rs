@@ -2,7 +2,8 @@
 //! decoded frames as JSON or as an annotated, field-by-field listing. The protocol
 //! itself lives in `hart-proto`; this crate only presents it.
 
-pub mod annotate;
+/// The annotated, field-by-field view of a frame (hart-proto's).
+pub use hart_proto::annotate;
 pub mod cable;
 pub mod demo;
 pub mod fields;

@@ -1187,12 +1187,12 @@ fn sim_bench(a: &BenchArgs) -> Result<String, String> {
         let file =
             std::fs::File::create(path).map_err(|e| format!("--trace {}: {e}", path.display()))?;
         let mut w = std::io::BufWriter::new(file);
-        hartkit::sim::write_trace(&report, &mut w)
+        report
+            .write_trace(&mut w)
             .map_err(|e| format!("--trace {}: {e}", path.display()))?;
     }
     if a.json {
-        serde_json::to_string_pretty(&hartkit::sim::report_json(&cfg, &report, wall))
-            .map_err(|e| e.to_string())
+        serde_json::to_string_pretty(&report.to_json(&cfg, wall)).map_err(|e| e.to_string())
     } else {
         Ok(hartkit::sim::report_text(&cfg, &report, wall))
     }

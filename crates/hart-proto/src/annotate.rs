@@ -2,15 +2,19 @@
 //! spirit of a protocol analyser: offset, raw bytes, field, meaning.
 
 use std::fmt::Write as _;
+use std::format;
+use std::string::{String, ToString};
+use std::vec;
+use std::vec::Vec;
 
-use hart_proto::command;
-use hart_proto::frame::{Address, Frame};
-use hart_proto::tables::{
+use crate::command;
+use crate::frame::{Address, Frame};
+use crate::tables::{
     self, response_class, response_code_name, ResponseClass, COMMUNICATION_ERROR,
     FIELD_DEVICE_STATUS, LIMIT_STATUS, PROCESS_DATA_STATUS,
 };
-use hart_proto::types::HartTime;
-use hart_proto::wire::{Field, Meaning, Value, Visitor};
+use crate::types::HartTime;
+use crate::wire::{Field, Meaning, Value, Visitor};
 
 use crate::hex;
 
@@ -58,7 +62,7 @@ pub fn bits(table: &tables::BitTable, value: u8) -> String {
 }
 
 fn fmt_float(x: f32) -> String {
-    if x.to_bits() == hart_proto::types::HART_NAN_BITS {
+    if x.to_bits() == crate::types::HART_NAN_BITS {
         "NaN (0x7FA00000, not available)".into()
     } else {
         format!("{x}")
@@ -226,7 +230,7 @@ pub fn frame(f: &Frame<'_>) -> String {
         );
         p += f.expansion.len();
     }
-    let cmd_text = if f.command_byte == hart_proto::frame::EXTENDED_COMMAND {
+    let cmd_text = if f.command_byte == crate::frame::EXTENDED_COMMAND {
         "31 (extended command follows)".to_string()
     } else {
         format!("{} ({title})", f.command)
@@ -279,7 +283,7 @@ pub fn frame(f: &Frame<'_>) -> String {
         );
         p += 2;
     }
-    match crate::decode_body(f) {
+    match crate::decode::decode_body(f) {
         Some(Ok(decoded)) => {
             let mut rows = DataRows {
                 lines: &mut l,
@@ -288,8 +292,8 @@ pub fn frame(f: &Frame<'_>) -> String {
             };
             decoded.describe(&mut rows);
             let used = match decoded {
-                crate::Decoded::Request(r) => r.encoded_len(),
-                crate::Decoded::Response(r) => r.encoded_len(),
+                crate::decode::Decoded::Request(r) => r.encoded_len(),
+                crate::decode::Decoded::Response(r) => r.encoded_len(),
             };
             if used < f.data.len() {
                 l.row(

@@ -1,0 +1,69 @@
+//! What each tool links. The Python wheel is built on the library crates alone: the
+//! codec, the host, the simulator and the HART-IP server. Building it must never
+//! compile the command-line crate or the gateway's front ends and stores (OPC UA,
+//! SQLite, PostgreSQL, the web server, the MQTT client, the well network, the
+//! conformance tester), which would multiply its build time for nothing it uses.
+
+use std::process::Command;
+
+/// The packages `package` links in a normal (non-dev, non-build) build, by name.
+fn normal_dependencies(package: &str) -> Vec<String> {
+    let out = Command::new(env!("CARGO"))
+        .args(["tree", "-p", package, "-e", "normal", "--prefix", "none"])
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+        .output()
+        .expect("cargo tree runs");
+    assert!(
+        out.status.success(),
+        "cargo tree -p {package} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut names: Vec<String> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_whitespace().next().map(str::to_string))
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+#[test]
+fn the_wheel_builds_no_front_end() {
+    let linked = normal_dependencies("hartkit-py");
+    let forbidden = [
+        ("hartkit", "the command-line crate"),
+        ("hart-gateway", "the gateway"),
+        ("hart-web", "the dashboard"),
+        ("hart-opcua", "the OPC UA front end"),
+        ("hart-modbus", "the Modbus front end"),
+        ("hart-profibus", "the PROFIBUS front end"),
+        ("hart-sparkplug", "the MQTT publisher"),
+        ("hart-ingest", "the MQTT ingest"),
+        ("hart-history", "the historian"),
+        ("hart-wells", "the well network"),
+        ("hart-conform", "the conformance tester"),
+        ("async-opcua", "OPC UA"),
+        ("rusqlite", "SQLite"),
+        ("libsqlite3-sys", "SQLite's C build"),
+        ("tokio-postgres", "PostgreSQL"),
+        ("axum", "the HTTP server"),
+        ("rumqttc", "the MQTT client"),
+        ("clap", "the command line's parser"),
+    ];
+    let found: Vec<String> = forbidden
+        .iter()
+        .filter(|(name, _)| linked.iter().any(|l| l == name))
+        .map(|(name, what)| format!("{name} ({what})"))
+        .collect();
+    assert!(
+        found.is_empty(),
+        "the Python package (crates/hartkit-py) now links {}: take what it needs from a \
+         library crate (hart-proto, hart-host, hart-sim) instead of depending on the crate \
+         that brings these in; `cargo tree -p hartkit-py -i NAME` shows the path",
+        found.join(", ")
+    );
+    // The libraries it is built on are still there (the check above is not vacuous).
+    for needed in ["hart-proto", "hart-host", "hart-sim", "pyo3"] {
+        assert!(linked.iter().any(|l| l == needed), "{needed} is missing");
+    }
+}
