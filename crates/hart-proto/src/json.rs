@@ -22,6 +22,24 @@ pub fn float(x: f32) -> Json {
     serde_json::Number::from_f64(shortest).map_or(Json::Null, Json::Number)
 }
 
+/// The names of the bits set in `value` of a bit table, as a JSON list: the words that
+/// go under `<name>_set` beside a bit field's integer (docs/frame-json.md).
+pub fn bits_set(table: &crate::tables::BitTable, value: u8) -> Json {
+    Json::Array(
+        table
+            .set_bits(value)
+            .map(|b| Json::String(b.name.into()))
+            .collect(),
+    )
+}
+
+/// `device_status_set`: the names of the field device status bits set in a reply's
+/// status byte, the one name every view (command line, Python, web) gives them beside
+/// the integer `device_status`.
+pub fn device_status_set(status: u8) -> Json {
+    bits_set(&crate::tables::FIELD_DEVICE_STATUS, status)
+}
+
 /// The address object.
 pub fn address(a: &Address) -> Json {
     match a {

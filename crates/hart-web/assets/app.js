@@ -14,7 +14,7 @@ function esc(s) {
 }
 
 function statusWords(d) {
-  var w = d.device_status_words || [];
+  var w = d.device_status_set || [];
   return w.length ? w.join(", ") : "ok";
 }
 

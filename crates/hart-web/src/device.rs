@@ -9,7 +9,7 @@ use axum::http::StatusCode;
 use hart_poller::{DeviceImage, Engine, LoopOutcome, WriteError, WriteFailure, WriteOp};
 use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
 use hart_proto::json::{float, JsonVisitor};
-use hart_proto::tables::{self, FIELD_DEVICE_STATUS};
+use hart_proto::tables;
 use hart_proto::types::Date;
 use serde_json::{json, Value};
 
@@ -26,14 +26,6 @@ fn time(t: SystemTime) -> String {
 
 fn f(x: f32) -> Value {
     float(x)
-}
-
-/// The names of the bits set in a field device status byte.
-pub(crate) fn status_words(status: u8) -> Vec<&'static str> {
-    FIELD_DEVICE_STATUS
-        .set_bits(status)
-        .map(|b| b.name)
-        .collect()
 }
 
 /// One device as the plant view and `/api/devices` give it.
@@ -85,7 +77,7 @@ pub(crate) fn device_json(d: &DeviceImage, engine: &Engine) -> Value {
             "failed_releases": t.failed_releases,
         })),
         "device_status": d.device_status,
-        "device_status_words": status_words(d.device_status),
+        "device_status_set": hart_proto::json::device_status_set(d.device_status),
         "extended_status": d.extended_status,
         "quality": quality.name(),
         "quality_code": quality.code(),
@@ -165,7 +157,7 @@ pub(crate) fn reply_json(reply: &[u8]) -> Result<Value, ApiError> {
         "response_code": rc,
         "response_code_name": tables::response_code_name(frame.command, rc),
         "device_status": status,
-        "device_status_words": status_words(status),
+        "device_status_set": hart_proto::json::device_status_set(status),
     });
     if frame.is_communication_error() {
         v["communication_error"] = json!(true);

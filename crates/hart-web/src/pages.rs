@@ -39,7 +39,7 @@ fn plant_row(d: &Value) -> String {
             p.clamp(0.0, 100.0)
         )
     });
-    let status: Vec<&str> = d["device_status_words"]
+    let status: Vec<&str> = d["device_status_set"]
         .as_array()
         .map(|a| a.iter().filter_map(Value::as_str).collect())
         .unwrap_or_default();
@@ -144,7 +144,7 @@ pub(crate) async fn device(
         num(&d["loop_current"], 3),
         num(&d["percent_range"], 1),
     );
-    let status: Vec<&str> = d["device_status_words"]
+    let status: Vec<&str> = d["device_status_set"]
         .as_array()
         .map(|a| a.iter().filter_map(Value::as_str).collect())
         .unwrap_or_default();

@@ -312,6 +312,8 @@ fn every_read_endpoint_answers() {
         assert_eq!(plant["loops"][0]["name"], "loop1");
         let d = get(a, "/api/devices/1").await.json();
         assert_eq!(d["unit"], 1);
+        // The status words carry the one name every view uses (docs/frame-json.md).
+        assert!(d["device_status_set"].is_array(), "{d}");
         let uid = d["unique_id"].as_str().unwrap().to_string();
         let tag = d["tag"].as_str().unwrap().to_string();
         // The same device by unique ID and by tag (any case).
@@ -333,6 +335,7 @@ fn every_read_endpoint_answers() {
         assert_eq!(vars["response_code"], 0, "{vars}");
         let status = get(a, "/api/devices/1/status").await.json();
         assert_eq!(status["command"], 48);
+        assert!(status["device_status_set"].is_array(), "{status}");
         let burst = get(a, "/api/devices/2/burst").await.json();
         assert_eq!(burst["command"], 105, "{burst}");
         tokio::time::sleep(Duration::from_millis(1500)).await;

@@ -121,16 +121,12 @@ fn reply_json(command: u16, r: &hart_host::Reply) -> Value {
         Some(Err(e)) => json!({ "decode_error": e.to_string() }),
         None => Value::Null,
     };
-    let status: Vec<&str> = hart_proto::tables::FIELD_DEVICE_STATUS
-        .set_bits(r.device_status)
-        .map(|b| b.name)
-        .collect();
     json!({
         "command": command,
         "response_code": r.response_code,
         "response_code_name": hart_proto::tables::response_code_name(command, r.response_code),
         "device_status": r.device_status,
-        "device_status_set": status,
+        "device_status_set": hart_proto::json::device_status_set(r.device_status),
         "data": hart_proto::hex::compact(&r.data),
         "pdu": hart_proto::hex::compact(&r.pdu),
         "decoded": decoded,

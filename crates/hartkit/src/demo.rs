@@ -114,7 +114,7 @@ impl View {
                         "units_symbol": r.pv.map(|p| symbol(p.1)),
                         "loop_current": r.current.map(crate::json::float),
                         "device_status": r.status,
-                        "status": status_words(r.status),
+                        "device_status_set": crate::json::device_status_set(r.status),
                         "bursts": r.bursts,
                         "error": r.error,
                     })

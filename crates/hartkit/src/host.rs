@@ -9,7 +9,7 @@ use hart_host::{Client, DeviceInfo, DeviceRef, HostError, Reply};
 use hart_proto::command as cmd;
 use hart_proto::deframer::{Deframer, DeframerEvent};
 use hart_proto::frame::Frame;
-use hart_proto::tables::{self, FIELD_DEVICE_STATUS};
+use hart_proto::tables;
 use hart_proto::wire::{Reader, Wire};
 use serde_json::{json, Value};
 
@@ -277,10 +277,6 @@ pub async fn scan(
 
 const DV_NAMES: [&str; 4] = ["PV", "SV", "TV", "QV"];
 
-fn bits_words(table: &tables::BitTable, v: u8) -> Value {
-    json!(table.set_bits(v).map(|b| b.name).collect::<Vec<_>>())
-}
-
 /// `hartkit read`.
 pub async fn read(
     c: &mut Client<AnyTransport>,
@@ -348,7 +344,7 @@ pub async fn read(
             let data = std::mem::take(&mut cl.data);
             let mut v = json!({
                 "device_status": ds,
-                "device_status_bits": bits_words(&FIELD_DEVICE_STATUS, ds),
+                "device_status_set": fj::device_status_set(ds),
                 "additional_status": hex::compact(&data),
             });
             let named: [(usize, &str, &tables::BitTable); 7] = [
@@ -366,7 +362,7 @@ pub async fn read(
             ];
             for (at, key, table) in named {
                 if let Some(&b) = data.get(at) {
-                    v[key] = bits_words(table, b);
+                    v[key] = fj::bits_set(table, b);
                 }
             }
             if let Some(ds6) = data.get(..6) {

@@ -79,7 +79,7 @@ fn host_commands_over_a_pseudo_terminal() {
     );
     let (code, out, _) = hartkit(&["read", "-p", p, "--poll", "1", "status", "--json"]);
     assert_eq!(code, 0);
-    assert!(serde_json::from_str::<Value>(&out).unwrap()["device_status_bits"].is_array());
+    assert!(serde_json::from_str::<Value>(&out).unwrap()["device_status_set"].is_array());
 
     // Writes confirm by reading back.
     let (code, out, err) = hartkit(&["write", "-p", p, "--poll", "1", "tag", "PT-777"]);
