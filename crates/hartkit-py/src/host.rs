@@ -101,25 +101,26 @@ fn device_json(d: &DeviceInfo) -> Value {
         "tag": d.tag,
         "descriptor": d.descriptor,
         "long_tag": d.long_tag,
-        "revision": d.revision(),
+        "universal_revision": d.revision(),
         "manufacturer_id": d.manufacturer_id(),
         "expanded_device_type": d.identity.expanded_device_type,
         "device_id": hart_proto::hex::compact(&d.identity.device_id.0),
-        "io_channel": d.io_channel,
+        "io_card": d.io_channel.map(|(card, _)| card),
+        "channel": d.io_channel.map(|(_, channel)| channel),
         "identity": v.finish(),
     })
 }
 
 /// A command's reply as Python sees it: codes, bytes as hex, the data decoded in words.
 fn reply_json(command: u16, r: &hart_host::Reply) -> Value {
-    let decoded = match hart_proto::command::decode_response(command, &r.data) {
+    let (decoded, decode_error) = match hart_proto::command::decode_response(command, &r.data) {
         Some(Ok(resp)) => {
             let mut v = hart_proto::json::JsonVisitor::with_words();
             resp.describe(&mut v);
-            v.finish()
+            (v.finish(), None)
         }
-        Some(Err(e)) => json!({ "decode_error": e.to_string() }),
-        None => Value::Null,
+        Some(Err(e)) => (Value::Null, Some(e.to_string())),
+        None => (Value::Null, None),
     };
     json!({
         "command": command,
@@ -130,6 +131,7 @@ fn reply_json(command: u16, r: &hart_host::Reply) -> Value {
         "data": hart_proto::hex::compact(&r.data),
         "pdu": hart_proto::hex::compact(&r.pdu),
         "decoded": decoded,
+        "decode_error": decode_error,
         "additional_status": r.additional_status.as_deref().map(hart_proto::hex::compact),
     })
 }

@@ -21,7 +21,8 @@ def test_scan_read_and_write_with_asyncio():
             assert "simulated plant" in loop.description
             found = await loop.scan(0, 20)
             assert [d.polling_address for d in found] == [1, 2, 3, 17]
-            assert found[0].tag == "PT-100" and found[0].revision == 7
+            assert found[0].tag == "PT-100" and found[0].universal_revision == 7
+            assert found[0].revision == 7 and found[0].io_channel is None  # the aliases
             assert found[0].identity.universal_revision == 7
             dev = await loop.device(poll=1)
             r = await dev.read_dynamic()

@@ -18,27 +18,42 @@ class DeviceInfo:
     tag: Optional[str]
     descriptor: Optional[str]
     long_tag: Optional[str]
-    revision: int
+    universal_revision: int
     manufacturer_id: int
     expanded_device_type: int
     device_id: str
-    io_channel: Optional[Tuple[int, int]]
+    io_card: Optional[int]
+    channel: Optional[int]
     identity: Record = field(compare=False)
+
+    @property
+    def revision(self) -> int:
+        """The HART revision; the same as ``universal_revision`` (the name every other
+        view uses), kept for code written before."""
+        return self.universal_revision
+
+    @property
+    def io_channel(self) -> Optional[Tuple[int, int]]:
+        """``(io_card, channel)`` behind an I/O system, ``None`` on a loop of its own;
+        kept for code written before."""
+        if self.io_card is None or self.channel is None:
+            return None
+        return (self.io_card, self.channel)
 
     @classmethod
     def _from(cls, d: Dict[str, Any]) -> "DeviceInfo":
-        io = d.get("io_channel")
         return cls(
             unique_id=d["unique_id"],
             polling_address=d["polling_address"],
             tag=d["tag"],
             descriptor=d["descriptor"],
             long_tag=d["long_tag"],
-            revision=d["revision"],
+            universal_revision=d["universal_revision"],
             manufacturer_id=d["manufacturer_id"],
             expanded_device_type=d["expanded_device_type"],
             device_id=d["device_id"],
-            io_channel=tuple(io) if io else None,
+            io_card=d.get("io_card"),
+            channel=d.get("channel"),
             identity=Record(d["identity"]),
         )
 
@@ -56,6 +71,7 @@ class Reply:
     data: bytes
     frame: Frame
     decoded: Optional[Record]
+    decode_error: Optional[str]
     additional_status: Optional[bytes]
 
     @classmethod
@@ -72,6 +88,7 @@ class Reply:
             data=bytes.fromhex(d["data"]),
             frame=Frame.parse(bytes.fromhex(d["pdu"])),
             decoded=Record(decoded) if isinstance(decoded, dict) and typed else None,
+            decode_error=d.get("decode_error"),
             additional_status=bytes.fromhex(extra) if extra else None,
         )
 
