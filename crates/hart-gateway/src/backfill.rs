@@ -3,7 +3,6 @@
 //! every value whatever happens to the broker) and sent as historical data.
 
 use std::collections::BTreeMap;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use hart_history::{Agg, Query, Store, Var};
 use hart_poller::{Engine, Quality};
@@ -46,17 +45,12 @@ fn metric_of(var: Var) -> Option<usize> {
     DEVICE_METRICS.iter().position(|m| m.name == name)
 }
 
-fn millis(t: SystemTime) -> u64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
-}
-
 impl hart_sparkplug::Backfill for HistoryBackfill {
     fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String> {
         let mut store = Store::open(&self.db, false).map_err(|e| e.to_string())?;
         let (from_t, to_t) = (
-            UNIX_EPOCH + Duration::from_millis(from),
-            UNIX_EPOCH + Duration::from_millis(to),
+            hart_clock::epoch::from_millis(from),
+            hart_clock::epoch::from_millis(to),
         );
         let quality = DEVICE_METRICS
             .iter()
@@ -93,7 +87,9 @@ impl hart_sparkplug::Backfill for HistoryBackfill {
                         (Var::DeviceStatus, Some(v)) => Value::UInt(v as u32),
                         (_, Some(v)) => Value::Float(v as f32),
                     };
-                    let metrics = by_time.entry(millis(p.time)).or_default();
+                    let metrics = by_time
+                        .entry(hart_clock::epoch::millis(p.time))
+                        .or_default();
                     metrics.push((metric, value));
                     if var == Var::Pv {
                         let q = Quality::from_code(u16::from(p.quality));

@@ -1,6 +1,6 @@
 //! The sample model: what is stored per value, and how a device image becomes samples.
 
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::SystemTime;
 
 use hart_poller::{DeviceImage, Quality};
 
@@ -123,25 +123,10 @@ pub struct Sample {
 }
 
 /// Microseconds since 1970-01-01 UTC (negative before), the database's time.
-pub fn micros(t: SystemTime) -> i64 {
-    match t.duration_since(UNIX_EPOCH) {
-        Ok(d) => i64::try_from(d.as_micros()).unwrap_or(i64::MAX),
-        Err(e) => i64::try_from(e.duration().as_micros())
-            .map(|m| -m)
-            .unwrap_or(i64::MIN),
-    }
-}
+pub use hart_clock::epoch::signed_micros as micros;
 
 /// The time `us` microseconds after 1970-01-01 UTC.
-pub fn from_micros(us: i64) -> SystemTime {
-    if us >= 0 {
-        UNIX_EPOCH + Duration::from_micros(us.unsigned_abs())
-    } else {
-        UNIX_EPOCH
-            .checked_sub(Duration::from_micros(us.unsigned_abs()))
-            .unwrap_or(UNIX_EPOCH)
-    }
-}
+pub use hart_clock::epoch::from_signed_micros as from_micros;
 
 /// The key of a device image, once the device is identified.
 pub fn device_key(device: &DeviceImage) -> Option<DeviceKey> {
@@ -218,6 +203,7 @@ pub fn widen(v: f32) -> f64 {
 mod tests {
     use super::*;
     use hart_poller::Variable;
+    use std::time::Duration;
 
     #[test]
     fn singles_are_stored_as_their_shortest_decimal() {

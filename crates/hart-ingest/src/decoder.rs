@@ -22,7 +22,7 @@
 //! Malformed topics and payloads are typed errors ([`Rejected`]), never panics.
 
 use std::collections::HashMap;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, SystemTime};
 
 use hart_history::{widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT};
 use hart_sparkplug::edge::{millis, NAMESPACE};
@@ -217,11 +217,7 @@ fn unit_code(m: &Metric) -> Option<u8> {
 
 /// The time `ms` after the epoch (a time beyond what the system can hold is taken as
 /// the epoch: the sample is still stored, where it can be seen to be wrong).
-fn time_of(ms: u64) -> SystemTime {
-    UNIX_EPOCH
-        .checked_add(Duration::from_millis(ms))
-        .unwrap_or(UNIX_EPOCH)
-}
+use hart_clock::epoch::from_millis as time_of;
 
 impl Decoder {
     /// A decoder for the Sparkplug group `group` that has seen nothing yet.

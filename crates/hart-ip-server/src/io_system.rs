@@ -955,8 +955,6 @@ fn pdu_of(spec: &hart_proto::frame::FrameSpec<'_>) -> Vec<u8> {
 
 /// Time of day for command 9's time stamp.
 fn time_of_day() -> hart_proto::types::HartTime {
-    let us = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64);
+    let us = hart_clock::epoch::micros(std::time::SystemTime::now());
     hart_proto::types::HartTime::time_of_day(us)
 }

@@ -537,9 +537,7 @@ impl Drop for AbortOnDrop {
 }
 
 pub(crate) fn unix_now() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
+    hart_clock::epoch::seconds(std::time::SystemTime::now())
 }
 
 /// The address of a frame, for messages.

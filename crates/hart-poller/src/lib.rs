@@ -21,7 +21,6 @@ use hart_host::DeviceInfo;
 use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
 use tokio::sync::{broadcast, mpsc, watch, Mutex};
 
-pub mod clock;
 pub mod config;
 pub mod disturbance;
 pub mod gate;
@@ -33,12 +32,14 @@ pub mod schedule;
 mod task;
 pub mod write;
 
-pub use clock::Clock;
 pub use config::{DeviceSettings, EngineConfig, LoopSettings, PollSettings, ReadCommand};
 pub use disturbance::{Disturbance, LineCounters};
 pub use gate::{Denied, Requester};
 pub use hart_access::{NotPermitted, WritePolicy, WriteRecord};
 pub use hart_access::{Refusal, Rights};
+use hart_clock as clock;
+/// The engine's one clock (hart-clock's).
+pub use hart_clock::Clock;
 pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
 pub use lease::{LeaseTerms, LoopTest};
 pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};

@@ -21,7 +21,7 @@
 //!   `is_historical` true, in the order they were taken.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::SystemTime;
 
 use hart_poller::{DeviceImage, Quality, WriteOp};
 use prost::Message as _;
@@ -35,11 +35,8 @@ use crate::proto::Payload;
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";
 
-/// Milliseconds since the Unix epoch (0 before it).
-pub fn millis(t: SystemTime) -> u64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0, |d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX))
-}
+/// Milliseconds since the Unix epoch (0 before it): Sparkplug's time stamps.
+pub use hart_clock::epoch::millis;
 
 /// What the edge node needs to know.
 #[derive(Debug, Clone)]

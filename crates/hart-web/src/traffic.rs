@@ -4,7 +4,6 @@
 
 use std::collections::VecDeque;
 use std::sync::Arc;
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use hart_poller::{TrafficFrame, TrafficKind};
 use hart_proto::frame::{Address, Frame, UniqueId};
@@ -122,10 +121,7 @@ impl TrafficLog {
 }
 
 /// Microseconds since the Unix epoch.
-fn unix_us(t: SystemTime) -> u64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
-}
+use hart_clock::epoch::micros as unix_us;
 
 /// One frame as the traffic view and `/api/traffic` give it: its number, time, loop,
 /// kind, and the frame as `hartkit monitor --json` gives it (under `frame`), with a
@@ -205,6 +201,7 @@ pub(crate) fn pcapng(
 mod tests {
     use super::*;
     use hart_proto::frame::FrameSpec;
+    use std::time::SystemTime;
 
     fn frame(kind: TrafficKind, poll: u8, command: u8) -> Arc<TrafficFrame> {
         let command = u16::from(command);

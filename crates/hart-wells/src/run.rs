@@ -30,9 +30,7 @@ pub struct Clock {
 impl Clock {
     /// The system clock, `speed` times as fast (1 for real time).
     pub fn new(speed: f64) -> Self {
-        let real = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_millis() as Millis);
+        let real = hart_clock::epoch::millis(SystemTime::now()) as Millis;
         let speed = if speed.is_finite() && speed > 0.0 {
             speed
         } else {

@@ -775,9 +775,7 @@ pub fn damage_note(errors: u8) -> String {
 
 /// Microseconds since the Unix epoch, now.
 fn unix_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
+    hart_clock::epoch::micros(std::time::SystemTime::now())
 }
 
 /// One frame as `monitor` and `capture read` print it: `t_us` (µs since the start),

@@ -602,9 +602,7 @@ fn schedule(a: &ScheduleArgs) -> Result<String, String> {
 }
 
 fn unix_now() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
+    hart_clock::epoch::seconds(std::time::SystemTime::now())
 }
 
 fn round_text(n: u32, outcomes: &[run::WellOutcome]) -> String {

@@ -1,12 +1,12 @@
-//! The engine's time: every turn of a loop task, every time stamp in the image and
-//! every [`Change`](crate::Change) takes its "now" from one [`Clock`], handed to the
-//! engine when it starts. The gateway runs on the system's clock; the engine's tests
-//! run on tokio's clock with time paused, where hours of polling pass in milliseconds
-//! and every step is repeatable.
+//! The one clock: every turn of the polling engine's loop tasks, every time stamp in
+//! its image and every change it publishes takes its "now" from one [`Clock`], handed
+//! to the engine when it starts. The gateway runs on the system's clock; the tests run
+//! on tokio's clock with time paused, where hours of polling pass in milliseconds and
+//! every step is repeatable.
 
 use std::time::{Duration, Instant, SystemTime};
 
-/// Where the engine reads the time. Cheap to clone.
+/// Where a task reads the time. Cheap to copy.
 #[derive(Debug, Clone, Copy)]
 pub struct Clock {
     kind: Kind,
