@@ -38,13 +38,6 @@ const ALLOWED: &[(&str, &[&str], &str)] = &[
          helpers types.rs uses) so that one of them no longer names the other",
     ),
     (
-        "hart-gateway",
-        &["config.rs", "console.rs", "file.rs", "lib.rs"],
-        "lib.rs defines `Error` and `ConsoleConfig`, used by config.rs, console.rs and \
-         file.rs, and runs the gateway on them; to be broken by moving those items out of \
-         lib.rs",
-    ),
-    (
         "hart-ip-server",
         &[
             "dtls.rs",
