@@ -52,12 +52,6 @@ const ALLOWED: &[(&str, &[&str], &str)] = &[
          broken by moving the shared items into a module of their own",
     ),
     (
-        "hart-opcua",
-        &["access.rs", "lib.rs", "nodes.rs"],
-        "lib.rs defines `Security` and `call`, used by access.rs and nodes.rs, and builds \
-         the server from them; to be broken by moving those items out of lib.rs",
-    ),
-    (
         "hart-poller",
         &["gate.rs", "lib.rs", "task.rs", "write.rs"],
         "lib.rs defines `Engine` and `Shared`, used by task.rs and write.rs, and uses \
