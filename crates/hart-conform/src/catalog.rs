@@ -1,7 +1,58 @@
 //! The catalogue: every test once, as data. The runner dispatches on the ID, the
 //! reports and docs/conform.md list what is here (a test checks the docs against it).
 
-use crate::model::Group;
+use serde::Serialize;
+
+/// A group of tests (`--only`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Hash)]
+#[serde(rename_all = "kebab-case")]
+pub enum Group {
+    /// Data link: addressing, framing, timing, communication errors.
+    Link,
+    /// Universal and common-practice commands.
+    Commands,
+    /// Burst mode.
+    Burst,
+    /// Physical layer, from a recording.
+    Phy,
+}
+
+impl Group {
+    /// Every group, in report order.
+    pub const ALL: [Group; 4] = [Group::Link, Group::Commands, Group::Burst, Group::Phy];
+
+    /// The group's name (`--only` and JSON).
+    pub fn name(self) -> &'static str {
+        match self {
+            Group::Link => "link",
+            Group::Commands => "commands",
+            Group::Burst => "burst",
+            Group::Phy => "phy",
+        }
+    }
+
+    /// Parses a comma-separated `--only` list; the error names the groups.
+    pub fn parse_list(text: &str) -> Result<Vec<Group>, String> {
+        let mut out = vec![];
+        for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let g = Group::ALL
+                .into_iter()
+                .find(|g| g.name() == part)
+                .ok_or_else(|| {
+                    format!("--only {text}: unknown group {part:?} (link, commands, burst, phy)")
+                })?;
+            if !out.contains(&g) {
+                out.push(g);
+            }
+        }
+        if out.is_empty() {
+            return Err(format!(
+                "--only {text:?}: name at least one group (link, commands, burst, phy)"
+            ));
+        }
+        Ok(out)
+    }
+}
 
 /// What a test needs from the transport and the run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

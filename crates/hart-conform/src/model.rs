@@ -2,6 +2,10 @@
 
 use serde::Serialize;
 
+use crate::catalog::TestDef;
+// The group of a test is defined with the catalogue, which sorts tests into groups.
+pub use crate::catalog::Group;
+
 /// The verdict of one test.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -26,57 +30,6 @@ impl Verdict {
             Verdict::NotApplicable => "not-applicable",
             Verdict::CouldNotRun => "could-not-run",
         }
-    }
-}
-
-/// A group of tests (`--only`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Hash)]
-#[serde(rename_all = "kebab-case")]
-pub enum Group {
-    /// Data link: addressing, framing, timing, communication errors.
-    Link,
-    /// Universal and common-practice commands.
-    Commands,
-    /// Burst mode.
-    Burst,
-    /// Physical layer, from a recording.
-    Phy,
-}
-
-impl Group {
-    /// Every group, in report order.
-    pub const ALL: [Group; 4] = [Group::Link, Group::Commands, Group::Burst, Group::Phy];
-
-    /// The group's name (`--only` and JSON).
-    pub fn name(self) -> &'static str {
-        match self {
-            Group::Link => "link",
-            Group::Commands => "commands",
-            Group::Burst => "burst",
-            Group::Phy => "phy",
-        }
-    }
-
-    /// Parses a comma-separated `--only` list; the error names the groups.
-    pub fn parse_list(text: &str) -> Result<Vec<Group>, String> {
-        let mut out = vec![];
-        for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-            let g = Group::ALL
-                .into_iter()
-                .find(|g| g.name() == part)
-                .ok_or_else(|| {
-                    format!("--only {text}: unknown group {part:?} (link, commands, burst, phy)")
-                })?;
-            if !out.contains(&g) {
-                out.push(g);
-            }
-        }
-        if out.is_empty() {
-            return Err(format!(
-                "--only {text:?}: name at least one group (link, commands, burst, phy)"
-            ));
-        }
-        Ok(out)
     }
 }
 
@@ -145,7 +98,7 @@ pub struct TestResult {
 impl TestResult {
     /// The result of test `d`: its catalogue entry with what was found.
     pub fn of(
-        d: &crate::catalog::TestDef,
+        d: &TestDef,
         verdict: Verdict,
         detail: String,
         evidence: Vec<Evidence>,

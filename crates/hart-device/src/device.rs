@@ -1672,21 +1672,136 @@ impl Device {
             _ => None,
         }
     }
+}
 
-    pub(crate) fn burst_runtime(&mut self) -> &mut Vec<BurstRuntime> {
-        &mut self.burst
+/// Burst mode: when each message is due, and its BACK content (the rules are in
+/// [`crate::burst`]).
+impl Device {
+    /// True when any burst message publishes on this link.
+    pub fn burst_mode(&self) -> bool {
+        (0..self.config().burst.len()).any(|m| burst::active(self.config(), m))
     }
 
-    pub(crate) fn burst_runtime_snapshot(&self, m: usize) -> BurstRuntime {
+    fn trigger_holds(&self, m: usize) -> bool {
+        let cfg = self.config();
+        let b = &cfg.burst[m];
+        let rt = self.burst_runtime_ref(m);
+        match b.trigger_mode {
+            0 => true,
+            4 => {
+                let value = self.trigger_value(m).map(|x| x.0);
+                value != rt.last_value
+                    || Some(self.device_status(MasterKind::Primary)) != rt.last_status
+            }
+            mode => {
+                let Some((v, u)) = self.trigger_value(m) else {
+                    return true;
+                };
+                let level =
+                    units::convert(b.trigger_level, b.trigger_units, u).unwrap_or(b.trigger_level);
+                match mode {
+                    1 => {
+                        let window = units::convert_span(b.trigger_level, b.trigger_units, u)
+                            .unwrap_or(b.trigger_level);
+                        rt.last_value.is_none_or(|last| (v - last).abs() > window)
+                    }
+                    2 => v > level,
+                    3 => v < level,
+                    _ => true,
+                }
+            }
+        }
+    }
+
+    fn message_due(&self, m: usize, now: Micros) -> Option<Micros> {
+        if !burst::active(self.config(), m) {
+            return None;
+        }
+        let (min, max) = self.burst_periods(m);
+        let Some(last) = self.burst_runtime_ref(m).last_publish else {
+            return Some(now);
+        };
+        Some(if self.trigger_holds(m) {
+            last + min
+        } else {
+            last + max
+        })
+    }
+
+    /// When the device next wants to publish (`None`: no burst message active).
+    pub fn burst_due(&self, now: Micros) -> Option<Micros> {
+        (0..self.config().burst.len())
+            .filter_map(|m| self.message_due(m, now))
+            .min()
+    }
+
+    /// When trigger conditions should be looked at again: values move between
+    /// publications, so a message waiting for its maximum period is re-checked at its
+    /// minimum period.
+    pub fn burst_wakeup(&self, now: Micros) -> Option<Micros> {
+        (0..self.config().burst.len())
+            .filter(|&m| burst::active(self.config(), m))
+            .filter_map(|m| {
+                let (min, _) = self.burst_periods(m);
+                let due = self.message_due(m, now)?;
+                let last = self.burst_runtime_ref(m).last_publish.unwrap_or(now);
+                // A message already due is the slave's business (it waits for a slot);
+                // otherwise look again as soon as the minimum period allows one.
+                (due > now).then(|| due.min((last + min).max(now + 50_000)))
+            })
+            .min()
+    }
+
+    fn burst_runtime_ref(&self, m: usize) -> BurstRuntime {
         self.burst.get(m).cloned().unwrap_or_default()
     }
 
-    pub(crate) fn burst_message_due(&self, m: usize, now: Micros) -> Option<Micros> {
-        self.burst_due_of(m, now)
+    /// The minimum and maximum update periods of message `m`, µs.
+    fn burst_periods(&self, m: usize) -> (Micros, Micros) {
+        burst::periods(
+            self.config(),
+            m,
+            self.faults().has(crate::faults::Fault::BurstPeriodOff),
+        )
     }
 
-    pub(crate) fn count_back(&mut self) {
+    /// Builds the BACK content of the message due first and records its publication.
+    ///
+    /// A BACK is the reply the published command would give, with that reply's response
+    /// code, and the field device status as the master whose address bit the BACK carries
+    /// ([`Device::burst_master`]) sees it. Publishing changes nothing the masters see: no
+    /// status bit is reset or acknowledged (a burst of command 38 or 48 included), and cold
+    /// start stays reported until that master's next request.
+    fn publish_burst(&mut self, reply: &mut Reply, now: Micros) -> u16 {
+        self.tick(now);
+        let (due, m) = (0..self.config().burst.len())
+            .filter_map(|m| self.message_due(m, now).map(|d| (d, m)))
+            .min()
+            .unwrap_or((now, 0));
+        // Keep the cadence: a BACK waits for a slot on the line, so it goes out a little
+        // after it was due; count the period from when it was due (never more than one
+        // period back).
+        let (min, _) = self.burst_periods(m);
+        let published = if due <= now && due + min > now {
+            due
+        } else {
+            now
+        };
+        let (command, code, data) = self.burst_reply(m, now);
+        let value = self.trigger_value(m).map(|x| x.0);
+        // The on-change trigger compares the primary master's view of the status.
+        let trigger_status = self.device_status(MasterKind::Primary);
+        let status = self.device_status(self.burst_master());
+        if let Some(rt) = self.burst.get_mut(m) {
+            rt.last_publish = Some(published);
+            rt.last_value = value;
+            rt.last_status = Some(trigger_status);
+        }
         self.back_count = self.back_count.wrapping_add(1);
+        reply.response_code = code;
+        reply.device_status = status;
+        reply.set_data(&data);
+        command
     }
 }
 
@@ -1704,7 +1819,7 @@ impl Handler for Device {
     }
 
     fn burst(&mut self, reply: &mut Reply, now: Micros) -> u16 {
-        burst::publish(self, reply, now)
+        self.publish_burst(reply, now)
     }
 
     fn device_status(&self) -> u8 {

@@ -16,6 +16,7 @@
 //!
 //! See docs/history.md for the schema, crash safety, retention and the queries.
 
+mod backend;
 mod config;
 mod error;
 mod feed;
@@ -32,6 +33,7 @@ pub mod cli;
 #[doc(hidden)]
 pub mod pgtest;
 
+pub use backend::{Agg, DeviceSummary, Point, Query, SCHEMA_VERSION};
 pub use config::{parse_size, FileLost, HistoryConfig};
 pub use error::Error;
 pub use feed::{run, Handle, Recorder};
@@ -42,6 +44,6 @@ pub use sample::{
     UNITS_PERCENT,
 };
 pub use sqlite_store::SqliteStore;
-pub use store::{Agg, DeviceSummary, Point, Query, Store, StoreKind, SCHEMA_VERSION};
+pub use store::{Store, StoreKind};
 pub use when::{bucket_start, parse_every, parse_time};
 pub use writer::{Stats, Writer, WriterConfig};

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use postgres::error::SqlState;
 use postgres::{Client, Config, NoTls};
 
-use crate::store::{dedup_batch, query_sql, resolve_device, RetentionOutcome};
+use crate::backend::{dedup_batch, query_sql, resolve_device, RetentionOutcome};
 use crate::{from_micros, micros, DeviceSummary, Error, Point, Query, Sample, SCHEMA_VERSION};
 
 const DAY_US: i64 = 86_400_000_000;

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension};
 
-use crate::store::{query_sql, resolve_device, RetentionOutcome};
+use crate::backend::{query_sql, resolve_device, RetentionOutcome};
 use crate::{from_micros, micros, DeviceSummary, Error, Point, Query, Sample, SCHEMA_VERSION};
 
 const DAY_US: i64 = 86_400_000_000;

@@ -556,7 +556,7 @@ pub fn decode_request(pdu: &[u8]) -> Result<Request<'static>, ExceptionCode> {
     if pdu.is_empty() || pdu[0] & 0x80 != 0 {
         return Err(ExceptionCode::IllegalFunction);
     }
-    crate::check_request_pdu(pdu).map_err(|_| ExceptionCode::IllegalDataValue)?;
+    crate::pdu::check_request_pdu(pdu).map_err(|_| ExceptionCode::IllegalDataValue)?;
     Request::try_from(tokio_modbus::bytes::Bytes::copy_from_slice(pdu))
         .map_err(|_| ExceptionCode::IllegalDataValue)
 }

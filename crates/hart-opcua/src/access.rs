@@ -37,8 +37,6 @@ use opcua::server::{ServerEndpoint, ServerUserToken, ANONYMOUS_USER_TOKEN_ID};
 use opcua::types::{Error, NodeId, StatusCode, UserTokenPolicy, UserTokenType};
 use subtle::ConstantTimeEq;
 
-use crate::Security;
-
 /// The endpoint a session came in on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Channel {
@@ -303,6 +301,31 @@ impl AuthManager for GatewayAuth {
                 _ => false,
             })
             .collect()
+    }
+}
+
+/// Endpoint security.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Security {
+    /// SecurityPolicy None only, anonymous (for a gateway on localhost, and tests); no
+    /// users (their passwords would travel in clear).
+    None,
+    /// Basic256Sha256, signed and encrypted, with the gateway's self-signed certificate,
+    /// for clients whose certificate is in the trust list; users by name and password
+    /// when any are configured, else anonymous.
+    Basic256Sha256,
+    /// Both endpoints; anonymous sessions on the None one only read.
+    Both,
+}
+
+impl Security {
+    /// `none`, `basic256sha256`, `both`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Security::None => "none",
+            Security::Basic256Sha256 => "basic256sha256",
+            Security::Both => "both",
+        }
     }
 }
 

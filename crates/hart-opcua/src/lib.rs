@@ -24,7 +24,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Instant, SystemTime};
 
-use hart_poller::{DeviceImage, Engine, Quality, WriteFailure, WriteOp};
+use hart_poller::{DeviceImage, Engine, Quality};
 use opcua::server::address_space::{MethodBuilder, ObjectBuilder, VariableBuilder};
 use opcua::server::node_manager::memory::InMemoryNodeManagerBuilder;
 use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
@@ -41,39 +41,15 @@ pub mod sessions;
 pub mod trust;
 pub mod units;
 
+pub use access::Security;
 use access::{Channel, Rules};
-use nodes::{Caller, HartNodeManager, HartNodes, MethodTarget};
+use nodes::{HartNodeManager, HartNodes, MethodTarget};
 
 /// The namespace of the gateway's nodes.
 pub const NAMESPACE: &str = "urn:hartkit:gateway:hart";
 
 /// Most monitored items in one subscription.
 pub const MAX_MONITORED_ITEMS: usize = 50_000;
-
-/// Endpoint security.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Security {
-    /// SecurityPolicy None only, anonymous (for a gateway on localhost, and tests); no
-    /// users (their passwords would travel in clear).
-    None,
-    /// Basic256Sha256, signed and encrypted, with the gateway's self-signed certificate,
-    /// for clients whose certificate is in the trust list; users by name and password
-    /// when any are configured, else anonymous.
-    Basic256Sha256,
-    /// Both endpoints; anonymous sessions on the None one only read.
-    Both,
-}
-
-impl Security {
-    /// `none`, `basic256sha256`, `both`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Security::None => "none",
-            Security::Basic256Sha256 => "basic256sha256",
-            Security::Both => "both",
-        }
-    }
-}
 
 /// Settings of the OPC UA front end.
 #[derive(Clone)]
@@ -735,64 +711,5 @@ impl Model {
         if let Err(e) = r {
             tracing::warn!("opcua: updating {path}: {e}");
         }
-    }
-}
-
-/// Carries a method call to the device at `position` as one of the engine's typed
-/// writes (audited there, with `who`).
-async fn call(
-    engine: Engine,
-    position: usize,
-    method: &str,
-    args: Vec<Variant>,
-    who: &Caller<'_>,
-) -> Result<Vec<Variant>, StatusCode> {
-    let float = |i: usize| match args.get(i) {
-        Some(Variant::Float(f)) if f.is_finite() => Ok(*f),
-        Some(Variant::Double(f)) if f.is_finite() => Ok(*f as f32),
-        _ => Err(StatusCode::BadInvalidArgument),
-    };
-    let op = match method {
-        "SetDamping" => WriteOp::Damping(float(0)?),
-        "LoopTest" => WriteOp::FixedCurrent(float(0)?),
-        // The range units are kept.
-        "SetRange" => WriteOp::Range {
-            upper: Some(float(0)?),
-            lower: Some(float(1)?),
-            units: None,
-        },
-        "WriteTag" => match args.first() {
-            Some(Variant::String(tag)) => WriteOp::Tag(tag.as_ref().to_string()),
-            _ => return Err(StatusCode::BadInvalidArgument),
-        },
-        _ => return Err(StatusCode::BadMethodInvalid),
-    };
-    match engine.apply(position, &op, &who.origin(method)).await {
-        Ok(_) => Ok(vec![]),
-        Err(e) => {
-            tracing::warn!("opcua: {method} ({}) not done: {e}", op.describe());
-            Err(status_of(&e))
-        }
-    }
-}
-
-/// The OPC UA status of a typed write that was not done.
-fn status_of(e: &WriteFailure) -> StatusCode {
-    use hart_poller::{DeviceRefusal, WriteError};
-    match e {
-        WriteFailure::NotPermitted(_) => StatusCode::BadUserAccessDenied,
-        WriteFailure::Invalid(_) => StatusCode::BadInvalidArgument,
-        WriteFailure::NotReadYet(_) => StatusCode::BadWaitingForInitialData,
-        WriteFailure::Link(WriteError::UnknownDevice) => StatusCode::BadNodeIdUnknown,
-        WriteFailure::Link(WriteError::NoReply) => StatusCode::BadNoCommunication,
-        WriteFailure::Link(WriteError::Busy) => StatusCode::BadResourceUnavailable,
-        WriteFailure::Link(WriteError::BadReply(_)) => StatusCode::BadCommunicationError,
-        WriteFailure::Refused { refusal, .. } => match refusal {
-            DeviceRefusal::OutOfRange => StatusCode::BadOutOfRange,
-            DeviceRefusal::NotWritable => StatusCode::BadNotWritable,
-            DeviceRefusal::Busy => StatusCode::BadResourceUnavailable,
-            DeviceRefusal::NotImplemented => StatusCode::BadNotSupported,
-            DeviceRefusal::Failed => StatusCode::BadDeviceFailure,
-        },
     }
 }

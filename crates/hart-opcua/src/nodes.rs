@@ -7,13 +7,13 @@ use std::collections::HashMap;
 use std::sync::RwLock;
 
 use async_trait::async_trait;
-use hart_poller::Engine;
+use hart_poller::{Engine, WriteFailure, WriteOp};
 use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerImpl};
 use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext, WriteNode};
 use opcua::sync::RwLock as UaRwLock;
-use opcua::types::{NodeId, StatusCode};
+use opcua::types::{NodeId, StatusCode, Variant};
 
 use crate::access::{self, Rules};
 
@@ -169,7 +169,7 @@ impl InMemoryNodeManagerImpl for HartNodes {
                 identity: identity.clone(),
                 device: &target.device,
             };
-            let r = crate::call(
+            let r = call_device(
                 self.engine.clone(),
                 target.position,
                 target.method,
@@ -186,5 +186,64 @@ impl InMemoryNodeManagerImpl for HartNodes {
             }
         }
         Ok(())
+    }
+}
+
+/// Carries a method call to the device at `position` as one of the engine's typed
+/// writes (audited there, with `who`).
+async fn call_device(
+    engine: Engine,
+    position: usize,
+    method: &str,
+    args: Vec<Variant>,
+    who: &Caller<'_>,
+) -> Result<Vec<Variant>, StatusCode> {
+    let float = |i: usize| match args.get(i) {
+        Some(Variant::Float(f)) if f.is_finite() => Ok(*f),
+        Some(Variant::Double(f)) if f.is_finite() => Ok(*f as f32),
+        _ => Err(StatusCode::BadInvalidArgument),
+    };
+    let op = match method {
+        "SetDamping" => WriteOp::Damping(float(0)?),
+        "LoopTest" => WriteOp::FixedCurrent(float(0)?),
+        // The range units are kept.
+        "SetRange" => WriteOp::Range {
+            upper: Some(float(0)?),
+            lower: Some(float(1)?),
+            units: None,
+        },
+        "WriteTag" => match args.first() {
+            Some(Variant::String(tag)) => WriteOp::Tag(tag.as_ref().to_string()),
+            _ => return Err(StatusCode::BadInvalidArgument),
+        },
+        _ => return Err(StatusCode::BadMethodInvalid),
+    };
+    match engine.apply(position, &op, &who.origin(method)).await {
+        Ok(_) => Ok(vec![]),
+        Err(e) => {
+            tracing::warn!("opcua: {method} ({}) not done: {e}", op.describe());
+            Err(status_of(&e))
+        }
+    }
+}
+
+/// The OPC UA status of a typed write that was not done.
+fn status_of(e: &WriteFailure) -> StatusCode {
+    use hart_poller::{DeviceRefusal, WriteError};
+    match e {
+        WriteFailure::NotPermitted(_) => StatusCode::BadUserAccessDenied,
+        WriteFailure::Invalid(_) => StatusCode::BadInvalidArgument,
+        WriteFailure::NotReadYet(_) => StatusCode::BadWaitingForInitialData,
+        WriteFailure::Link(WriteError::UnknownDevice) => StatusCode::BadNodeIdUnknown,
+        WriteFailure::Link(WriteError::NoReply) => StatusCode::BadNoCommunication,
+        WriteFailure::Link(WriteError::Busy) => StatusCode::BadResourceUnavailable,
+        WriteFailure::Link(WriteError::BadReply(_)) => StatusCode::BadCommunicationError,
+        WriteFailure::Refused { refusal, .. } => match refusal {
+            DeviceRefusal::OutOfRange => StatusCode::BadOutOfRange,
+            DeviceRefusal::NotWritable => StatusCode::BadNotWritable,
+            DeviceRefusal::Busy => StatusCode::BadResourceUnavailable,
+            DeviceRefusal::NotImplemented => StatusCode::BadNotSupported,
+            DeviceRefusal::Failed => StatusCode::BadDeviceFailure,
+        },
     }
 }
