@@ -365,6 +365,63 @@ wire_struct! {
     }
 }
 
+/// The named parts of command 48's additional status, as `(offset, length, name,
+/// meaning)`: the table [`AdditionalStatus`]'s description and accessors rest on
+/// (HART 7 universal command specification, command 48; the status tables are Common
+/// Tables 14, 17 and 27-32).
+pub static ADDITIONAL_STATUS_PARTS: [(usize, usize, &str, Meaning); 10] = [
+    (0, 6, "device_specific_status", Meaning::Plain),
+    (
+        6,
+        1,
+        "extended_status",
+        Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS),
+    ),
+    (
+        7,
+        1,
+        "operating_mode",
+        Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE),
+    ),
+    (
+        8,
+        1,
+        "standardized_status_0",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0),
+    ),
+    (
+        9,
+        1,
+        "standardized_status_1",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1),
+    ),
+    (
+        10,
+        1,
+        "analog_channel_saturated",
+        Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED),
+    ),
+    (
+        11,
+        1,
+        "standardized_status_2",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2),
+    ),
+    (
+        12,
+        1,
+        "standardized_status_3",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3),
+    ),
+    (
+        13,
+        1,
+        "analog_channel_fixed",
+        Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED),
+    ),
+    (14, 11, "device_specific_status_2", Meaning::Plain),
+];
+
 /// Command 48 reply: additional device status (HART 7 defines 9 to 25 bytes; anything a
 /// device sends beyond that is kept as received), also shown field by field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -374,6 +431,108 @@ impl AdditionalStatus {
     /// The raw bytes.
     pub fn as_slice(&self) -> &[u8] {
         self.0.as_slice()
+    }
+
+    /// Byte `at`, when the reply holds it.
+    fn byte(&self, at: usize) -> Option<u8> {
+        self.as_slice().get(at).copied()
+    }
+
+    /// Bytes 0-5: device-specific status (fewer when the reply is shorter).
+    pub fn device_specific_status(&self) -> &[u8] {
+        let b = self.as_slice();
+        &b[..b.len().min(6)]
+    }
+
+    /// Byte 6: extended field device status (Common Table 17).
+    pub fn extended_status(&self) -> Option<ExtendedStatus> {
+        self.byte(6).map(ExtendedStatus)
+    }
+
+    /// Byte 7: device operating mode (Common Table 14).
+    pub fn operating_mode(&self) -> Option<OperatingMode> {
+        self.byte(7).map(OperatingMode)
+    }
+
+    /// Byte 8: standardized status 0 (Common Table 29).
+    pub fn standardized_status_0(&self) -> Option<StandardizedStatus0> {
+        self.byte(8).map(StandardizedStatus0)
+    }
+
+    /// Byte 9: standardized status 1 (Common Table 30).
+    pub fn standardized_status_1(&self) -> Option<StandardizedStatus1> {
+        self.byte(9).map(StandardizedStatus1)
+    }
+
+    /// Byte 10: analog channel saturated (Common Table 27).
+    pub fn analog_channel_saturated(&self) -> Option<AnalogChannelSaturated> {
+        self.byte(10).map(AnalogChannelSaturated)
+    }
+
+    /// Byte 11: standardized status 2 (Common Table 31).
+    pub fn standardized_status_2(&self) -> Option<StandardizedStatus2> {
+        self.byte(11).map(StandardizedStatus2)
+    }
+
+    /// Byte 12: standardized status 3 (Common Table 32).
+    pub fn standardized_status_3(&self) -> Option<StandardizedStatus3> {
+        self.byte(12).map(StandardizedStatus3)
+    }
+
+    /// Byte 13: analog channel fixed (Common Table 28).
+    pub fn analog_channel_fixed(&self) -> Option<AnalogChannelFixed> {
+        self.byte(13).map(AnalogChannelFixed)
+    }
+
+    /// Bytes 0-8, the part a HART 7 command 48 request copies back to acknowledge
+    /// the status (fewer when the reply is shorter).
+    pub fn acknowledged(&self) -> &[u8] {
+        let b = self.as_slice();
+        &b[..b.len().min(9)]
+    }
+}
+
+/// The parts of a 14-byte command 48 additional status, for a device or an I/O system
+/// building its reply: [`AdditionalStatus::from`] lays them out as
+/// [`ADDITIONAL_STATUS_PARTS`] says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct AdditionalStatusParts {
+    /// Bytes 0-5: device-specific status.
+    pub device_specific_status: [u8; 6],
+    /// Byte 6: extended field device status.
+    pub extended_status: ExtendedStatus,
+    /// Byte 7: device operating mode.
+    pub operating_mode: OperatingMode,
+    /// Byte 8: standardized status 0.
+    pub standardized_status_0: StandardizedStatus0,
+    /// Byte 9: standardized status 1.
+    pub standardized_status_1: StandardizedStatus1,
+    /// Byte 10: analog channel saturated.
+    pub analog_channel_saturated: AnalogChannelSaturated,
+    /// Byte 11: standardized status 2.
+    pub standardized_status_2: StandardizedStatus2,
+    /// Byte 12: standardized status 3.
+    pub standardized_status_3: StandardizedStatus3,
+    /// Byte 13: analog channel fixed.
+    pub analog_channel_fixed: AnalogChannelFixed,
+}
+
+impl From<AdditionalStatusParts> for AdditionalStatus {
+    fn from(p: AdditionalStatusParts) -> Self {
+        let mut b = [0u8; 14];
+        b[..6].copy_from_slice(&p.device_specific_status);
+        b[6..].copy_from_slice(&[
+            p.extended_status.0,
+            p.operating_mode.0,
+            p.standardized_status_0.0,
+            p.standardized_status_1.0,
+            p.analog_channel_saturated.0,
+            p.standardized_status_2.0,
+            p.standardized_status_3.0,
+            p.analog_channel_fixed.0,
+        ]);
+        // 14 bytes always fit the 253 the layout holds.
+        AdditionalStatus(Bytes::new(&b).unwrap_or_default())
     }
 }
 
@@ -405,59 +564,7 @@ impl Wire for AdditionalStatus {
             value: Value::Hex(b),
             meaning: Meaning::Plain,
         });
-        let named: [(usize, usize, &'static str, Meaning); 10] = [
-            (0, 6, "device_specific_status", Meaning::Plain),
-            (
-                6,
-                1,
-                "extended_status",
-                Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS),
-            ),
-            (
-                7,
-                1,
-                "operating_mode",
-                Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE),
-            ),
-            (
-                8,
-                1,
-                "standardized_status_0",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0),
-            ),
-            (
-                9,
-                1,
-                "standardized_status_1",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1),
-            ),
-            (
-                10,
-                1,
-                "analog_channel_saturated",
-                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED),
-            ),
-            (
-                11,
-                1,
-                "standardized_status_2",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2),
-            ),
-            (
-                12,
-                1,
-                "standardized_status_3",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3),
-            ),
-            (
-                13,
-                1,
-                "analog_channel_fixed",
-                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED),
-            ),
-            (14, 11, "device_specific_status_2", Meaning::Plain),
-        ];
-        for (at, len, name, meaning) in named {
+        for &(at, len, name, meaning) in &ADDITIONAL_STATUS_PARTS {
             let Some(bytes) = b.get(at..(at + len).min(b.len())).filter(|s| !s.is_empty()) else {
                 continue;
             };
@@ -841,6 +948,15 @@ wire_struct! {
         pub trigger_units: Option<UnitCode>,
         /// Trigger level.
         pub trigger_level: Option<f32>,
+    }
+}
+
+impl BurstConfiguration {
+    /// The command the burst message publishes: the 16-bit `command_number` of a
+    /// HART 7 reply, else the legacy reply's 8-bit number in `command_expansion`.
+    pub fn burst_command(&self) -> u16 {
+        self.command_number
+            .map_or(self.command_expansion.into(), |c| c.0)
     }
 }
 
@@ -1249,6 +1365,25 @@ macro_rules! commands {
             pub fn describe(&self, v: &mut dyn Visitor) {
                 match self { $( Request::$variant(x) => x.describe("request", 0, v), )* }
             }
+            /// The request frame to `address` (no preambles): the command number, and
+            /// the command-31 form for numbers above 255, come from the table. Needs no
+            /// allocator.
+            pub fn frame(&self, address: crate::frame::Address) -> Result<crate::frame::FrameBuf, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                crate::frame::FrameBuf::encode(&crate::frame::FrameSpec::request(address, self.command(), &data[..n]))
+            }
+            /// The request data as bytes.
+            #[cfg(feature = "std")]
+            pub fn to_vec(&self) -> Result<std::vec::Vec<u8>, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                Ok(data[..n].to_vec())
+            }
         }
 
         impl Response {
@@ -1267,6 +1402,15 @@ macro_rules! commands {
             /// Reports every field to `v`.
             pub fn describe(&self, v: &mut dyn Visitor) {
                 match self { $( Response::$variant(x) => x.describe("response", 0, v), )* }
+            }
+            /// The reply data (after the status bytes) as bytes.
+            #[cfg(feature = "std")]
+            pub fn to_vec(&self) -> Result<std::vec::Vec<u8>, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                Ok(data[..n].to_vec())
             }
         }
     };
@@ -1375,5 +1519,96 @@ mod access_tests {
             assert_eq!(super::title(n), Some(title));
         }
         assert_eq!(title(17), Some("Write Message"));
+    }
+}
+
+#[cfg(test)]
+mod helper_tests {
+    use super::*;
+    use crate::frame::{Address, Frame, UniqueId};
+
+    #[test]
+    fn additional_status_parts_lay_out_as_the_table_says() {
+        let parts = AdditionalStatusParts {
+            device_specific_status: [1, 2, 3, 4, 5, 6],
+            extended_status: ExtendedStatus(7),
+            operating_mode: OperatingMode(8),
+            standardized_status_0: StandardizedStatus0(9),
+            standardized_status_1: StandardizedStatus1(10),
+            analog_channel_saturated: AnalogChannelSaturated(11),
+            standardized_status_2: StandardizedStatus2(12),
+            standardized_status_3: StandardizedStatus3(13),
+            analog_channel_fixed: AnalogChannelFixed(14),
+        };
+        let s = AdditionalStatus::from(parts);
+        assert_eq!(s.as_slice(), &(1..=14).collect::<std::vec::Vec<u8>>()[..]);
+        for &(at, len, name, _) in &ADDITIONAL_STATUS_PARTS[1..9] {
+            assert_eq!(len, 1, "{name}");
+            let got = match name {
+                "extended_status" => s.extended_status().map(|x| x.0),
+                "operating_mode" => s.operating_mode().map(|x| x.0),
+                "standardized_status_0" => s.standardized_status_0().map(|x| x.0),
+                "standardized_status_1" => s.standardized_status_1().map(|x| x.0),
+                "analog_channel_saturated" => s.analog_channel_saturated().map(|x| x.0),
+                "standardized_status_2" => s.standardized_status_2().map(|x| x.0),
+                "standardized_status_3" => s.standardized_status_3().map(|x| x.0),
+                "analog_channel_fixed" => s.analog_channel_fixed().map(|x| x.0),
+                other => panic!("{other}"),
+            };
+            assert_eq!(got, Some(at as u8 + 1), "{name}");
+        }
+        assert_eq!(s.device_specific_status(), &[1, 2, 3, 4, 5, 6]);
+        assert_eq!(s.acknowledged(), &[1, 2, 3, 4, 5, 6, 7, 8, 9]);
+    }
+
+    #[test]
+    fn a_short_additional_status_has_no_later_parts() {
+        let s = AdditionalStatus(Bytes::new(&[1, 2, 3]).unwrap());
+        assert_eq!(s.device_specific_status(), &[1, 2, 3]);
+        assert_eq!(s.acknowledged(), &[1, 2, 3]);
+        assert_eq!(s.extended_status(), None);
+        assert_eq!(s.analog_channel_fixed(), None);
+    }
+
+    #[test]
+    fn a_request_frames_itself_and_extends_numbers_above_255() {
+        let id = UniqueId::new(0x1234, 0x56789A);
+        let r = Request::WritePvDamping(Damping {
+            damping: Seconds(2.0),
+        });
+        let fb = r.frame(Address::long(id)).unwrap();
+        let f = fb.frame().unwrap();
+        assert_eq!(f.command, 34);
+        assert_eq!(f.data, &r.to_vec().unwrap()[..]);
+        assert_eq!(fb.to_vec(), fb.as_slice());
+        let mut spec_buf = [0u8; 64];
+        let n = crate::frame::FrameSpec {
+            preambles: 0,
+            ..crate::frame::FrameSpec::request(Address::long(id), 34, f.data)
+        }
+        .encode(&mut spec_buf)
+        .unwrap();
+        assert_eq!(fb.as_slice(), &spec_buf[..n]);
+        assert!(Frame::parse_pdu(fb.as_slice()).unwrap().checksum_ok());
+    }
+
+    #[test]
+    fn response_to_vec_is_its_encoding() {
+        let r = Response::WritePvUnits(PvUnits {
+            pv_units: UnitCode(12),
+        });
+        assert_eq!(r.to_vec().unwrap(), std::vec![12]);
+    }
+
+    #[test]
+    fn the_burst_command_comes_from_either_form() {
+        let mut c = BurstConfiguration {
+            command_expansion: 3,
+            ..Default::default()
+        };
+        assert_eq!(c.burst_command(), 3);
+        c.command_expansion = 31;
+        c.command_number = Some(CommandNumber(9));
+        assert_eq!(c.burst_command(), 9);
     }
 }
