@@ -858,6 +858,97 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// Command 77 request: send a command to a sub-device of an I/O system. The
+    /// embedded frame runs from its delimiter through its data; the I/O system adds the
+    /// check byte (HART 7 common practice command specification, command 77; Wireshark's
+    /// `dissect_cmd77`).
+    pub struct SendCommandToSubDevice {
+        /// I/O card.
+        pub io_card: u8,
+        /// Channel.
+        pub channel: u8,
+        /// Preambles to send before the embedded frame.
+        pub transmit_preambles: u8,
+        /// The embedded request frame, delimiter through data, without its check byte.
+        pub frame: Bytes<252>,
+    }
+}
+
+wire_struct! {
+    /// Command 77 reply: the sub-device's reply frame, delimiter through data (its
+    /// status bytes included), without its check byte.
+    pub struct SendCommandToSubDeviceResponse {
+        /// I/O card.
+        pub io_card: u8,
+        /// Channel.
+        pub channel: u8,
+        /// The embedded reply frame, delimiter through data, without its check byte.
+        pub frame: Bytes<253>,
+    }
+}
+
+/// The frame `embedded` (delimiter through data) parsed, with its check byte computed
+/// into `buf`.
+fn embedded_frame<'b>(
+    embedded: &[u8],
+    buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+    let n = embedded.len();
+    // Bytes<253> at most, so the check byte always fits the 267 bytes of `buf`.
+    buf[..n].copy_from_slice(embedded);
+    buf[n] = crate::frame::checksum(embedded);
+    crate::frame::Frame::parse_pdu(&buf[..=n])
+}
+
+impl SendCommandToSubDevice {
+    /// Wraps the request `frame` (a PDU, delimiter through check byte) for the
+    /// sub-device on `io_card`/`channel`: its check byte is left out, as command 77
+    /// carries it. Fails when the PDU is empty or longer than the 253 bytes that fit.
+    pub fn wrap(
+        io_card: u8,
+        channel: u8,
+        transmit_preambles: u8,
+        frame: &crate::frame::FrameBuf,
+    ) -> Result<Self, EncodeError> {
+        let pdu = frame.as_slice();
+        let body = pdu
+            .split_last()
+            .map(|(_, body)| body)
+            .ok_or(EncodeError::Invalid("command 77 needs a frame to carry"))?;
+        Ok(SendCommandToSubDevice {
+            io_card,
+            channel,
+            transmit_preambles,
+            frame: Bytes::new(body).map_err(|_| {
+                EncodeError::Invalid(
+                    "the frame is too long for command 77 (252 bytes before its check byte)",
+                )
+            })?,
+        })
+    }
+
+    /// The embedded request frame, its check byte computed into `buf`; an error when
+    /// the bytes are not a frame.
+    pub fn embedded_frame<'b>(
+        &self,
+        buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+    ) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+        embedded_frame(self.frame.as_slice(), buf)
+    }
+}
+
+impl SendCommandToSubDeviceResponse {
+    /// The embedded reply frame, its check byte computed into `buf`; an error when the
+    /// bytes are not a frame.
+    pub fn embedded_frame<'b>(
+        &self,
+        buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+    ) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+        embedded_frame(self.frame.as_slice(), buf)
+    }
+}
+
+wire_struct! {
     /// Command 84 request: which sub-device (0 is the I/O system itself).
     pub struct SubDeviceIndex {
         /// Sub-device index.
@@ -1103,6 +1194,95 @@ wire_struct! {
     }
 }
 
+/// The 5 bytes of a unique ID as HART-IP's client subscription commands (532, 533)
+/// carry them, kept as received (bits 7-6 of the first byte included), shown as 10 hex
+/// digits; all zero stands for every device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct SubscriptionTarget(pub [u8; 5]);
+
+impl SubscriptionTarget {
+    /// Every device (the all-zero unique ID).
+    pub const ALL: SubscriptionTarget = SubscriptionTarget([0; 5]);
+
+    /// The device's unique ID (the master and burst bits of the first byte ignored).
+    pub fn unique_id(&self) -> crate::frame::UniqueId {
+        crate::frame::UniqueId::from_bytes(self.0)
+    }
+}
+
+impl From<crate::frame::UniqueId> for SubscriptionTarget {
+    fn from(id: crate::frame::UniqueId) -> Self {
+        SubscriptionTarget(id.to_bytes())
+    }
+}
+
+impl Wire for SubscriptionTarget {
+    const MIN_LEN: usize = 5;
+    const MAX_LEN: usize = 5;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(SubscriptionTarget(r.array()?))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.put(&self.0)
+    }
+    fn encoded_len(&self) -> usize {
+        5
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field {
+            name,
+            offset,
+            len: 5,
+            value: Value::Hex(&self.0),
+            meaning: Meaning::Plain,
+        });
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let bad = BuildError::Invalid {
+            field: name,
+            reason: "a unique ID is five bytes: ten hex digits",
+        };
+        match src
+            .value(name)?
+            .ok_or(BuildError::Missing { field: name })?
+        {
+            Value::Hex(b) => Ok(SubscriptionTarget(b.try_into().map_err(|_| bad)?)),
+            Value::Str(text) => {
+                let mut id = [0u8; 5];
+                crate::wire::hex_into(text, &mut id)
+                    .filter(|&n| n == 5)
+                    .ok_or(bad)?;
+                Ok(SubscriptionTarget(id))
+            }
+            _ => Err(BuildError::WrongKind {
+                field: name,
+                expected: "ten hex digits",
+            }),
+        }
+    }
+}
+
+wire_struct! {
+    /// Command 532 request: whose subscription to read (HART-IP; hipserver's
+    /// `hscommands.cpp` and `hssubscribe.h`, docs/hart-ip.md).
+    pub struct SubscriptionSelect {
+        /// The device's unique ID; all zero for the subscription to every device.
+        pub unique_id: SubscriptionTarget,
+    }
+}
+
+wire_struct! {
+    /// Command 532 reply and command 533 request and reply: a HART-IP client's publish
+    /// subscription to a device (hipserver's `hscommands.cpp` and `hssubscribe.h`).
+    pub struct ClientSubscription {
+        /// The device's unique ID; all zero for every device.
+        pub unique_id: SubscriptionTarget,
+        /// What is published to the client: 0x0001 process data, 0x0002 event
+        /// notification, 0x0004 device status, 0x0008 device configuration.
+        pub flags: u16,
+    }
+}
+
 /// The kind of command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CommandKind {
@@ -1211,7 +1391,6 @@ pub static UNTYPED_COMMANDS: &[(u16, &str, Access)] = &[
     // Answered only while armed (a button pressed), which it may end: a write.
     (73, "Find Device", Access::Write),
     (76, "Read Lock Device State", Access::Read),
-    (77, "Send Command to Sub-Device", Access::Wrapper),
     (78, "Read Aggregated Commands", Access::Wrapper),
     (80, "Read Device Variable Trim Points", Access::Read),
     (81, "Read Device Variable Trim Guidelines", Access::Read),
@@ -1289,6 +1468,9 @@ macro_rules! commands {
         /// A typed request (the data of an STX frame).
         #[derive(Debug, Clone, Copy, PartialEq)]
         #[allow(missing_docs)]
+        // Command 77 carries a whole frame inline: without an allocator it cannot be
+        // boxed, and a request is at most one frame's data anyway.
+        #[allow(clippy::large_enum_variant)]
         pub enum Request { $( $variant($req), )* }
 
         /// A typed reply (the data of an ACK/BACK frame after the status bytes).
@@ -1417,9 +1599,11 @@ macro_rules! commands {
     (@rw read) => { false };
     (@rw write) => { true };
     (@rw action) => { false };
+    (@rw wrapper) => { false };
     (@access read) => { Access::Read };
     (@access write) => { Access::Write };
     (@access action) => { Access::Write };
+    (@access wrapper) => { Access::Wrapper };
 }
 
 commands! {
@@ -1464,6 +1648,7 @@ commands! {
     59  WriteResponsePreambles CommonPractice write "Write Number of Response Preambles" : ResponsePreambles => ResponsePreambles;
     74  ReadIoSystemCapabilities CommonPractice read "Read I/O System Capabilities" : Empty => IoSystemCapabilities;
     75  PollSubDevice CommonPractice read "Poll Sub-Device" : PollSubDevice => Identity;
+    77  SendCommandToSubDevice CommonPractice wrapper "Send Command to Sub-Device" : SendCommandToSubDevice => SendCommandToSubDeviceResponse;
     79  WriteDeviceVariable CommonPractice write "Write Device Variable" : WriteDeviceVariable => WriteDeviceVariable;
     84  ReadSubDeviceIdentitySummary CommonPractice read "Read Sub-Device Identity Summary" : SubDeviceIndex => SubDeviceSummary;
     90  ReadRealTimeClock CommonPractice read "Read Real-Time Clock" : Empty => RealTimeClock;
@@ -1476,6 +1661,11 @@ commands! {
     107 WriteBurstDeviceVariables Burst write "Write Burst Device Variables" : BurstVariables => BurstVariables;
     108 WriteBurstCommandNumber Burst write "Write Burst Mode Command Number" : BurstCommand => BurstCommand;
     109 BurstModeControl Burst write "Burst Mode Control" : BurstModeControlRequest => BurstModeControlRequest;
+    // HART-IP's client subscriptions, answered by a HART-IP server for the session.
+    // 533 changes the session, not a device's configuration: write protection does
+    // not apply (`action`), access control counts it a write.
+    532 ReadClientSubscriptionSummary CommonPractice read "Read Client Subscription Summary" : SubscriptionSelect => ClientSubscription;
+    533 WriteClientSubscriptionFlags CommonPractice action "Write Client Subscription Flags" : ClientSubscription => ClientSubscription;
 }
 
 impl fmt::Display for CommandInfo {
@@ -1499,7 +1689,13 @@ mod access_tests {
             assert_eq!(access(c), Access::Write, "{c}");
         }
         assert_eq!(access(77), Access::Wrapper);
+        assert!(info(77).is_some_and(|i| !i.writes));
         assert_eq!(access(78), Access::Wrapper);
+        // HART-IP's client subscriptions: reading one only reads; writing one changes
+        // the session, which write protection does not cover.
+        assert_eq!(access(532), Access::Read);
+        assert_eq!(access(533), Access::Write);
+        assert!(!info(533).unwrap().writes);
         for c in [
             4, 5, 10, 23, 31, 128, 129, 200, 253, 254, 255, 514, 4096, 65535,
         ] {
@@ -1610,5 +1806,49 @@ mod helper_tests {
         c.command_expansion = 31;
         c.command_number = Some(CommandNumber(9));
         assert_eq!(c.burst_command(), 9);
+    }
+
+    #[test]
+    fn command_77_wraps_a_frame_and_gives_it_back() {
+        let id = UniqueId::new(0x1234, 0x56789A);
+        let inner = Request::ReadPrimaryVariable(Empty {})
+            .frame(Address::long(id))
+            .unwrap();
+        let r = SendCommandToSubDevice::wrap(1, 2, 5, &inner).unwrap();
+        assert_eq!(
+            r.frame.as_slice(),
+            &inner.as_slice()[..inner.as_slice().len() - 1]
+        );
+        let mut buf = [0u8; crate::frame::MAX_PDU_LEN];
+        let f = r.embedded_frame(&mut buf).unwrap();
+        assert_eq!((f.command, f.checksum_ok()), (1, true));
+        let data = Request::SendCommandToSubDevice(r).to_vec().unwrap();
+        assert_eq!(&data[..3], &[1, 2, 5]);
+        assert_eq!(
+            decode_request(77, &data),
+            Some(Ok(Request::SendCommandToSubDevice(r)))
+        );
+        // Bytes that are no frame are an error, not a panic.
+        let junk = SendCommandToSubDeviceResponse {
+            io_card: 0,
+            channel: 0,
+            frame: Bytes::new(&[0x86]).unwrap(),
+        };
+        assert!(junk.embedded_frame(&mut buf).is_err());
+    }
+
+    #[test]
+    fn a_client_subscription_round_trips() {
+        let data = [0xC0, 0, 0, 0, 0, 0x00, 0x01];
+        let Some(Ok(Request::WriteClientSubscriptionFlags(s))) = decode_request(533, &data) else {
+            panic!("533 does not decode");
+        };
+        assert_eq!(s.flags, 1);
+        assert_eq!(s.unique_id.unique_id(), UniqueId::BROADCAST);
+        assert_eq!(
+            Request::WriteClientSubscriptionFlags(s).to_vec().unwrap(),
+            data
+        );
+        assert!(matches!(decode_request(532, &[0; 4]), Some(Err(_))));
     }
 }
