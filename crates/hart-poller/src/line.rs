@@ -315,7 +315,6 @@ impl Line {
                         out.push(pdu(&FrameSpec {
                             frame_type: FrameType::Back,
                             status: Some((reply.response_code, reply.device_status)),
-                            extended: command > 255,
                             ..FrameSpec::request(
                                 Address::long(id).with_burst(true).with_master(master),
                                 command,

@@ -710,14 +710,11 @@ impl LoopTask {
         data: &[u8],
         retries: u8,
     ) -> Option<(u8, u8, Vec<u8>)> {
-        let request = pdu(&FrameSpec {
-            extended: command > 255,
-            ..FrameSpec::request(
-                Address::long(info.unique_id()).with_master(MasterKind::Primary),
-                command,
-                data,
-            )
-        });
+        let request = pdu(&FrameSpec::request(
+            Address::long(info.unique_id()).with_master(MasterKind::Primary),
+            command,
+            data,
+        ));
         let reply = self.transact(&request, retries).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() {

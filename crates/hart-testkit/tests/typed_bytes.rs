@@ -82,7 +82,6 @@ const OTHER_LAYERS: &[(&str, &[&str], &str)] = &[
 /// entry is to be lowered.
 const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-access/src/lib.rs", "data_offset", 1),
-    ("crates/hart-conform/src/probe.rs", "extended_by_number", 1),
     ("crates/hart-conform/src/run.rs", "be_bytes", 13),
     ("crates/hart-conform/src/run.rs", "concat_bytes", 8),
     ("crates/hart-conform/src/run.rs", "data_offset", 51),
@@ -97,26 +96,17 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-ip-server/src/io_system.rs", "be_bytes", 2),
     ("crates/hart-ip-server/src/io_system.rs", "data_offset", 10),
     ("crates/hart-ip-server/src/io_system.rs", "string_bytes", 2),
-    (
-        "crates/hart-ip-server/src/session.rs",
-        "extended_by_number",
-        1,
-    ),
     ("crates/hart-ip-server/src/subscriptions.rs", "be_bytes", 3),
     (
         "crates/hart-ip-server/src/subscriptions.rs",
         "data_offset",
         2,
     ),
-    ("crates/hart-link/src/slave.rs", "extended_by_number", 1),
     ("crates/hart-poller/src/gate.rs", "data_offset", 1),
     ("crates/hart-poller/src/image.rs", "data_offset", 2),
-    ("crates/hart-poller/src/lib.rs", "extended_by_number", 1),
     ("crates/hart-poller/src/lib.rs", "primary_request", 1),
-    ("crates/hart-poller/src/line.rs", "extended_by_number", 1),
     ("crates/hart-poller/src/task.rs", "be_bytes", 2),
     ("crates/hart-poller/src/task.rs", "data_offset", 1),
-    ("crates/hart-poller/src/task.rs", "extended_by_number", 1),
     ("crates/hart-poller/src/task.rs", "literal_command_data", 2),
     ("crates/hart-poller/src/task.rs", "primary_request", 1),
     ("crates/hart-poller/src/write.rs", "be_bytes", 1),
@@ -124,7 +114,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-poller/src/write.rs", "string_bytes", 1),
     ("crates/hart-sim/src/device.rs", "data_offset", 2),
     ("crates/hart-sim/src/device.rs", "string_bytes", 1),
-    ("crates/hart-web/src/device.rs", "extended_by_number", 1),
     ("crates/hart-web/src/device.rs", "primary_request", 1),
     ("crates/hart-wells/src/archive.rs", "data_offset", 3),
     (
