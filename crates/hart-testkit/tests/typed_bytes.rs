@@ -102,8 +102,6 @@ const PENDING: &[(&str, &str, usize)] = &[
         "data_offset",
         2,
     ),
-    ("crates/hart-poller/src/gate.rs", "data_offset", 1),
-    ("crates/hart-poller/src/image.rs", "data_offset", 2),
     ("crates/hart-poller/src/lib.rs", "primary_request", 1),
     ("crates/hart-poller/src/task.rs", "be_bytes", 2),
     ("crates/hart-poller/src/task.rs", "data_offset", 1),
