@@ -7,13 +7,10 @@ const VALVE: UniqueId = UniqueId {
 };
 
 fn pdu(address: Address, command: u16, data: &[u8]) -> Vec<u8> {
-    hart_proto::frame::FrameBuf::encode(&FrameSpec {
-        extended: command > 255,
-        ..FrameSpec::request(address, command, data)
-    })
-    .unwrap()
-    .as_slice()
-    .to_vec()
+    hart_proto::frame::FrameBuf::encode(&FrameSpec::request(address, command, data))
+        .unwrap()
+        .as_slice()
+        .to_vec()
 }
 
 /// Command 77's data around `inner` (card 0, channel 0, 5 preambles, no check byte).

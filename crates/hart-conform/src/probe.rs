@@ -163,7 +163,6 @@ impl<'a, T: Transport> Probe<'a, T> {
     pub fn request(preambles: usize, address: Address, command: u16, data: &[u8]) -> Vec<u8> {
         let spec = FrameSpec {
             preambles,
-            extended: command > 255,
             ..FrameSpec::request(address, command, data)
         };
         let mut buf = vec![0u8; spec.encoded_len()];

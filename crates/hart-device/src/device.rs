@@ -600,6 +600,10 @@ impl Device {
         }
         let request = match hart_proto::decode_request(command, data) {
             Some(Ok(r)) => Some(r),
+            // A field device answers the commands of I/O systems (77) and HART-IP servers
+            // (532, 533) only as its profile declares them, "not implemented" otherwise,
+            // whatever their length.
+            Some(Err(_)) if matches!(command, 77 | 532 | 533) => None,
             // Fault injection: too few data bytes answered as a success, without data.
             Some(Err(_)) if self.faults.has(crate::faults::Fault::NoTooFewDataBytes) => {
                 return ok(vec![])
@@ -1192,7 +1196,12 @@ impl Device {
             | R::PollSubDevice(_)
             | R::ReadSubDeviceIdentitySummary(_)
             | R::ReadSubDeviceBurstMap(_)
-            | R::MapSubDeviceToBurstMessage(_) => self.custom(request.command(), raw, master, now),
+            | R::MapSubDeviceToBurstMessage(_)
+            | R::SendCommandToSubDevice(_)
+            | R::ReadClientSubscriptionSummary(_)
+            | R::WriteClientSubscriptionFlags(_) => {
+                self.custom(request.command(), raw, master, now)
+            }
             R::ReadCommunicationStatistics(_) => ok(encode(&cmd::CommunicationStatistics {
                 stx_count: self.stx_count,
                 ack_count: self.ack_count,

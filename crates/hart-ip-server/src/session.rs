@@ -507,10 +507,7 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
                 .with_master(hart_proto::frame::MasterKind::Primary);
             let mut out = vec![0u8, 0u8];
             for e in entries {
-                let spec = hart_proto::frame::FrameSpec {
-                    extended: e.command > 255,
-                    ..hart_proto::frame::FrameSpec::request(own, e.command, e.data)
-                };
+                let spec = hart_proto::frame::FrameSpec::request(own, e.command, e.data);
                 let pdu = crate::pdu(&spec);
                 let admitted = match Frame::parse_pdu(&pdu) {
                     Ok(f) => admit(shared, s, &f, "direct PDU").await.ok(),

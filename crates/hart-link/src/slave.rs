@@ -400,7 +400,7 @@ impl Slave {
                     expansion: &[],
                     physical_layer: 0,
                     command,
-                    extended: command > 255,
+                    extended: false,
                     status: Some((reply.response_code, reply.device_status)),
                     data: reply.data(),
                 };

@@ -15,7 +15,9 @@
 use std::fmt;
 
 use hart_access::{Allowed, Policy, Refusal, Rights, WriteOutcome, WriteRecord};
+use hart_proto::command::SendCommandToSubDeviceResponse;
 use hart_proto::frame::{Address, Frame};
+use hart_proto::wire::{Reader, Wire};
 
 /// Who sends a frame through the gate, with what rights, and how the audit names them.
 #[derive(Debug, Clone)]
@@ -127,13 +129,20 @@ pub(crate) fn outcome(command: u16, depth: usize, reply: Option<&[u8]>) -> Write
         };
         // An I/O system that refused to carry the frame (or carried nothing) is judged
         // by its own answer.
-        if f.command != 77 || f.data.len() < 3 || f.response_code.unwrap_or(0) != 0 {
+        if f.command != 77 || f.response_code.unwrap_or(0) != 0 {
             break;
         }
-        // Card, channel, then the sub-device's reply frame without its check byte.
-        let mut inner = f.data[2..].to_vec();
-        inner.push(hart_proto::frame::checksum(&inner));
-        reply = inner;
+        let Ok(carried) = SendCommandToSubDeviceResponse::decode(&mut Reader::new(f.data)) else {
+            break;
+        };
+        if carried.frame.as_slice().is_empty() {
+            break;
+        }
+        // The sub-device's reply with its check byte, judged next whether it parses or
+        // not (a broken one is judged as such).
+        let mut buf = [0u8; hart_proto::frame::MAX_PDU_LEN];
+        let _ = carried.embedded_frame(&mut buf);
+        reply = buf[..=carried.frame.as_slice().len()].to_vec();
     }
     crate::write::outcome_of(command, Some(&reply))
 }

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant, SystemTime};
 
 use hart_host::DeviceInfo;
 use hart_proto::command::{
-    DeviceInformation, ReadDynamicVariablesResponse, ReadLoopCurrentResponse, SlotsWithTimestamp,
+    DeviceInformation, ReadAdditionalStatusResponse, ReadDeviceVariablesResponse,
+    ReadDynamicVariablesResponse, ReadLoopCurrentResponse,
 };
 use hart_proto::frame::UniqueId;
 use hart_proto::tables::field_device_status as fds;
@@ -376,8 +377,9 @@ impl DeviceImage {
             },
             48 => {
                 self.additional_status = data.to_vec();
-                if let Some(&x) = data.get(6) {
-                    self.extended_status = x;
+                let status = ReadAdditionalStatusResponse::decode(&mut r).ok();
+                if let Some(x) = status.and_then(|s| s.additional_status.extended_status()) {
+                    self.extended_status = x.0;
                 }
                 true
             }
@@ -411,14 +413,11 @@ impl DeviceImage {
     /// 244 percent of range, 245 loop current; device variables 0-3 fill PV..QV only
     /// when asked for as such (the engine asks for 246-249).
     fn apply_slots(&mut self, data: &[u8]) -> bool {
-        let Some((&ext, rest)) = data.split_first() else {
+        let Ok(reply) = ReadDeviceVariablesResponse::decode(&mut Reader::new(data)) else {
             return false;
         };
-        let Ok(s) = SlotsWithTimestamp::decode(&mut Reader::new(rest)) else {
-            return false;
-        };
-        self.extended_status = ext;
-        for slot in s.slots.as_slice() {
+        self.extended_status = reply.extended_status.0;
+        for slot in reply.data.slots.as_slice() {
             let var = Variable {
                 value: slot.value,
                 units: slot.units.0,

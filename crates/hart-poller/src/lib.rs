@@ -587,14 +587,11 @@ impl Engine {
             .with(position, |d| (d.channel, d.unique_id()))
             .ok_or(WriteError::UnknownDevice)?;
         let id = id.ok_or(WriteError::UnknownDevice)?;
-        let pdu = line::pdu(&FrameSpec {
-            extended: command > 255,
-            ..FrameSpec::request(
-                Address::long(id).with_master(MasterKind::Primary),
-                command,
-                data,
-            )
-        });
+        let pdu = line::pdu(&FrameSpec::request(
+            Address::long(id).with_master(MasterKind::Primary),
+            command,
+            data,
+        ));
         let queue = self
             .writes
             .get(usize::from(channel))

@@ -6,7 +6,9 @@ use std::time::{Duration, Instant};
 use hart_host::target::AnyTransport;
 use hart_host::Client;
 use hart_link::master::RetryPolicy;
+use hart_proto::command::{ReadPvResponse, Response};
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType};
+use hart_proto::types::UnitCode;
 
 use crate::disturbance::LineCounters;
 
@@ -292,7 +294,11 @@ impl Line {
                 let mut out = vec![];
                 if m.faults.babble() == Babble::Bursts {
                     // A stranger's command 1 burst frames, back to back.
-                    let data = [12, 0x42, 0x48, 0, 0];
+                    let pv = Response::ReadPrimaryVariable(ReadPvResponse {
+                        pv_units: UnitCode(12),
+                        pv: 50.0,
+                    });
+                    let data = pv.to_vec().unwrap_or_default();
                     let flood = pdu(&FrameSpec {
                         frame_type: FrameType::Back,
                         status: Some((0, 0)),
@@ -315,7 +321,6 @@ impl Line {
                         out.push(pdu(&FrameSpec {
                             frame_type: FrameType::Back,
                             status: Some((reply.response_code, reply.device_status)),
-                            extended: command > 255,
                             ..FrameSpec::request(
                                 Address::long(id).with_burst(true).with_master(master),
                                 command,

@@ -10,9 +10,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hart_host::DeviceInfo;
-use hart_proto::command::{Identity, LongTag, TagDescriptorDate};
+use hart_proto::command::{
+    Damping, FixedCurrent, Identity, LongTag, RangeValues, TagDescriptorDate,
+};
 use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind, UniqueId};
 use hart_proto::tables::field_device_status as fds;
+use hart_proto::types::{Seconds, UnitCode};
 use hart_proto::wire::{Reader, Wire};
 use tokio::sync::mpsc;
 
@@ -392,14 +395,13 @@ impl LoopTask {
         // What the reply says the device now has goes into the image at once (a SCADA
         // reading back its write sees it without waiting for the next configuration
         // poll); the poll that follows confirms the rest.
-        let float = |i: usize| {
-            rep.data
-                .get(i..i + 4)
-                .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]))
-        };
+        let data = || Reader::new(rep.data);
         match req.command {
             40 => {
-                let current = float(0).filter(|c| *c != 0.0);
+                let current = FixedCurrent::decode(&mut data())
+                    .ok()
+                    .map(|f| f.loop_current.0)
+                    .filter(|c| *c != 0.0);
                 let now = self.clock.now();
                 let test = match current {
                     // A loop test started (or changed): the engine holds it.
@@ -424,7 +426,10 @@ impl LoopTask {
                 });
             }
             34 => {
-                if let Some(damping) = float(0) {
+                if let Ok(Damping {
+                    damping: Seconds(damping),
+                }) = Damping::decode(&mut data())
+                {
                     self.shared.image.update(position, |d| {
                         if let Some(r) = d.range.as_mut() {
                             r.damping = damping;
@@ -433,8 +438,11 @@ impl LoopTask {
                 }
             }
             35 => {
-                if let (Some(&units), Some(upper), Some(lower)) =
-                    (rep.data.first(), float(1), float(5))
+                if let Ok(RangeValues {
+                    range_units: UnitCode(units),
+                    upper_range_value: upper,
+                    lower_range_value: lower,
+                }) = RangeValues::decode(&mut data())
                 {
                     self.shared.image.update(position, |d| {
                         if let Some(r) = d.range.as_mut() {
@@ -710,14 +718,11 @@ impl LoopTask {
         data: &[u8],
         retries: u8,
     ) -> Option<(u8, u8, Vec<u8>)> {
-        let request = pdu(&FrameSpec {
-            extended: command > 255,
-            ..FrameSpec::request(
-                Address::long(info.unique_id()).with_master(MasterKind::Primary),
-                command,
-                data,
-            )
-        });
+        let request = pdu(&FrameSpec::request(
+            Address::long(info.unique_id()).with_master(MasterKind::Primary),
+            command,
+            data,
+        ));
         let reply = self.transact(&request, retries).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() {

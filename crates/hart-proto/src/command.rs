@@ -365,6 +365,63 @@ wire_struct! {
     }
 }
 
+/// The named parts of command 48's additional status, as `(offset, length, name,
+/// meaning)`: the table [`AdditionalStatus`]'s description and accessors rest on
+/// (HART 7 universal command specification, command 48; the status tables are Common
+/// Tables 14, 17 and 27-32).
+pub static ADDITIONAL_STATUS_PARTS: [(usize, usize, &str, Meaning); 10] = [
+    (0, 6, "device_specific_status", Meaning::Plain),
+    (
+        6,
+        1,
+        "extended_status",
+        Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS),
+    ),
+    (
+        7,
+        1,
+        "operating_mode",
+        Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE),
+    ),
+    (
+        8,
+        1,
+        "standardized_status_0",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0),
+    ),
+    (
+        9,
+        1,
+        "standardized_status_1",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1),
+    ),
+    (
+        10,
+        1,
+        "analog_channel_saturated",
+        Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED),
+    ),
+    (
+        11,
+        1,
+        "standardized_status_2",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2),
+    ),
+    (
+        12,
+        1,
+        "standardized_status_3",
+        Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3),
+    ),
+    (
+        13,
+        1,
+        "analog_channel_fixed",
+        Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED),
+    ),
+    (14, 11, "device_specific_status_2", Meaning::Plain),
+];
+
 /// Command 48 reply: additional device status (HART 7 defines 9 to 25 bytes; anything a
 /// device sends beyond that is kept as received), also shown field by field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -374,6 +431,108 @@ impl AdditionalStatus {
     /// The raw bytes.
     pub fn as_slice(&self) -> &[u8] {
         self.0.as_slice()
+    }
+
+    /// Byte `at`, when the reply holds it.
+    fn byte(&self, at: usize) -> Option<u8> {
+        self.as_slice().get(at).copied()
+    }
+
+    /// Bytes 0-5: device-specific status (fewer when the reply is shorter).
+    pub fn device_specific_status(&self) -> &[u8] {
+        let b = self.as_slice();
+        &b[..b.len().min(6)]
+    }
+
+    /// Byte 6: extended field device status (Common Table 17).
+    pub fn extended_status(&self) -> Option<ExtendedStatus> {
+        self.byte(6).map(ExtendedStatus)
+    }
+
+    /// Byte 7: device operating mode (Common Table 14).
+    pub fn operating_mode(&self) -> Option<OperatingMode> {
+        self.byte(7).map(OperatingMode)
+    }
+
+    /// Byte 8: standardized status 0 (Common Table 29).
+    pub fn standardized_status_0(&self) -> Option<StandardizedStatus0> {
+        self.byte(8).map(StandardizedStatus0)
+    }
+
+    /// Byte 9: standardized status 1 (Common Table 30).
+    pub fn standardized_status_1(&self) -> Option<StandardizedStatus1> {
+        self.byte(9).map(StandardizedStatus1)
+    }
+
+    /// Byte 10: analog channel saturated (Common Table 27).
+    pub fn analog_channel_saturated(&self) -> Option<AnalogChannelSaturated> {
+        self.byte(10).map(AnalogChannelSaturated)
+    }
+
+    /// Byte 11: standardized status 2 (Common Table 31).
+    pub fn standardized_status_2(&self) -> Option<StandardizedStatus2> {
+        self.byte(11).map(StandardizedStatus2)
+    }
+
+    /// Byte 12: standardized status 3 (Common Table 32).
+    pub fn standardized_status_3(&self) -> Option<StandardizedStatus3> {
+        self.byte(12).map(StandardizedStatus3)
+    }
+
+    /// Byte 13: analog channel fixed (Common Table 28).
+    pub fn analog_channel_fixed(&self) -> Option<AnalogChannelFixed> {
+        self.byte(13).map(AnalogChannelFixed)
+    }
+
+    /// Bytes 0-8, the part a HART 7 command 48 request copies back to acknowledge
+    /// the status (fewer when the reply is shorter).
+    pub fn acknowledged(&self) -> &[u8] {
+        let b = self.as_slice();
+        &b[..b.len().min(9)]
+    }
+}
+
+/// The parts of a 14-byte command 48 additional status, for a device or an I/O system
+/// building its reply: [`AdditionalStatus::from`] lays them out as
+/// [`ADDITIONAL_STATUS_PARTS`] says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct AdditionalStatusParts {
+    /// Bytes 0-5: device-specific status.
+    pub device_specific_status: [u8; 6],
+    /// Byte 6: extended field device status.
+    pub extended_status: ExtendedStatus,
+    /// Byte 7: device operating mode.
+    pub operating_mode: OperatingMode,
+    /// Byte 8: standardized status 0.
+    pub standardized_status_0: StandardizedStatus0,
+    /// Byte 9: standardized status 1.
+    pub standardized_status_1: StandardizedStatus1,
+    /// Byte 10: analog channel saturated.
+    pub analog_channel_saturated: AnalogChannelSaturated,
+    /// Byte 11: standardized status 2.
+    pub standardized_status_2: StandardizedStatus2,
+    /// Byte 12: standardized status 3.
+    pub standardized_status_3: StandardizedStatus3,
+    /// Byte 13: analog channel fixed.
+    pub analog_channel_fixed: AnalogChannelFixed,
+}
+
+impl From<AdditionalStatusParts> for AdditionalStatus {
+    fn from(p: AdditionalStatusParts) -> Self {
+        let mut b = [0u8; 14];
+        b[..6].copy_from_slice(&p.device_specific_status);
+        b[6..].copy_from_slice(&[
+            p.extended_status.0,
+            p.operating_mode.0,
+            p.standardized_status_0.0,
+            p.standardized_status_1.0,
+            p.analog_channel_saturated.0,
+            p.standardized_status_2.0,
+            p.standardized_status_3.0,
+            p.analog_channel_fixed.0,
+        ]);
+        // 14 bytes always fit the 253 the layout holds.
+        AdditionalStatus(Bytes::new(&b).unwrap_or_default())
     }
 }
 
@@ -405,59 +564,7 @@ impl Wire for AdditionalStatus {
             value: Value::Hex(b),
             meaning: Meaning::Plain,
         });
-        let named: [(usize, usize, &'static str, Meaning); 10] = [
-            (0, 6, "device_specific_status", Meaning::Plain),
-            (
-                6,
-                1,
-                "extended_status",
-                Meaning::Bits(&crate::tables::EXTENDED_DEVICE_STATUS),
-            ),
-            (
-                7,
-                1,
-                "operating_mode",
-                Meaning::Code(&crate::tables::DEVICE_OPERATING_MODE),
-            ),
-            (
-                8,
-                1,
-                "standardized_status_0",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_0),
-            ),
-            (
-                9,
-                1,
-                "standardized_status_1",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_1),
-            ),
-            (
-                10,
-                1,
-                "analog_channel_saturated",
-                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_SATURATED),
-            ),
-            (
-                11,
-                1,
-                "standardized_status_2",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_2),
-            ),
-            (
-                12,
-                1,
-                "standardized_status_3",
-                Meaning::Bits(&crate::tables::STANDARDIZED_STATUS_3),
-            ),
-            (
-                13,
-                1,
-                "analog_channel_fixed",
-                Meaning::Bits(&crate::tables::ANALOG_CHANNEL_FIXED),
-            ),
-            (14, 11, "device_specific_status_2", Meaning::Plain),
-        ];
-        for (at, len, name, meaning) in named {
+        for &(at, len, name, meaning) in &ADDITIONAL_STATUS_PARTS {
             let Some(bytes) = b.get(at..(at + len).min(b.len())).filter(|s| !s.is_empty()) else {
                 continue;
             };
@@ -751,6 +858,97 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// Command 77 request: send a command to a sub-device of an I/O system. The
+    /// embedded frame runs from its delimiter through its data; the I/O system adds the
+    /// check byte (HART 7 common practice command specification, command 77; Wireshark's
+    /// `dissect_cmd77`).
+    pub struct SendCommandToSubDevice {
+        /// I/O card.
+        pub io_card: u8,
+        /// Channel.
+        pub channel: u8,
+        /// Preambles to send before the embedded frame.
+        pub transmit_preambles: u8,
+        /// The embedded request frame, delimiter through data, without its check byte.
+        pub frame: Bytes<252>,
+    }
+}
+
+wire_struct! {
+    /// Command 77 reply: the sub-device's reply frame, delimiter through data (its
+    /// status bytes included), without its check byte.
+    pub struct SendCommandToSubDeviceResponse {
+        /// I/O card.
+        pub io_card: u8,
+        /// Channel.
+        pub channel: u8,
+        /// The embedded reply frame, delimiter through data, without its check byte.
+        pub frame: Bytes<253>,
+    }
+}
+
+/// The frame `embedded` (delimiter through data) parsed, with its check byte computed
+/// into `buf`.
+fn embedded_frame<'b>(
+    embedded: &[u8],
+    buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+    let n = embedded.len();
+    // Bytes<253> at most, so the check byte always fits the 267 bytes of `buf`.
+    buf[..n].copy_from_slice(embedded);
+    buf[n] = crate::frame::checksum(embedded);
+    crate::frame::Frame::parse_pdu(&buf[..=n])
+}
+
+impl SendCommandToSubDevice {
+    /// Wraps the request `frame` (a PDU, delimiter through check byte) for the
+    /// sub-device on `io_card`/`channel`: its check byte is left out, as command 77
+    /// carries it. Fails when the PDU is empty or longer than the 253 bytes that fit.
+    pub fn wrap(
+        io_card: u8,
+        channel: u8,
+        transmit_preambles: u8,
+        frame: &crate::frame::FrameBuf,
+    ) -> Result<Self, EncodeError> {
+        let pdu = frame.as_slice();
+        let body = pdu
+            .split_last()
+            .map(|(_, body)| body)
+            .ok_or(EncodeError::Invalid("command 77 needs a frame to carry"))?;
+        Ok(SendCommandToSubDevice {
+            io_card,
+            channel,
+            transmit_preambles,
+            frame: Bytes::new(body).map_err(|_| {
+                EncodeError::Invalid(
+                    "the frame is too long for command 77 (252 bytes before its check byte)",
+                )
+            })?,
+        })
+    }
+
+    /// The embedded request frame, its check byte computed into `buf`; an error when
+    /// the bytes are not a frame.
+    pub fn embedded_frame<'b>(
+        &self,
+        buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+    ) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+        embedded_frame(self.frame.as_slice(), buf)
+    }
+}
+
+impl SendCommandToSubDeviceResponse {
+    /// The embedded reply frame, its check byte computed into `buf`; an error when the
+    /// bytes are not a frame.
+    pub fn embedded_frame<'b>(
+        &self,
+        buf: &'b mut [u8; crate::frame::MAX_PDU_LEN],
+    ) -> Result<crate::frame::Frame<'b>, crate::frame::FrameError> {
+        embedded_frame(self.frame.as_slice(), buf)
+    }
+}
+
+wire_struct! {
     /// Command 84 request: which sub-device (0 is the I/O system itself).
     pub struct SubDeviceIndex {
         /// Sub-device index.
@@ -841,6 +1039,15 @@ wire_struct! {
         pub trigger_units: Option<UnitCode>,
         /// Trigger level.
         pub trigger_level: Option<f32>,
+    }
+}
+
+impl BurstConfiguration {
+    /// The command the burst message publishes: the 16-bit `command_number` of a
+    /// HART 7 reply, else the legacy reply's 8-bit number in `command_expansion`.
+    pub fn burst_command(&self) -> u16 {
+        self.command_number
+            .map_or(self.command_expansion.into(), |c| c.0)
     }
 }
 
@@ -987,6 +1194,95 @@ wire_struct! {
     }
 }
 
+/// The 5 bytes of a unique ID as HART-IP's client subscription commands (532, 533)
+/// carry them, kept as received (bits 7-6 of the first byte included), shown as 10 hex
+/// digits; all zero stands for every device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct SubscriptionTarget(pub [u8; 5]);
+
+impl SubscriptionTarget {
+    /// Every device (the all-zero unique ID).
+    pub const ALL: SubscriptionTarget = SubscriptionTarget([0; 5]);
+
+    /// The device's unique ID (the master and burst bits of the first byte ignored).
+    pub fn unique_id(&self) -> crate::frame::UniqueId {
+        crate::frame::UniqueId::from_bytes(self.0)
+    }
+}
+
+impl From<crate::frame::UniqueId> for SubscriptionTarget {
+    fn from(id: crate::frame::UniqueId) -> Self {
+        SubscriptionTarget(id.to_bytes())
+    }
+}
+
+impl Wire for SubscriptionTarget {
+    const MIN_LEN: usize = 5;
+    const MAX_LEN: usize = 5;
+    fn decode(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        Ok(SubscriptionTarget(r.array()?))
+    }
+    fn encode(&self, w: &mut Writer<'_>) -> Result<(), EncodeError> {
+        w.put(&self.0)
+    }
+    fn encoded_len(&self) -> usize {
+        5
+    }
+    fn describe(&self, name: &'static str, offset: usize, v: &mut dyn Visitor) {
+        v.field(Field {
+            name,
+            offset,
+            len: 5,
+            value: Value::Hex(&self.0),
+            meaning: Meaning::Plain,
+        });
+    }
+    fn build(name: &'static str, src: &mut dyn Source) -> Result<Self, BuildError> {
+        let bad = BuildError::Invalid {
+            field: name,
+            reason: "a unique ID is five bytes: ten hex digits",
+        };
+        match src
+            .value(name)?
+            .ok_or(BuildError::Missing { field: name })?
+        {
+            Value::Hex(b) => Ok(SubscriptionTarget(b.try_into().map_err(|_| bad)?)),
+            Value::Str(text) => {
+                let mut id = [0u8; 5];
+                crate::wire::hex_into(text, &mut id)
+                    .filter(|&n| n == 5)
+                    .ok_or(bad)?;
+                Ok(SubscriptionTarget(id))
+            }
+            _ => Err(BuildError::WrongKind {
+                field: name,
+                expected: "ten hex digits",
+            }),
+        }
+    }
+}
+
+wire_struct! {
+    /// Command 532 request: whose subscription to read (HART-IP; hipserver's
+    /// `hscommands.cpp` and `hssubscribe.h`, docs/hart-ip.md).
+    pub struct SubscriptionSelect {
+        /// The device's unique ID; all zero for the subscription to every device.
+        pub unique_id: SubscriptionTarget,
+    }
+}
+
+wire_struct! {
+    /// Command 532 reply and command 533 request and reply: a HART-IP client's publish
+    /// subscription to a device (hipserver's `hscommands.cpp` and `hssubscribe.h`).
+    pub struct ClientSubscription {
+        /// The device's unique ID; all zero for every device.
+        pub unique_id: SubscriptionTarget,
+        /// What is published to the client: 0x0001 process data, 0x0002 event
+        /// notification, 0x0004 device status, 0x0008 device configuration.
+        pub flags: u16,
+    }
+}
+
 /// The kind of command.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CommandKind {
@@ -1095,7 +1391,6 @@ pub static UNTYPED_COMMANDS: &[(u16, &str, Access)] = &[
     // Answered only while armed (a button pressed), which it may end: a write.
     (73, "Find Device", Access::Write),
     (76, "Read Lock Device State", Access::Read),
-    (77, "Send Command to Sub-Device", Access::Wrapper),
     (78, "Read Aggregated Commands", Access::Wrapper),
     (80, "Read Device Variable Trim Points", Access::Read),
     (81, "Read Device Variable Trim Guidelines", Access::Read),
@@ -1173,6 +1468,9 @@ macro_rules! commands {
         /// A typed request (the data of an STX frame).
         #[derive(Debug, Clone, Copy, PartialEq)]
         #[allow(missing_docs)]
+        // Command 77 carries a whole frame inline: without an allocator it cannot be
+        // boxed, and a request is at most one frame's data anyway.
+        #[allow(clippy::large_enum_variant)]
         pub enum Request { $( $variant($req), )* }
 
         /// A typed reply (the data of an ACK/BACK frame after the status bytes).
@@ -1249,6 +1547,25 @@ macro_rules! commands {
             pub fn describe(&self, v: &mut dyn Visitor) {
                 match self { $( Request::$variant(x) => x.describe("request", 0, v), )* }
             }
+            /// The request frame to `address` (no preambles): the command number, and
+            /// the command-31 form for numbers above 255, come from the table. Needs no
+            /// allocator.
+            pub fn frame(&self, address: crate::frame::Address) -> Result<crate::frame::FrameBuf, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                crate::frame::FrameBuf::encode(&crate::frame::FrameSpec::request(address, self.command(), &data[..n]))
+            }
+            /// The request data as bytes.
+            #[cfg(feature = "std")]
+            pub fn to_vec(&self) -> Result<std::vec::Vec<u8>, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                Ok(data[..n].to_vec())
+            }
         }
 
         impl Response {
@@ -1268,14 +1585,25 @@ macro_rules! commands {
             pub fn describe(&self, v: &mut dyn Visitor) {
                 match self { $( Response::$variant(x) => x.describe("response", 0, v), )* }
             }
+            /// The reply data (after the status bytes) as bytes.
+            #[cfg(feature = "std")]
+            pub fn to_vec(&self) -> Result<std::vec::Vec<u8>, EncodeError> {
+                let mut data = [0u8; 255];
+                let mut w = Writer::new(&mut data);
+                self.encode(&mut w)?;
+                let n = w.position();
+                Ok(data[..n].to_vec())
+            }
         }
     };
     (@rw read) => { false };
     (@rw write) => { true };
     (@rw action) => { false };
+    (@rw wrapper) => { false };
     (@access read) => { Access::Read };
     (@access write) => { Access::Write };
     (@access action) => { Access::Write };
+    (@access wrapper) => { Access::Wrapper };
 }
 
 commands! {
@@ -1320,6 +1648,7 @@ commands! {
     59  WriteResponsePreambles CommonPractice write "Write Number of Response Preambles" : ResponsePreambles => ResponsePreambles;
     74  ReadIoSystemCapabilities CommonPractice read "Read I/O System Capabilities" : Empty => IoSystemCapabilities;
     75  PollSubDevice CommonPractice read "Poll Sub-Device" : PollSubDevice => Identity;
+    77  SendCommandToSubDevice CommonPractice wrapper "Send Command to Sub-Device" : SendCommandToSubDevice => SendCommandToSubDeviceResponse;
     79  WriteDeviceVariable CommonPractice write "Write Device Variable" : WriteDeviceVariable => WriteDeviceVariable;
     84  ReadSubDeviceIdentitySummary CommonPractice read "Read Sub-Device Identity Summary" : SubDeviceIndex => SubDeviceSummary;
     90  ReadRealTimeClock CommonPractice read "Read Real-Time Clock" : Empty => RealTimeClock;
@@ -1332,6 +1661,11 @@ commands! {
     107 WriteBurstDeviceVariables Burst write "Write Burst Device Variables" : BurstVariables => BurstVariables;
     108 WriteBurstCommandNumber Burst write "Write Burst Mode Command Number" : BurstCommand => BurstCommand;
     109 BurstModeControl Burst write "Burst Mode Control" : BurstModeControlRequest => BurstModeControlRequest;
+    // HART-IP's client subscriptions, answered by a HART-IP server for the session.
+    // 533 changes the session, not a device's configuration: write protection does
+    // not apply (`action`), access control counts it a write.
+    532 ReadClientSubscriptionSummary CommonPractice read "Read Client Subscription Summary" : SubscriptionSelect => ClientSubscription;
+    533 WriteClientSubscriptionFlags CommonPractice action "Write Client Subscription Flags" : ClientSubscription => ClientSubscription;
 }
 
 impl fmt::Display for CommandInfo {
@@ -1355,7 +1689,13 @@ mod access_tests {
             assert_eq!(access(c), Access::Write, "{c}");
         }
         assert_eq!(access(77), Access::Wrapper);
+        assert!(info(77).is_some_and(|i| !i.writes));
         assert_eq!(access(78), Access::Wrapper);
+        // HART-IP's client subscriptions: reading one only reads; writing one changes
+        // the session, which write protection does not cover.
+        assert_eq!(access(532), Access::Read);
+        assert_eq!(access(533), Access::Write);
+        assert!(!info(533).unwrap().writes);
         for c in [
             4, 5, 10, 23, 31, 128, 129, 200, 253, 254, 255, 514, 4096, 65535,
         ] {
@@ -1375,5 +1715,140 @@ mod access_tests {
             assert_eq!(super::title(n), Some(title));
         }
         assert_eq!(title(17), Some("Write Message"));
+    }
+}
+
+#[cfg(test)]
+mod helper_tests {
+    use super::*;
+    use crate::frame::{Address, Frame, UniqueId};
+
+    #[test]
+    fn additional_status_parts_lay_out_as_the_table_says() {
+        let parts = AdditionalStatusParts {
+            device_specific_status: [1, 2, 3, 4, 5, 6],
+            extended_status: ExtendedStatus(7),
+            operating_mode: OperatingMode(8),
+            standardized_status_0: StandardizedStatus0(9),
+            standardized_status_1: StandardizedStatus1(10),
+            analog_channel_saturated: AnalogChannelSaturated(11),
+            standardized_status_2: StandardizedStatus2(12),
+            standardized_status_3: StandardizedStatus3(13),
+            analog_channel_fixed: AnalogChannelFixed(14),
+        };
+        let s = AdditionalStatus::from(parts);
+        assert_eq!(s.as_slice(), &(1..=14).collect::<std::vec::Vec<u8>>()[..]);
+        for &(at, len, name, _) in &ADDITIONAL_STATUS_PARTS[1..9] {
+            assert_eq!(len, 1, "{name}");
+            let got = match name {
+                "extended_status" => s.extended_status().map(|x| x.0),
+                "operating_mode" => s.operating_mode().map(|x| x.0),
+                "standardized_status_0" => s.standardized_status_0().map(|x| x.0),
+                "standardized_status_1" => s.standardized_status_1().map(|x| x.0),
+                "analog_channel_saturated" => s.analog_channel_saturated().map(|x| x.0),
+                "standardized_status_2" => s.standardized_status_2().map(|x| x.0),
+                "standardized_status_3" => s.standardized_status_3().map(|x| x.0),
+                "analog_channel_fixed" => s.analog_channel_fixed().map(|x| x.0),
+                other => panic!("{other}"),
+            };
+            assert_eq!(got, Some(at as u8 + 1), "{name}");
+        }
+        assert_eq!(s.device_specific_status(), &[1, 2, 3, 4, 5, 6]);
+        assert_eq!(s.acknowledged(), &[1, 2, 3, 4, 5, 6, 7, 8, 9]);
+    }
+
+    #[test]
+    fn a_short_additional_status_has_no_later_parts() {
+        let s = AdditionalStatus(Bytes::new(&[1, 2, 3]).unwrap());
+        assert_eq!(s.device_specific_status(), &[1, 2, 3]);
+        assert_eq!(s.acknowledged(), &[1, 2, 3]);
+        assert_eq!(s.extended_status(), None);
+        assert_eq!(s.analog_channel_fixed(), None);
+    }
+
+    #[test]
+    fn a_request_frames_itself_and_extends_numbers_above_255() {
+        let id = UniqueId::new(0x1234, 0x56789A);
+        let r = Request::WritePvDamping(Damping {
+            damping: Seconds(2.0),
+        });
+        let fb = r.frame(Address::long(id)).unwrap();
+        let f = fb.frame().unwrap();
+        assert_eq!(f.command, 34);
+        assert_eq!(f.data, &r.to_vec().unwrap()[..]);
+        assert_eq!(fb.to_vec(), fb.as_slice());
+        let mut spec_buf = [0u8; 64];
+        let n = crate::frame::FrameSpec {
+            preambles: 0,
+            ..crate::frame::FrameSpec::request(Address::long(id), 34, f.data)
+        }
+        .encode(&mut spec_buf)
+        .unwrap();
+        assert_eq!(fb.as_slice(), &spec_buf[..n]);
+        assert!(Frame::parse_pdu(fb.as_slice()).unwrap().checksum_ok());
+    }
+
+    #[test]
+    fn response_to_vec_is_its_encoding() {
+        let r = Response::WritePvUnits(PvUnits {
+            pv_units: UnitCode(12),
+        });
+        assert_eq!(r.to_vec().unwrap(), std::vec![12]);
+    }
+
+    #[test]
+    fn the_burst_command_comes_from_either_form() {
+        let mut c = BurstConfiguration {
+            command_expansion: 3,
+            ..Default::default()
+        };
+        assert_eq!(c.burst_command(), 3);
+        c.command_expansion = 31;
+        c.command_number = Some(CommandNumber(9));
+        assert_eq!(c.burst_command(), 9);
+    }
+
+    #[test]
+    fn command_77_wraps_a_frame_and_gives_it_back() {
+        let id = UniqueId::new(0x1234, 0x56789A);
+        let inner = Request::ReadPrimaryVariable(Empty {})
+            .frame(Address::long(id))
+            .unwrap();
+        let r = SendCommandToSubDevice::wrap(1, 2, 5, &inner).unwrap();
+        assert_eq!(
+            r.frame.as_slice(),
+            &inner.as_slice()[..inner.as_slice().len() - 1]
+        );
+        let mut buf = [0u8; crate::frame::MAX_PDU_LEN];
+        let f = r.embedded_frame(&mut buf).unwrap();
+        assert_eq!((f.command, f.checksum_ok()), (1, true));
+        let data = Request::SendCommandToSubDevice(r).to_vec().unwrap();
+        assert_eq!(&data[..3], &[1, 2, 5]);
+        assert_eq!(
+            decode_request(77, &data),
+            Some(Ok(Request::SendCommandToSubDevice(r)))
+        );
+        // Bytes that are no frame are an error, not a panic.
+        let junk = SendCommandToSubDeviceResponse {
+            io_card: 0,
+            channel: 0,
+            frame: Bytes::new(&[0x86]).unwrap(),
+        };
+        assert!(junk.embedded_frame(&mut buf).is_err());
+    }
+
+    #[test]
+    fn a_client_subscription_round_trips() {
+        let data = [0xC0, 0, 0, 0, 0, 0x00, 0x01];
+        let Some(Ok(Request::WriteClientSubscriptionFlags(s))) = decode_request(533, &data) else {
+            panic!("533 does not decode");
+        };
+        assert_eq!(s.flags, 1);
+        assert_eq!(s.unique_id.unique_id(), UniqueId::BROADCAST);
+        assert_eq!(
+            Request::WriteClientSubscriptionFlags(s).to_vec().unwrap(),
+            data
+        );
+        assert!(matches!(decode_request(532, &[0; 4]), Some(Err(_))));
     }
 }

@@ -917,6 +917,12 @@ impl FrameBuf {
     pub fn frame(&self) -> Result<Frame<'_>, FrameError> {
         Frame::parse_pdu(self.as_slice())
     }
+
+    /// The PDU bytes, copied.
+    #[cfg(feature = "std")]
+    pub fn to_vec(&self) -> std::vec::Vec<u8> {
+        self.as_slice().to_vec()
+    }
 }
 
 impl fmt::Debug for FrameBuf {

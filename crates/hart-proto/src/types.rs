@@ -384,6 +384,11 @@ impl HartTime {
         self.0 / Self::TICKS_PER_MS
     }
 
+    /// Microseconds, rounded down (one tick is 31.25 µs).
+    pub fn as_micros(&self) -> u64 {
+        u64::from(self.0) * 1000 / u64::from(Self::TICKS_PER_MS)
+    }
+
     /// Seconds as a float.
     pub fn as_secs_f64(&self) -> f64 {
         f64::from(self.0) / 32_000.0
@@ -960,6 +965,12 @@ mod tests {
         }
         .is_valid());
         assert_eq!(HartTime(0x5265_C000).as_millis(), 12 * 3_600_000);
+        assert_eq!(HartTime(0x5265_C000).as_micros(), 12 * 3_600_000_000);
+        assert_eq!(HartTime(1).as_micros(), 31);
+        assert_eq!(
+            HartTime(u32::MAX).as_micros(),
+            u64::from(u32::MAX) * 1000 / 32
+        );
         // Noon on any day, from a Unix time in microseconds.
         assert_eq!(
             HartTime::time_of_day((20_000 * 86_400 + 12 * 3_600) * 1_000_000 + 999),

@@ -303,7 +303,7 @@ fn encode_every_case() {
             expansion: &[],
             physical_layer: 0,
             command: c.command,
-            extended: c.command > 255,
+            extended: false,
             status: c.status,
             data: c.data,
         };

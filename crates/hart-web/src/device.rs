@@ -195,14 +195,11 @@ pub(crate) async fn read(
              try again when the plant view shows its unique ID",
         )
     })?;
-    let pdu = hart_poller::line::pdu(&FrameSpec {
-        extended: command > 255,
-        ..FrameSpec::request(
-            Address::long(id).with_master(MasterKind::Primary),
-            command,
-            data,
-        )
-    });
+    let pdu = hart_poller::line::pdu(&FrameSpec::request(
+        Address::long(id).with_master(MasterKind::Primary),
+        command,
+        data,
+    ));
     // The dashboard's reads pass the engine's gate as reads: a command that is not
     // known to only read is refused, whoever is logged in (writes take the typed path).
     let reader = hart_poller::Requester::reader("web", "web dashboard read");

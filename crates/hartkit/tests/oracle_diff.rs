@@ -85,7 +85,7 @@ fn generated(n: usize) -> Vec<Vec<u8>> {
             expansion: if rng.below(20) == 0 { &[0x00] } else { &[] },
             physical_layer: 0,
             command,
-            extended: command > 255,
+            extended: false,
             status: Some((rc, rng.next() as u8)),
             data: &data,
         };

@@ -13,13 +13,10 @@ pub fn run(test: impl std::future::Future<Output = ()>) {
     tokio::task::LocalSet::new().block_on(&rt, test);
 }
 
-/// A request PDU (an extended frame for commands above 255).
+/// A request PDU (hart-proto extends commands above 255 itself).
 pub fn frame(address: Address, command: u16, data: &[u8]) -> Vec<u8> {
-    FrameBuf::encode(&FrameSpec {
-        extended: command > 255,
-        ..FrameSpec::request(address, command, data)
-    })
-    .unwrap()
-    .as_slice()
-    .to_vec()
+    FrameBuf::encode(&FrameSpec::request(address, command, data))
+        .unwrap()
+        .as_slice()
+        .to_vec()
 }
