@@ -407,6 +407,13 @@ pub async fn open_async(target: &str) -> Result<AnyTransport, String> {
     open_async_with(target, None).await
 }
 
+/// What to give for a secure HART-IP target opened without a pre-shared key.
+fn needs_psk(target: &str) -> String {
+    format!(
+        "--port {target}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
+    )
+}
+
 /// Opens a master client on `target` (the `--port` syntax of [`parse`]) in `role`.
 ///
 /// A target that does not read, or a secure HART-IP target without a pre-shared key,
@@ -421,9 +428,7 @@ pub async fn connect(
 ) -> Result<crate::Client<AnyTransport>, crate::HostError> {
     let parsed = parse(target).map_err(crate::HostError::Usage)?;
     if matches!(parsed, Target::HartIp { secure: true, .. }) && psk.is_none() {
-        return Err(crate::HostError::Usage(format!(
-            "--port {target}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
-        )));
+        return Err(crate::HostError::Usage(needs_psk(target)));
     }
     let t = open_async_with(target, psk)
         .await
@@ -444,11 +449,7 @@ pub async fn open_async_with(
     } = parse(target)?
     {
         let psk = match (secure, psk) {
-            (true, None) => {
-                return Err(format!(
-                    "--port {target}: a secure HART-IP target needs a pre-shared key: --psk IDENTITY:HEXKEY or --psk-file FILE"
-                ))
-            }
+            (true, None) => return Err(needs_psk(target)),
             (true, Some(k)) => Some(k.clone()),
             (false, _) => None,
         };
