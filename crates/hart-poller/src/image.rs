@@ -554,6 +554,55 @@ impl Changes {
     }
 }
 
+/// Why no request can be built for an image position ([`Image::request_for`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unaddressable {
+    /// No device at that position.
+    NoSuchDevice,
+    /// Not identified yet (no command 0 reply): its unique ID is not known.
+    NotIdentified,
+    /// The request does not encode (a typed value breaking its layout's own rule).
+    Encode(hart_proto::wire::EncodeError),
+}
+
+impl std::fmt::Display for Unaddressable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Unaddressable::NoSuchDevice => f.write_str("no such device"),
+            Unaddressable::NotIdentified => f.write_str(
+                "the device has not been identified yet (it has not answered command 0)",
+            ),
+            Unaddressable::Encode(e) => write!(f, "the request does not encode: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for Unaddressable {}
+
+/// A request for one device of the image ([`Image::request_for`]): the loop it goes
+/// on, the device, and its frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DeviceRequest {
+    /// The loop (channel) the device is on.
+    pub channel: u8,
+    /// The device's unique ID, the frame's address.
+    pub unique_id: UniqueId,
+    /// The frame, delimiter through check byte, no preambles.
+    pub pdu: Vec<u8>,
+}
+
+/// The frame [`Image::request_for`] builds, for a device known by its unique ID only
+/// (identification and tags before it has a position; an I/O system's sub-device):
+/// a long frame from the primary master.
+pub fn request_pdu(
+    id: UniqueId,
+    request: &hart_proto::Request,
+) -> Result<Vec<u8>, hart_proto::wire::EncodeError> {
+    request
+        .frame(hart_proto::frame::Address::long(id))
+        .map(|b| b.as_slice().to_vec())
+}
+
 /// Every device's image, shared by the engine (which writes) and the front ends (which
 /// read). Each change is one commit under the image's lock: announced by position on
 /// a broadcast channel ([`Image::subscribe`], for readers that look at the current
@@ -649,6 +698,27 @@ impl Image {
     /// Calls `f` with the image at `position` without copying it.
     pub fn with<R>(&self, position: usize, f: impl FnOnce(&DeviceImage) -> R) -> Option<R> {
         self.read().get(position).map(f)
+    }
+
+    /// The one place a request for the device at image `position` is built: `request`
+    /// in a long frame to the device's unique ID, from the primary master (the
+    /// engine's role on every loop), with the loop it goes on. The command number,
+    /// and the command-31 form for numbers above 255, come from hart-proto.
+    pub fn request_for(
+        &self,
+        position: usize,
+        request: &hart_proto::Request,
+    ) -> Result<DeviceRequest, Unaddressable> {
+        let (channel, id) = self
+            .with(position, |d| (d.channel, d.unique_id()))
+            .ok_or(Unaddressable::NoSuchDevice)?;
+        let unique_id = id.ok_or(Unaddressable::NotIdentified)?;
+        let pdu = request_pdu(unique_id, request).map_err(Unaddressable::Encode)?;
+        Ok(DeviceRequest {
+            channel,
+            unique_id,
+            pdu,
+        })
     }
 
     /// Receives the position of every device whose image changed. A receiver more

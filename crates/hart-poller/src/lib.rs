@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use hart_access::Allowed;
 use hart_host::DeviceInfo;
-use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
+use hart_proto::frame::{Address, Frame};
 use tokio::sync::{broadcast, mpsc, watch, Mutex};
 
 pub mod config;
@@ -40,13 +40,16 @@ pub use hart_access::{Refusal, Rights};
 use hart_clock as clock;
 /// The engine's one clock (hart-clock's).
 pub use hart_clock::Clock;
-pub use image::{Change, Changes, DeviceImage, Image, LastPoll, Quality, RangeInfo, Variable};
+pub use image::{
+    request_pdu, Change, Changes, DeviceImage, DeviceRequest, Image, LastPoll, Quality, RangeInfo,
+    Unaddressable, Variable,
+};
 pub use lease::{LeaseTerms, LoopTest};
 pub use line::{Babble, Faults, Line, MemoryLoop, Reopening};
 pub use request::{LoopOutcome, LoopRequest, LOOP_QUEUE, MAX_QUEUE_WAIT};
 pub use task::{
-    FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, RESCAN_IDLE, RETRY_DEAD_AFTER, SCAN_GRACE,
-    STOP_RELEASE_TRIES,
+    FAIR_SHARE, MISSES_TO_FORGET, POLL_RETRIES, POLL_SLOTS_6, POLL_SLOTS_7, RESCAN_IDLE,
+    RETRY_DEAD_AFTER, SCAN_GRACE, STOP_RELEASE_TRIES,
 };
 pub use write::{Applied, DeviceRefusal, WriteFailure, WriteOp};
 
@@ -569,50 +572,52 @@ impl Engine {
         }
     }
 
-    /// Sends `command` with `data` to the device at image `position`, ahead of every
-    /// poll and client request of its loop, and returns the device's answer (whatever
-    /// its response code: the caller judges it). After a write that changes the
+    /// Sends `request` to the device at image `position`, ahead of every poll and
+    /// client request of its loop, and returns the device's answer (whatever its
+    /// response code: the caller judges it). After a write that changes the
     /// configuration, the engine reads the device's configuration again. Not public:
     /// every write goes through [`Engine::apply`], which asks the policy and audits.
     pub(crate) async fn write(
         &self,
         position: usize,
-        command: u16,
-        data: &[u8],
+        request: &hart_proto::Request,
         lease: LeaseTerms,
-    ) -> Result<WriteReply, WriteError> {
-        let (channel, id) = self
+    ) -> Result<WriteReply, WriteFailure> {
+        let built = self
             .shared
             .image
-            .with(position, |d| (d.channel, d.unique_id()))
-            .ok_or(WriteError::UnknownDevice)?;
-        let id = id.ok_or(WriteError::UnknownDevice)?;
-        let pdu = line::pdu(&FrameSpec::request(
-            Address::long(id).with_master(MasterKind::Primary),
-            command,
-            data,
-        ));
+            .request_for(position, request)
+            .map_err(|e| match e {
+                image::Unaddressable::Encode(e) => WriteFailure::Invalid(e.to_string()),
+                _ => WriteFailure::Link(WriteError::UnknownDevice),
+            })?;
         let queue = self
             .writes
-            .get(usize::from(channel))
-            .ok_or(WriteError::UnknownDevice)?;
-        match request::submit(queue, pdu, POLL_RETRIES, lease).await {
-            LoopOutcome::Busy => Err(WriteError::Busy),
-            LoopOutcome::NoReply => Err(WriteError::NoReply),
-            LoopOutcome::Reply(r) => {
-                let f = Frame::parse_pdu(&r).map_err(|e| WriteError::BadReply(e.to_string()))?;
-                if f.is_communication_error() {
-                    return Err(WriteError::BadReply(format!(
-                        "the device reports a communication error ({:#04x}); check the loop's wiring and noise",
-                        f.response_code.unwrap_or(0)
-                    )));
-                }
-                Ok(WriteReply {
-                    response_code: f.response_code.unwrap_or(0),
-                    device_status: f.device_status.unwrap_or(0),
-                    data: f.data.to_vec(),
-                })
+            .get(usize::from(built.channel))
+            .ok_or(WriteFailure::Link(WriteError::UnknownDevice))?;
+        write_reply(request::submit(queue, built.pdu, POLL_RETRIES, lease).await)
+            .map_err(WriteFailure::Link)
+    }
+}
+
+/// What a write's [`LoopOutcome`] means: the device's answer, or why there is none.
+fn write_reply(outcome: LoopOutcome) -> Result<WriteReply, WriteError> {
+    match outcome {
+        LoopOutcome::Busy => Err(WriteError::Busy),
+        LoopOutcome::NoReply => Err(WriteError::NoReply),
+        LoopOutcome::Reply(r) => {
+            let f = Frame::parse_pdu(&r).map_err(|e| WriteError::BadReply(e.to_string()))?;
+            if f.is_communication_error() {
+                return Err(WriteError::BadReply(format!(
+                    "the device reports a communication error ({:#04x}); check the loop's wiring and noise",
+                    f.response_code.unwrap_or(0)
+                )));
             }
+            Ok(WriteReply {
+                response_code: f.response_code.unwrap_or(0),
+                device_status: f.device_status.unwrap_or(0),
+                data: f.data.to_vec(),
+            })
         }
     }
 }

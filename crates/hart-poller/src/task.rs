@@ -11,19 +11,21 @@ use std::time::{Duration, Instant};
 
 use hart_host::DeviceInfo;
 use hart_proto::command::{
-    Damping, FixedCurrent, Identity, LongTag, RangeValues, TagDescriptorDate,
+    Damping, Empty, FixedCurrent, Identity, LongTag, RangeValues, ReadDeviceVariablesRequest,
+    TagDescriptorDate,
 };
-use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind, UniqueId};
+use hart_proto::frame::{Address, Frame, UniqueId};
 use hart_proto::tables::field_device_status as fds;
-use hart_proto::types::{Seconds, UnitCode};
-use hart_proto::wire::{Reader, Wire};
+use hart_proto::types::{DeviceVariableCode, MilliAmps, Seconds, UnitCode};
+use hart_proto::wire::{List, Reader, Wire};
+use hart_proto::Request;
 use tokio::sync::mpsc;
 
 use crate::clock::Clock;
 use crate::config::{LoopSettings, ReadCommand};
-use crate::image::{DeviceImage, LastPoll};
+use crate::image::{request_pdu, DeviceImage, LastPoll};
 use crate::lease::{LeaseTerms, Leases, LoopTest, ReleaseReason};
-use crate::line::{pdu, Line};
+use crate::line::Line;
 use crate::request::{LoopOutcome, LoopRequest};
 use crate::schedule::{Micros, Schedule};
 use crate::{Shared, SubDevice, TrafficFrame, TrafficKind};
@@ -55,6 +57,35 @@ pub const RETRY_DEAD_AFTER: Duration = Duration::from_secs(2);
 /// Commands whose success changes what command 15 or the tags report: the device's
 /// configuration is read again after one of them goes through the engine.
 const CONFIG_WRITES: &[u16] = &[6, 17, 18, 22, 34, 35, 36, 37, 40, 44, 45, 46, 47, 53, 79];
+
+/// The device variables a command 9 poll reads from a HART 7 device: PV, SV, TV, QV,
+/// percent of range, loop current (HART 7 allows 8 slots).
+pub const POLL_SLOTS_7: [DeviceVariableCode; 6] = [
+    DeviceVariableCode(246),
+    DeviceVariableCode(247),
+    DeviceVariableCode(248),
+    DeviceVariableCode(249),
+    DeviceVariableCode(244),
+    DeviceVariableCode(245),
+];
+
+/// The device variables a command 9 poll reads from a HART 6 device (4 slots at most):
+/// PV, SV, TV, QV.
+pub const POLL_SLOTS_6: [DeviceVariableCode; 4] = [
+    DeviceVariableCode(246),
+    DeviceVariableCode(247),
+    DeviceVariableCode(248),
+    DeviceVariableCode(249),
+];
+
+/// Command 0 to polling address `poll` (identification before the unique ID is
+/// known), as a frame without preambles.
+fn identify_request(poll: u8) -> Vec<u8> {
+    Request::ReadUniqueIdentifier(Empty {})
+        .frame(Address::short(poll))
+        .map(|b| b.as_slice().to_vec())
+        .unwrap_or_default()
+}
 
 /// Per device, what the task keeps besides the image.
 #[derive(Debug, Clone, Default)]
@@ -480,11 +511,10 @@ impl LoopTask {
             self.leases.forget(position);
             return true;
         };
-        let request = pdu(&FrameSpec::request(
-            Address::long(id).with_master(MasterKind::Primary),
-            40,
-            &0f32.to_be_bytes(),
-        ));
+        let leave = Request::EnterExitFixedCurrent(FixedCurrent {
+            loop_current: MilliAmps(0.0),
+        });
+        let request = request_pdu(id, &leave).unwrap_or_default();
         let record = hart_access::WriteRecord {
             front_end: "engine",
             peer: "-".into(),
@@ -647,7 +677,7 @@ impl LoopTask {
         let Some(other) = other else {
             return;
         };
-        let request = pdu(&FrameSpec::request(Address::short(other), 0, &[]));
+        let request = identify_request(other);
         let again = self.transact(&request, 1).await;
         let same = again
             .as_deref()
@@ -681,7 +711,7 @@ impl LoopTask {
     /// reads its tag and descriptor (command 13) and, from HART 6 on, its long tag
     /// (command 20).
     async fn identify(&mut self, poll: u8) -> Option<DeviceInfo> {
-        let request = pdu(&FrameSpec::request(Address::short(poll), 0, &[]));
+        let request = identify_request(poll);
         let reply = self.transact(&request, 1).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() || f.response_code != Some(0) {
@@ -694,14 +724,24 @@ impl LoopTask {
     }
 
     async fn read_tags(&mut self, info: &mut DeviceInfo) {
-        if let Some((0, _, data)) = self.command(info, 13, &[], POLL_RETRIES).await {
+        if let Some((0, _, data)) = self
+            .command(
+                info,
+                &Request::ReadTagDescriptorDate(Empty {}),
+                POLL_RETRIES,
+            )
+            .await
+        {
             if let Ok(t) = TagDescriptorDate::decode(&mut Reader::new(&data)) {
                 info.tag = Some(t.tag.to_string().trim_end().to_string());
                 info.descriptor = Some(t.descriptor.to_string().trim_end().to_string());
             }
         }
         if info.revision() >= 6 {
-            if let Some((0, _, data)) = self.command(info, 20, &[], POLL_RETRIES).await {
+            if let Some((0, _, data)) = self
+                .command(info, &Request::ReadLongTag(Empty {}), POLL_RETRIES)
+                .await
+            {
                 if let Ok(t) = LongTag::decode(&mut Reader::new(&data)) {
                     info.long_tag = Some(t.long_tag.to_string().trim_end().to_string());
                 }
@@ -709,20 +749,15 @@ impl LoopTask {
         }
     }
 
-    /// Sends `command` to a known device by its unique ID: (response code, device
+    /// Sends `request` to a known device by its unique ID: (response code, device
     /// status, data), or `None` for no reply or a communication error.
     async fn command(
         &mut self,
         info: &DeviceInfo,
-        command: u16,
-        data: &[u8],
+        request: &Request,
         retries: u8,
     ) -> Option<(u8, u8, Vec<u8>)> {
-        let request = pdu(&FrameSpec::request(
-            Address::long(info.unique_id()).with_master(MasterKind::Primary),
-            command,
-            data,
-        ));
+        let request = request_pdu(info.unique_id(), request).ok()?;
         let reply = self.transact(&request, retries).await?;
         let f = Frame::parse_pdu(&reply).ok()?;
         if f.is_communication_error() {
@@ -851,23 +886,27 @@ impl LoopTask {
         let (_, read) = self.device_settings(img.polling_address);
         let mut st = self.polled.get(&position).cloned().unwrap_or_default();
         let use_9 = read == ReadCommand::Variables && info.revision() >= 6 && !st.no_command_9;
-        let (command, data): (u16, Vec<u8>) = if use_9 {
+        let request = if use_9 {
             // PV..QV, percent of range, loop current: 6 slots (HART 7 allows 8, HART 6
             // only 4: there PV..QV).
-            if info.revision() >= 7 {
-                (9, vec![246, 247, 248, 249, 244, 245])
+            let slots: &[DeviceVariableCode] = if info.revision() >= 7 {
+                &POLL_SLOTS_7
             } else {
-                (9, vec![246, 247, 248, 249])
-            }
+                &POLL_SLOTS_6
+            };
+            Request::ReadDeviceVariablesWithStatus(ReadDeviceVariablesRequest {
+                slots: List::from_slice(slots).unwrap_or_default(),
+            })
         } else {
-            (3, vec![])
+            Request::ReadDynamicVariables(Empty {})
         };
+        let command = request.command();
         let retries = if img.last_poll == LastPoll::NoReply {
             1
         } else {
             POLL_RETRIES
         };
-        let reply = self.command(&info, command, &data, retries).await;
+        let reply = self.command(&info, &request, retries).await;
         let Some((rc, status, data)) = reply else {
             if img.last_poll != LastPoll::NoReply {
                 tracing::warn!(
@@ -912,14 +951,28 @@ impl LoopTask {
         let tags = st.refresh_tags || img.config_changed_pending;
         if status & fds::MORE_STATUS_AVAILABLE != 0 {
             self.carry_writes().await;
-            if let Some((rc, status, data)) = self.command(&info, 48, &[], POLL_RETRIES).await {
+            if let Some((rc, status, data)) = self
+                .command(
+                    &info,
+                    &Request::ReadAdditionalStatus(Default::default()),
+                    POLL_RETRIES,
+                )
+                .await
+            {
                 replies.push(Reply::new(&self.clock, 48, rc, status, data));
             }
         }
         let mut fresh_tags = None;
         if reread {
             self.carry_writes().await;
-            if let Some((rc, status, data)) = self.command(&info, 15, &[], POLL_RETRIES).await {
+            if let Some((rc, status, data)) = self
+                .command(
+                    &info,
+                    &Request::ReadDeviceInformation(Empty {}),
+                    POLL_RETRIES,
+                )
+                .await
+            {
                 replies.push(Reply::new(&self.clock, 15, rc, status, data));
             }
             if tags {

@@ -5,8 +5,13 @@
 //! into its own words (Modbus exceptions, OPC UA status codes).
 
 use hart_access::{NotPermitted, WriteOutcome, WriteRecord};
+use hart_proto::command::{
+    Damping, Empty, FixedCurrent, LongTag, Message, PvUnits, RangeValues, TagDescriptorDate,
+};
 use hart_proto::tables::{rc, response_class, ResponseClass};
-use hart_proto::types::{Date, Latin1String, PackedString};
+use hart_proto::types::{Date, Latin1String, MilliAmps, PackedString, Seconds, UnitCode};
+use hart_proto::wire::{Reader, Wire};
+use hart_proto::Request;
 
 use crate::lease::LeaseTerms;
 use crate::{Engine, WriteError, WriteReply};
@@ -354,8 +359,8 @@ impl Engine {
         // The device's own lock: a read-modify-write (command 13 then 18) is never
         // interleaved with another write to the same device.
         let _turn = self.device_lock(position).lock_owned().await;
-        let data = match self.encode(position, op).await {
-            Ok(d) => d,
+        let request = match self.request(position, op).await {
+            Ok(r) => r,
             Err(e) => {
                 let n = audit.record(&record);
                 audit.outcome(n, &record, &e.outcome());
@@ -363,8 +368,8 @@ impl Engine {
             }
         };
         let n = audit.record(&record);
-        let result = match self.write(position, command, &data, lease).await {
-            Err(e) => Err(WriteFailure::Link(e)),
+        let result = match self.write(position, &request, lease).await {
+            Err(e) => Err(e),
             Ok(reply) => match DeviceRefusal::of(command, reply.response_code) {
                 None => Ok(reply),
                 Some(refusal) => Err(WriteFailure::Refused {
@@ -399,9 +404,11 @@ impl Engine {
         })
     }
 
-    /// The request data of `op` for the device at `position`.
-    async fn encode(&self, position: usize, op: &WriteOp) -> Result<Vec<u8>, WriteFailure> {
-        let f32s = |v: &[f32]| v.iter().flat_map(|x| x.to_be_bytes()).collect::<Vec<u8>>();
+    /// The request that carries `op` to the device at `position`: a part of the
+    /// range not given is the device's own (from the image), and the tag,
+    /// descriptor and date not written are read first (command 13), since command 18
+    /// writes the three together.
+    async fn request(&self, position: usize, op: &WriteOp) -> Result<Request, WriteFailure> {
         Ok(match op {
             WriteOp::Range {
                 upper,
@@ -421,29 +428,15 @@ impl Engine {
                     ),
                     (_, _, _, None) => return Err(WriteFailure::NotReadYet("range")),
                 };
-                let mut d = vec![u];
-                d.extend(f32s(&[up, lo]));
-                d
+                Request::WritePvRange(RangeValues {
+                    range_units: UnitCode(u),
+                    upper_range_value: up,
+                    lower_range_value: lo,
+                })
             }
-            WriteOp::Damping(s) => f32s(&[*s]),
-            // -0.0 leaves fixed current mode as 0.0 does: sent as 0.0.
-            WriteOp::FixedCurrent(ma) => f32s(&[if *ma == 0.0 { 0.0 } else { *ma }]),
-            WriteOp::PvUnits(u) => vec![*u],
-            WriteOp::Message(t) => PackedString::<24>::new(t)
-                .map_err(|_| WriteFailure::Invalid(format!("message {t:?}")))?
-                .0
-                .to_vec(),
-            WriteOp::LongTag(t) => Latin1String::<32>::new(t)
-                .map_err(|_| WriteFailure::Invalid(format!("long tag {t:?}")))?
-                .0
-                .to_vec(),
             WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => {
-                // Command 18 writes tag, descriptor and date together: read the ones
-                // kept (command 13) first.
-                let current = self
-                    .write(position, 13, &[], LeaseTerms::default())
-                    .await
-                    .map_err(WriteFailure::Link)?;
+                let read = Request::ReadTagDescriptorDate(Empty {});
+                let current = self.write(position, &read, LeaseTerms::default()).await?;
                 if let Some(refusal) = DeviceRefusal::of(13, current.response_code) {
                     return Err(WriteFailure::Refused {
                         command: 13,
@@ -451,39 +444,71 @@ impl Engine {
                         refusal,
                     });
                 }
-                let mut d = current
-                    .data
-                    .get(..21)
-                    .ok_or_else(|| {
-                        WriteFailure::Link(WriteError::BadReply(
-                            "command 13's reply is shorter than 21 bytes".into(),
-                        ))
-                    })?
-                    .to_vec();
+                let mut t =
+                    TagDescriptorDate::decode(&mut Reader::new(&current.data)).map_err(|e| {
+                        WriteFailure::Link(WriteError::BadReply(format!(
+                            "command 13's reply does not hold the tag, descriptor and date: {e}"
+                        )))
+                    })?;
                 match op {
-                    WriteOp::Tag(t) => d[..6].copy_from_slice(
-                        &PackedString::<6>::new(t)
-                            .map_err(|_| WriteFailure::Invalid(format!("tag {t:?}")))?
-                            .0,
-                    ),
-                    WriteOp::Descriptor(t) => d[6..18].copy_from_slice(
-                        &PackedString::<12>::new(t)
-                            .map_err(|_| WriteFailure::Invalid(format!("descriptor {t:?}")))?
-                            .0,
-                    ),
-                    WriteOp::Date(date) => {
-                        let mut b = [0u8; 3];
-                        let _ = hart_proto::wire::Wire::encode(
-                            date,
-                            &mut hart_proto::wire::Writer::new(&mut b),
-                        );
-                        d[18..21].copy_from_slice(&b);
-                    }
+                    WriteOp::Tag(v) => t.tag = packed(v, "tag")?,
+                    WriteOp::Descriptor(v) => t.descriptor = packed(v, "descriptor")?,
+                    WriteOp::Date(d) => t.date = *d,
                     _ => {}
                 }
-                d
+                Request::WriteTagDescriptorDate(t)
             }
+            other => match other.request() {
+                Some(r) => r?,
+                None => return Err(WriteFailure::NotReadYet("the device's configuration")),
+            },
         })
+    }
+}
+
+/// `text` as a packed string of `N` bytes, or why not.
+fn packed<const N: usize>(text: &str, what: &str) -> Result<PackedString<N>, WriteFailure> {
+    PackedString::<N>::new(text).map_err(|_| WriteFailure::Invalid(format!("{what} {text:?}")))
+}
+
+impl WriteOp {
+    /// The request of an operation that needs nothing from the device; `None` for the
+    /// range given in part and the tag, descriptor and date, which [`Engine::apply`]
+    /// completes from the device first.
+    pub fn request(&self) -> Option<Result<Request, WriteFailure>> {
+        let packed_or = |t: &str, what| packed::<24>(t, what);
+        Some(Ok(match self {
+            WriteOp::Range {
+                upper: Some(up),
+                lower: Some(lo),
+                units: Some(u),
+            } => Request::WritePvRange(RangeValues {
+                range_units: UnitCode(*u),
+                upper_range_value: *up,
+                lower_range_value: *lo,
+            }),
+            WriteOp::Damping(s) => Request::WritePvDamping(Damping {
+                damping: Seconds(*s),
+            }),
+            // -0.0 leaves fixed current mode as 0.0 does: sent as 0.0.
+            WriteOp::FixedCurrent(ma) => Request::EnterExitFixedCurrent(FixedCurrent {
+                loop_current: MilliAmps(if *ma == 0.0 { 0.0 } else { *ma }),
+            }),
+            WriteOp::PvUnits(u) => Request::WritePvUnits(PvUnits {
+                pv_units: UnitCode(*u),
+            }),
+            WriteOp::Message(t) => match packed_or(t, "message") {
+                Ok(message) => Request::WriteMessage(Message { message }),
+                Err(e) => return Some(Err(e)),
+            },
+            WriteOp::LongTag(t) => match Latin1String::<32>::new(t) {
+                Ok(long_tag) => Request::WriteLongTag(LongTag { long_tag }),
+                Err(_) => return Some(Err(WriteFailure::Invalid(format!("long tag {t:?}")))),
+            },
+            WriteOp::Range { .. } | WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => {
+                return None
+            }
+        }))
     }
 }
 
@@ -507,6 +532,55 @@ mod tests {
             DeviceRefusal::of(40, 64),
             Some(DeviceRefusal::NotImplemented)
         );
+    }
+
+    #[test]
+    fn each_operation_is_carried_by_its_own_command() {
+        let ops = [
+            WriteOp::Range {
+                upper: Some(300.0),
+                lower: Some(0.0),
+                units: Some(12),
+            },
+            WriteOp::Damping(2.5),
+            WriteOp::PvUnits(7),
+            WriteOp::FixedCurrent(12.0),
+            WriteOp::FixedCurrent(-0.0),
+            WriteOp::Message("LOOP TEST".into()),
+            WriteOp::LongTag("Reactor feed pressure".into()),
+        ];
+        for op in ops {
+            let request = op.request().expect("complete").expect("valid");
+            assert_eq!(op.command(), request.command(), "{op:?}");
+        }
+        assert_eq!(
+            WriteOp::FixedCurrent(-0.0)
+                .request()
+                .unwrap()
+                .unwrap()
+                .to_vec(),
+            Ok(vec![0, 0, 0, 0]),
+            "-0.0 leaves fixed current mode as 0.0"
+        );
+        for partial in [
+            WriteOp::Range {
+                upper: Some(1.0),
+                lower: None,
+                units: None,
+            },
+            WriteOp::Tag("PT-101".into()),
+            WriteOp::Descriptor("FEED".into()),
+            WriteOp::Date(Date::new(2026, 1, 1).unwrap()),
+        ] {
+            assert!(
+                partial.request().is_none(),
+                "{partial:?} needs the device's values"
+            );
+        }
+        assert!(matches!(
+            WriteOp::Message("{}".into()).request(),
+            Some(Err(WriteFailure::Invalid(_)))
+        ));
     }
 
     #[test]

@@ -16,6 +16,8 @@ use axum::{Json, Router};
 use futures::Stream;
 use hart_access::WriteRecord;
 use hart_poller::WriteOp;
+use hart_proto::command::Empty;
+use hart_proto::Request;
 use serde_json::{json, Value};
 
 use crate::auth::{self, SessionView, LOGIN_COOKIE, SESSION_COOKIE};
@@ -685,46 +687,23 @@ async fn api_device(State(state): St, Path(id): Path<String>) -> Result<Json<Val
 
 async fn api_identity(State(state): St, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
     let p = device::resolve(&state.engine, &id)?;
-    let zero = device::read(&state.engine, p, 0, &[]).await?;
-    let long_tag = device::read(&state.engine, p, 20, &[]).await.ok();
-    Ok(Json(json!({"command_0": zero, "command_20": long_tag})))
-}
-
-async fn read_api(
-    state: &AppState,
-    id: &str,
-    command: u16,
-    data: Vec<u8>,
-) -> Result<Json<Value>, ApiError> {
-    let p = device::resolve(&state.engine, id)?;
-    device::read(&state.engine, p, command, &data)
+    let zero = device::read(&state.engine, p, &Request::ReadUniqueIdentifier(Empty {})).await?;
+    let long_tag = device::read(&state.engine, p, &Request::ReadLongTag(Empty {}))
         .await
-        .map(Json)
+        .ok();
+    Ok(Json(json!({"command_0": zero, "command_20": long_tag})))
 }
 
 async fn api_variables(State(state): St, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
     let p = device::resolve(&state.engine, &id)?;
-    let (revision, max) = state
-        .engine
-        .image()
-        .with(p, |d| {
-            let i = d.info.as_ref();
-            (
-                i.map_or(5, |i| i.revision()),
-                i.and_then(|i| i.identity.max_device_variables),
-            )
-        })
-        .unwrap_or((5, None));
-    let slots = if revision >= 7 { 8 } else { 4 };
-    let codes: Vec<u8> = match max {
-        Some(m) if m > 0 => (0..m.min(slots)).collect(),
-        _ => vec![246, 247, 248, 249],
-    };
-    read_api(&state, &id, 9, codes).await
+    let request = device::variables_request(&state.engine, p);
+    device::read(&state.engine, p, &request).await.map(Json)
 }
 
 async fn api_status(State(state): St, Path(id): Path<String>) -> Result<Json<Value>, ApiError> {
-    read_api(&state, &id, 48, vec![]).await
+    let p = device::resolve(&state.engine, &id)?;
+    let request = Request::ReadAdditionalStatus(Default::default());
+    device::read(&state.engine, p, &request).await.map(Json)
 }
 
 async fn api_burst(
@@ -733,19 +712,14 @@ async fn api_burst(
     Query(q): Q,
 ) -> Result<Json<Value>, ApiError> {
     let p = device::resolve(&state.engine, &id)?;
-    let revision = state
-        .engine
-        .image()
-        .with(p, |d| d.info.as_ref().map_or(5, |i| i.revision()))
-        .unwrap_or(5);
     let message = match q.get("message") {
         Some(m) => m
             .parse::<u8>()
             .map_err(|_| ApiError::bad_request("message: give a burst message number 0-255"))?,
         None => 0,
     };
-    let data = if revision >= 7 { vec![message] } else { vec![] };
-    device::read(&state.engine, p, 105, &data).await.map(Json)
+    let request = device::burst_request(&state.engine, p, message);
+    device::read(&state.engine, p, &request).await.map(Json)
 }
 
 /// The PV and loop current of device `position` over `window` up to now: from the

@@ -6,11 +6,16 @@ use std::collections::BTreeMap;
 use std::time::{Duration, SystemTime};
 
 use axum::http::StatusCode;
-use hart_poller::{DeviceImage, Engine, LoopOutcome, WriteError, WriteFailure, WriteOp};
-use hart_proto::frame::{Address, Frame, FrameSpec, MasterKind};
+use hart_poller::{
+    DeviceImage, Engine, LoopOutcome, Unaddressable, WriteError, WriteFailure, WriteOp,
+};
+use hart_proto::command::{BurstMessageSelect, Empty, ReadDeviceVariablesRequest};
+use hart_proto::frame::Frame;
 use hart_proto::json::{float, JsonVisitor};
 use hart_proto::tables;
-use hart_proto::types::Date;
+use hart_proto::types::{Date, DeviceVariableCode};
+use hart_proto::wire::List;
+use hart_proto::Request;
 use serde_json::{json, Value};
 
 use crate::ApiError;
@@ -175,31 +180,71 @@ pub(crate) fn reply_json(reply: &[u8]) -> Result<Value, ApiError> {
     Ok(v)
 }
 
-/// Sends `command` with `data` to the device at `position` between the loop's polls,
-/// through the engine's gate as a read, and returns its reply as [`reply_json`] gives
-/// it.
+/// The universal revision of the device at `position` (5 when it is not identified).
+fn revision(engine: &Engine, position: usize) -> u8 {
+    engine
+        .image()
+        .with(position, |d| d.info.as_ref().map_or(5, |i| i.revision()))
+        .unwrap_or(5)
+}
+
+/// Command 9's request for the device at `position`: the device variable codes it
+/// has (HART 7: up to 8, HART 6: up to 4), or PV to QV (codes 246-249) when it does
+/// not say.
+pub(crate) fn variables_request(engine: &Engine, position: usize) -> Request {
+    let max = engine
+        .image()
+        .with(position, |d| {
+            d.info
+                .as_ref()
+                .and_then(|i| i.identity.max_device_variables)
+        })
+        .flatten();
+    let slots = if revision(engine, position) >= 7 {
+        8
+    } else {
+        4
+    };
+    let codes: Vec<DeviceVariableCode> = match max {
+        Some(m) if m > 0 => (0..m.min(slots)).map(DeviceVariableCode).collect(),
+        _ => hart_poller::POLL_SLOTS_6.to_vec(),
+    };
+    Request::ReadDeviceVariablesWithStatus(ReadDeviceVariablesRequest {
+        slots: List::from_slice(&codes).unwrap_or_default(),
+    })
+}
+
+/// Command 105's request for burst message `message` of the device at `position`
+/// (a device before HART 7 has one message and takes no number).
+pub(crate) fn burst_request(engine: &Engine, position: usize, message: u8) -> Request {
+    Request::ReadBurstConfiguration(BurstMessageSelect {
+        burst_message: (revision(engine, position) >= 7).then_some(message),
+    })
+}
+
+/// Sends `request` to the device at `position` between the loop's polls, through the
+/// engine's gate as a read, and returns its reply as [`reply_json`] gives it.
 pub(crate) async fn read(
     engine: &Engine,
     position: usize,
-    command: u16,
-    data: &[u8],
+    request: &Request,
 ) -> Result<Value, ApiError> {
-    let (channel, id) = engine
+    let command = request.command();
+    let built = engine
         .image()
-        .with(position, |d| (d.channel, d.unique_id()))
-        .ok_or_else(|| ApiError::not_found("no such device"))?;
-    let id = id.ok_or_else(|| {
-        ApiError::new(
-            StatusCode::CONFLICT,
-            "the device has not been identified yet (it has not answered command 0); \
-             try again when the plant view shows its unique ID",
-        )
-    })?;
-    let pdu = hart_poller::line::pdu(&FrameSpec::request(
-        Address::long(id).with_master(MasterKind::Primary),
-        command,
-        data,
-    ));
+        .request_for(position, request)
+        .map_err(|e| match e {
+            Unaddressable::NoSuchDevice => ApiError::not_found("no such device"),
+            Unaddressable::NotIdentified => ApiError::new(
+                StatusCode::CONFLICT,
+                "the device has not been identified yet (it has not answered command 0); \
+                 try again when the plant view shows its unique ID",
+            ),
+            Unaddressable::Encode(e) => {
+                ApiError::bad_request(format!("command {command}'s request does not encode: {e}"))
+            }
+        })?;
+    let (channel, pdu) = (built.channel, built.pdu);
     // The dashboard's reads pass the engine's gate as reads: a command that is not
     // known to only read is refused, whoever is logged in (writes take the typed path).
     let reader = hart_poller::Requester::reader("web", "web dashboard read");
@@ -422,14 +467,17 @@ pub(crate) fn write_error(e: &WriteFailure) -> ApiError {
 }
 
 /// The command that reads back what `op` wrote.
-fn read_back_command(op: &WriteOp) -> u16 {
+/// The read that shows whether `op` was done.
+fn read_back_request(op: &WriteOp) -> Request {
     match op {
-        WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => 13,
-        WriteOp::Message(_) => 12,
-        WriteOp::LongTag(_) => 20,
-        WriteOp::Range { .. } | WriteOp::Damping(_) => 15,
-        WriteOp::PvUnits(_) => 1,
-        WriteOp::FixedCurrent(_) => 2,
+        WriteOp::Tag(_) | WriteOp::Descriptor(_) | WriteOp::Date(_) => {
+            Request::ReadTagDescriptorDate(Empty {})
+        }
+        WriteOp::Message(_) => Request::ReadMessage(Empty {}),
+        WriteOp::LongTag(_) => Request::ReadLongTag(Empty {}),
+        WriteOp::Range { .. } | WriteOp::Damping(_) => Request::ReadDeviceInformation(Empty {}),
+        WriteOp::PvUnits(_) => Request::ReadPrimaryVariable(Empty {}),
+        WriteOp::FixedCurrent(_) => Request::ReadLoopCurrent(Empty {}),
     }
 }
 
@@ -483,7 +531,7 @@ pub(crate) fn confirms(op: &WriteOp, decoded: &Value, status: u8) -> bool {
 /// Reads back what `op` wrote: the reply (as [`reply_json`]) and whether it shows the
 /// value written.
 pub(crate) async fn read_back(engine: &Engine, position: usize, op: &WriteOp) -> (Value, bool) {
-    match read(engine, position, read_back_command(op), &[]).await {
+    match read(engine, position, &read_back_request(op)).await {
         Ok(v) => {
             let status = v["device_status"].as_u64().unwrap_or(0) as u8;
             let ok = v.get("decoded").is_some_and(|d| confirms(op, d, status));

@@ -3,6 +3,8 @@
 
 use std::fmt::Write as _;
 
+use hart_proto::command::Empty;
+use hart_proto::Request;
 use serde_json::Value;
 
 use crate::html::{esc, fields_table, page, Visitor};
@@ -193,24 +195,32 @@ pub(crate) async fn device(
         )
     );
     let revision = d["hart_revision"].as_u64().unwrap_or(5) as u8;
-    let variables = variables_request(state, position, revision);
-    let reads: [(&str, u16, Vec<u8>); 5] = [
-        ("Identity (command 0)", 0, vec![]),
-        ("Long tag (command 20)", 20, vec![]),
-        ("Device variables (command 9)", 9, variables),
-        ("Additional status (command 48)", 48, vec![]),
+    let reads: [(&str, Request); 5] = [
+        (
+            "Identity (command 0)",
+            Request::ReadUniqueIdentifier(Empty {}),
+        ),
+        ("Long tag (command 20)", Request::ReadLongTag(Empty {})),
+        (
+            "Device variables (command 9)",
+            crate::device::variables_request(engine, position),
+        ),
+        (
+            "Additional status (command 48)",
+            Request::ReadAdditionalStatus(Default::default()),
+        ),
         (
             "Burst configuration (command 105)",
-            105,
-            if revision >= 7 { vec![0] } else { vec![] },
+            crate::device::burst_request(engine, position, 0),
         ),
     ];
     body.push_str("<div class=\"reads\">");
-    for (title, command, data) in reads {
+    for (title, request) in reads {
+        let command = request.command();
         if command == 20 && revision < 6 {
             continue;
         }
-        let inner = match crate::device::read(engine, position, command, &data).await {
+        let inner = match crate::device::read(engine, position, &request).await {
             Ok(v) => reply_html(&v),
             Err(e) => format!("<p class=\"muted\">{}</p>", esc(&e.message)),
         };
@@ -222,25 +232,6 @@ pub(crate) async fn device(
     body.push_str("</div>");
     body.push_str(&forms(state, unit, &d, visitor));
     page(&name, "device", visitor, &body)
-}
-
-/// Command 9's request: the device variable codes the device has (HART 7: up to 8,
-/// HART 6: up to 4), or PV to QV (codes 246-249) when it does not say.
-fn variables_request(state: &AppState, position: usize, revision: u8) -> Vec<u8> {
-    let max = state
-        .engine
-        .image()
-        .with(position, |d| {
-            d.info
-                .as_ref()
-                .and_then(|i| i.identity.max_device_variables)
-        })
-        .flatten();
-    let slots = if revision >= 7 { 8 } else { 4 };
-    match max {
-        Some(m) if m > 0 => (0..m.min(slots)).collect(),
-        _ => vec![246, 247, 248, 249],
-    }
 }
 
 /// A live read's reply as HTML: an error's response code in words, or the fields.
