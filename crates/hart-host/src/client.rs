@@ -6,13 +6,17 @@ use std::collections::VecDeque;
 
 use hart_link::master::{MasterOutput, RetryPolicy};
 use hart_link::{LinkError, Master, Micros};
-use hart_proto::command::Identity;
+use hart_proto::command::{
+    Empty, Identity, IoSystemCapabilities, LongTag, SubDeviceIndex, SubDeviceSummary, TagRequest,
+};
 use hart_proto::frame::{
     Address, Frame, FrameSpec, LongAddress, MasterKind, ShortAddress, UniqueId,
 };
+use hart_proto::tables::field_device_status as fds;
 use hart_proto::tables::{response_class, response_code_name, ResponseClass};
 use hart_proto::types::{Latin1String, PackedString};
 use hart_proto::wire::{Reader, Wire};
+use hart_proto::Request;
 
 use crate::error::HostError;
 use crate::transport::{RxChar, Transport};
@@ -175,36 +179,43 @@ pub struct Client<T: Transport> {
 /// (2 bytes), I/O card, channel, manufacturer ID (2), expanded device type (2), device
 /// ID (3), universal revision, long tag (32), then, from HART 7 on, device revision,
 /// device profile and private label distributor (2).
+/// The data of `request`, or a usage error naming what does not encode.
+fn request_data(request: &Request) -> Result<Vec<u8>, HostError> {
+    request.to_vec().map_err(|e| {
+        HostError::Usage(format!(
+            "command {}'s request does not encode: {e}",
+            request.command()
+        ))
+    })
+}
+
 fn summary_identity(d: &[u8]) -> Option<DeviceInfo> {
-    if d.len() < 44 {
-        return None;
-    }
-    let long_tag = hart_proto::types::Latin1String::<32>(d[12..44].try_into().ok()?).to_string();
+    let s = SubDeviceSummary::decode(&mut Reader::new(d)).ok()?;
     let identity = Identity {
         expansion_code: 254,
-        expanded_device_type: u16::from_be_bytes([d[6], d[7]]),
+        expanded_device_type: s.expanded_device_type,
         min_request_preambles: 5,
-        universal_revision: d[11],
-        device_revision: d.get(44).copied().unwrap_or(0),
+        universal_revision: s.universal_revision,
+        device_revision: s.device_revision.unwrap_or(0),
         software_revision: 0,
         hardware: Default::default(),
         flags: Default::default(),
-        device_id: hart_proto::types::DeviceId(d[8..11].try_into().ok()?),
+        device_id: s.device_id,
         min_response_preambles: None,
         max_device_variables: None,
         config_change_counter: None,
         extended_status: None,
-        manufacturer_id: Some(u16::from_be_bytes([d[4], d[5]])),
-        private_label_distributor: d.get(46..48).map(|b| u16::from_be_bytes([b[0], b[1]])),
-        device_profile: d.get(45).map(|&p| hart_proto::types::DeviceProfile(p)),
+        manufacturer_id: Some(s.manufacturer_id),
+        private_label_distributor: s.private_label_distributor,
+        device_profile: s.device_profile,
     };
     Some(DeviceInfo {
         polling_address: None,
         identity,
         tag: None,
         descriptor: None,
-        long_tag: Some(long_tag),
-        io_channel: Some((d[2], d[3])),
+        long_tag: Some(s.long_tag.to_string()),
+        io_channel: Some((s.io_card, s.channel)),
     })
 }
 
@@ -350,6 +361,19 @@ impl<T: Transport> Client<T> {
 
     /// One transaction with retries, busy and delayed-response handling (by the
     /// data-link master); `what` names the target in errors.
+    /// [`Client::transact`] with a typed request.
+    async fn transact_request(
+        &mut self,
+        address: Address,
+        request: &Request,
+        preambles: usize,
+        what: &str,
+    ) -> Result<Reply, HostError> {
+        let data = request_data(request)?;
+        self.transact(address, request.command(), &data, preambles, what)
+            .await
+    }
+
     async fn transact(
         &mut self,
         address: Address,
@@ -519,12 +543,14 @@ impl<T: Transport> Client<T> {
             DeviceRef::Tag(t) => {
                 let tag = PackedString::<6>::new(t)
                     .map_err(|e| HostError::Usage(format!("tag {t:?}: {e}")))?;
-                self.transact(broadcast, 11, &tag.0, 5, &what).await
+                let request = Request::ReadUniqueIdentifierByTag(TagRequest { tag });
+                self.transact_request(broadcast, &request, 5, &what).await
             }
             DeviceRef::LongTag(t) => {
-                let tag = Latin1String::<32>::new(t)
+                let long_tag = Latin1String::<32>::new(t)
                     .map_err(|e| HostError::Usage(format!("long tag {t:?}: {e}")))?;
-                self.transact(broadcast, 21, &tag.0, 5, &what).await
+                let request = Request::ReadUniqueIdentifierByLongTag(LongTag { long_tag });
+                self.transact_request(broadcast, &request, 5, &what).await
             }
             DeviceRef::UniqueId(id) => self.transact(Address::long(*id), 0, &[], 5, &what).await,
         }
@@ -549,9 +575,22 @@ impl<T: Transport> Client<T> {
         Ok(info)
     }
 
+    /// Sends a typed `request` to `device` ([`Client::command`] with its bytes): the
+    /// way every command with a layout in hart-proto is sent.
+    pub async fn request(
+        &mut self,
+        device: &DeviceInfo,
+        request: &Request,
+    ) -> Result<Reply, HostError> {
+        let data = request_data(request)?;
+        self.command(device, request.command(), &data).await
+    }
+
     /// Sends `command` with `data` to a known device in a long frame, with the
     /// device's preamble count; reads command 48 when the reply says more status is
-    /// available (and [`Client::auto_status`] is on).
+    /// available (and [`Client::auto_status`] is on). For bytes a caller composed
+    /// itself (a pass-through, a device-specific command); [`Client::request`] for the
+    /// commands hart-proto knows.
     pub async fn command(
         &mut self,
         device: &DeviceInfo,
@@ -565,8 +604,12 @@ impl<T: Transport> Client<T> {
         let preambles = usize::from(device.identity.min_request_preambles).clamp(5, 20);
         let addr = Address::long(device.unique_id());
         let mut reply = self.transact(addr, command, data, preambles, &what).await?;
-        if self.auto_status && reply.device_status & 0x10 != 0 && command != 48 {
-            if let Ok(s) = self.transact(addr, 48, &[], preambles, &what).await {
+        if self.auto_status
+            && reply.device_status & fds::MORE_STATUS_AVAILABLE != 0
+            && command != 48
+        {
+            let status = Request::ReadAdditionalStatus(Default::default());
+            if let Ok(s) = self.transact_request(addr, &status, preambles, &what).await {
                 reply.additional_status = Some(s.data);
             }
         }
@@ -629,7 +672,10 @@ impl<T: Transport> Client<T> {
     /// Reads tag and descriptor (command 13) and, from HART 6 on, the long tag
     /// (command 20); what fails stays unknown.
     pub async fn read_tags(&mut self, info: &mut DeviceInfo) {
-        if let Ok(r) = self.command(info, 13, &[]).await {
+        if let Ok(r) = self
+            .request(info, &Request::ReadTagDescriptorDate(Empty {}))
+            .await
+        {
             if let Ok(t) = hart_proto::command::TagDescriptorDate::decode(&mut Reader::new(&r.data))
             {
                 info.tag = Some(t.tag.to_string());
@@ -637,7 +683,7 @@ impl<T: Transport> Client<T> {
             }
         }
         if info.revision() >= 6 {
-            if let Ok(r) = self.command(info, 20, &[]).await {
+            if let Ok(r) = self.request(info, &Request::ReadLongTag(Empty {})).await {
                 if let Ok(t) = hart_proto::command::LongTag::decode(&mut Reader::new(&r.data)) {
                     info.long_tag = Some(t.long_tag.to_string());
                 }
@@ -651,14 +697,20 @@ impl<T: Transport> Client<T> {
     /// is silent) and its tags.
     pub async fn sub_devices(&mut self, io: UniqueId, skip: &[UniqueId]) -> Vec<DeviceInfo> {
         let gateway = Address::long(io);
-        let count = match self.transact(gateway, 74, &[], 5, "the I/O system").await {
-            Ok(r) if r.data.len() >= 5 => u16::from_be_bytes([r.data[3], r.data[4]]),
-            _ => 256,
+        let capabilities = Request::ReadIoSystemCapabilities(Empty {});
+        let count = match self
+            .transact_request(gateway, &capabilities, 5, "the I/O system")
+            .await
+        {
+            Ok(r) => IoSystemCapabilities::decode(&mut Reader::new(&r.data))
+                .map_or(256, |c| c.devices_detected),
+            Err(_) => 256,
         };
         let mut subs = vec![];
         for ix in 1..count {
+            let summary = Request::ReadSubDeviceIdentitySummary(SubDeviceIndex { index: ix });
             let Ok(r) = self
-                .transact(gateway, 84, &ix.to_be_bytes(), 5, "the I/O system")
+                .transact_request(gateway, &summary, 5, "the I/O system")
                 .await
             else {
                 break;

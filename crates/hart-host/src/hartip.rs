@@ -341,10 +341,15 @@ impl HartIpTransport {
     /// that publish only to subscribers need it; others answer "not implemented", which
     /// is fine. Returns the response code, or `None` without an answer in 2 s.
     pub async fn subscribe_all(&mut self) -> io::Result<Option<u8>> {
-        use hart_proto::frame::{Address, Frame, FrameBuf, FrameSpec, UniqueId};
-        let data = [0, 0, 0, 0, 0, 0x00, 0x01];
+        use hart_proto::command::{ClientSubscription, SubscriptionTarget};
+        use hart_proto::frame::{Address, Frame, UniqueId};
+        let every_device = hart_proto::Request::WriteClientSubscriptionFlags(ClientSubscription {
+            unique_id: SubscriptionTarget::ALL,
+            flags: hart_proto::command::subscription::PROCESS_DATA,
+        });
         let broadcast = Address::long(UniqueId::from_bytes([0; 5]));
-        let pdu = FrameBuf::encode(&FrameSpec::request(broadcast, 533, &data))
+        let pdu = every_device
+            .frame(broadcast)
             .map_err(|e| proto_err(e.to_string()))?;
         let seq = self
             .send_message(MessageId::TokenPassingPdu, pdu.as_slice())

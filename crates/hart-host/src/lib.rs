@@ -19,3 +19,4 @@ mod write;
 
 pub use client::{Client, DeviceInfo, DeviceRef, Reply, ScanEvent};
 pub use error::HostError;
+pub use write::HostWrite;

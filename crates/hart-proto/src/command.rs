@@ -1194,6 +1194,19 @@ wire_struct! {
     }
 }
 
+/// The flags of a client subscription (command 533): what a HART-IP server
+/// publishes to the client.
+pub mod subscription {
+    /// Process data (burst messages).
+    pub const PROCESS_DATA: u16 = 0x0001;
+    /// Event notifications.
+    pub const EVENT_NOTIFICATION: u16 = 0x0002;
+    /// Device status.
+    pub const DEVICE_STATUS: u16 = 0x0004;
+    /// Device configuration.
+    pub const DEVICE_CONFIGURATION: u16 = 0x0008;
+}
+
 /// The 5 bytes of a unique ID as HART-IP's client subscription commands (532, 533)
 /// carry them, kept as received (bits 7-6 of the first byte included), shown as 10 hex
 /// digits; all zero stands for every device.

@@ -88,11 +88,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-conform/src/run.rs", "literal_command_data", 17),
     ("crates/hart-device/src/device.rs", "be_bytes", 2),
     ("crates/hart-device/src/device.rs", "data_offset", 1),
-    ("crates/hart-host/src/client.rs", "be_bytes", 5),
-    ("crates/hart-host/src/client.rs", "data_offset", 10),
-    ("crates/hart-host/src/client.rs", "string_bytes", 2),
-    ("crates/hart-host/src/write.rs", "be_bytes", 2),
-    ("crates/hart-host/src/write.rs", "literal_command_data", 2),
     ("crates/hart-ip-server/src/io_system.rs", "be_bytes", 2),
     ("crates/hart-ip-server/src/io_system.rs", "data_offset", 10),
     ("crates/hart-ip-server/src/io_system.rs", "string_bytes", 2),
@@ -110,12 +105,6 @@ const PENDING: &[(&str, &str, usize)] = &[
         "literal_command_data",
         1,
     ),
-    ("crates/hartkit/src/demo.rs", "be_bytes", 1),
-    ("crates/hartkit/src/demo.rs", "data_offset", 1),
-    ("crates/hartkit/src/host.rs", "be_bytes", 3),
-    ("crates/hartkit/src/host.rs", "concat_bytes", 3),
-    ("crates/hartkit/src/host.rs", "data_offset", 1),
-    ("crates/hartkit/src/host.rs", "literal_command_data", 6),
 ];
 
 /// The rules: an id and a pattern over one logical line.

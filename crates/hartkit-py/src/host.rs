@@ -205,9 +205,10 @@ impl Worker {
                 args,
             } => {
                 let d = self.device(&unique_id).await?;
-                let (command, data, confirm) = self.client.write_request(&d, &what, &args).await?;
-                let r = self.client.command(&d, command, &data).await?;
-                let back = self.client.command(&d, confirm, &[]).await?;
+                let write = self.client.write_request(&d, &what, &args).await?;
+                let (command, confirm) = (write.request.command(), write.read_back.command());
+                let r = self.client.request(&d, &write.request).await?;
+                let back = self.client.request(&d, &write.read_back).await?;
                 Ok(json!({
                     "reply": reply_json(command, &r),
                     "read_back": reply_json(confirm, &back),

@@ -68,11 +68,14 @@ impl View {
                 if let Address::Long(a) = f.address {
                     let e = by_id.entry(a.id).or_default();
                     e.0 += 1;
-                    if f.command == 3 && f.data.len() >= 9 {
-                        e.1 = Some((
-                            f32::from_be_bytes([f.data[5], f.data[6], f.data[7], f.data[8]]),
-                            f.data[4],
-                        ));
+                    if f.command == 3 {
+                        // The PV and its units, from the published command 3 reply.
+                        let pv = ReadDynamicVariablesResponse::decode(&mut Reader::new(f.data))
+                            .ok()
+                            .and_then(|r| r.variables.as_slice().first().copied());
+                        if let Some(pv) = pv {
+                            e.1 = Some((pv.value, pv.units.0));
+                        }
                     }
                 }
             }

@@ -6,11 +6,15 @@ use std::io::Write as _;
 use hart_host::target::AnyTransport;
 use hart_host::transport::Transport;
 use hart_host::{Client, DeviceInfo, DeviceRef, HostError, Reply};
-use hart_proto::command as cmd;
+use hart_proto::command::{self as cmd, Empty};
 use hart_proto::deframer::{Deframer, DeframerEvent};
 use hart_proto::frame::Frame;
 use hart_proto::tables;
-use hart_proto::wire::{Reader, Wire};
+use hart_proto::types::{
+    BurstModeControl, Classification, DeviceVariableCode, HartTime, TriggerMode, UnitCode,
+};
+use hart_proto::wire::{List, Meaning, Reader, Wire};
+use hart_proto::Request;
 use serde_json::{json, Value};
 
 use crate::{annotate, hex, json as fj};
@@ -288,18 +292,30 @@ pub async fn read(
     let d = c.resolve(target).await.map_err(fail)?;
     let v = match what {
         "pv" => {
-            let r: cmd::ReadPvResponse =
-                decode(&c.command(&d, 1, &[]).await.map_err(fail)?, "command 1")?;
+            let r: cmd::ReadPvResponse = decode(
+                &c.request(&d, &Request::ReadPrimaryVariable(Empty {}))
+                    .await
+                    .map_err(fail)?,
+                "command 1",
+            )?;
             json!({"pv": f(r.pv), "units": r.pv_units.0, "units_symbol": units(r.pv_units.0)})
         }
         "loop" => {
-            let r: cmd::ReadLoopCurrentResponse =
-                decode(&c.command(&d, 2, &[]).await.map_err(fail)?, "command 2")?;
+            let r: cmd::ReadLoopCurrentResponse = decode(
+                &c.request(&d, &Request::ReadLoopCurrent(Empty {}))
+                    .await
+                    .map_err(fail)?,
+                "command 2",
+            )?;
             json!({"loop_current": f(r.loop_current.0), "percent_of_range": f(r.percent_of_range.0)})
         }
         "dynamic" => {
-            let r: cmd::ReadDynamicVariablesResponse =
-                decode(&c.command(&d, 3, &[]).await.map_err(fail)?, "command 3")?;
+            let r: cmd::ReadDynamicVariablesResponse = decode(
+                &c.request(&d, &Request::ReadDynamicVariables(Empty {}))
+                    .await
+                    .map_err(fail)?,
+                "command 3",
+            )?;
             let vars: Vec<Value> = r
                 .variables
                 .as_slice()
@@ -313,9 +329,16 @@ pub async fn read(
             if codes.is_empty() || codes.len() > 8 {
                 return Err(usage("read vars: give 1 to 8 device variable codes"));
             }
+            let codes: Vec<DeviceVariableCode> =
+                codes.iter().copied().map(DeviceVariableCode).collect();
             if d.revision() >= 6 {
+                let request =
+                    Request::ReadDeviceVariablesWithStatus(cmd::ReadDeviceVariablesRequest {
+                        slots: List::from_slice(&codes)
+                            .map_err(|e| usage(format!("read vars: {e}")))?,
+                    });
                 let r: cmd::ReadDeviceVariablesResponse =
-                    decode(&c.command(&d, 9, codes).await.map_err(fail)?, "command 9")?;
+                    decode(&c.request(&d, &request).await.map_err(fail)?, "command 9")?;
                 let slots: Vec<Value> = r
                     .data
                     .slots
@@ -328,70 +351,72 @@ pub async fn read(
                     .collect();
                 json!({"variables": slots})
             } else {
-                let r: cmd::ReadVariablesResponse = decode(
-                    &c.command(&d, 33, &codes[..codes.len().min(4)])
-                        .await
-                        .map_err(fail)?,
-                    "command 33",
-                )?;
+                // Command 33 carries 4 codes at most: the first four.
+                let request = Request::ReadDeviceVariables(cmd::ReadVariablesRequest {
+                    slots: List::from_slice(&codes[..codes.len().min(4)])
+                        .map_err(|e| usage(format!("read vars: {e}")))?,
+                });
+                let r: cmd::ReadVariablesResponse =
+                    decode(&c.request(&d, &request).await.map_err(fail)?, "command 33")?;
                 let slots: Vec<Value> = r.variables.as_slice().iter().map(|s| json!({"code": s.code.0, "units": s.units.0, "units_symbol": units(s.units.0), "value": f(s.value)})).collect();
                 json!({"variables": slots})
             }
         }
         "status" => {
-            let mut cl = c.command(&d, 48, &[]).await.map_err(fail)?;
-            let ds = cl.device_status;
-            let data = std::mem::take(&mut cl.data);
+            let request = Request::ReadAdditionalStatus(Default::default());
+            let reply = c.request(&d, &request).await.map_err(fail)?;
+            let ds = reply.device_status;
+            let status: cmd::ReadAdditionalStatusResponse = decode(&reply, "command 48")?;
+            let data = status.additional_status.as_slice();
             let mut v = json!({
                 "device_status": ds,
                 "device_status_set": fj::device_status_set(ds),
-                "additional_status": hex::compact(&data),
+                "additional_status": hex::compact(data),
             });
-            let named: [(usize, &str, &tables::BitTable); 7] = [
-                (6, "extended_status", &tables::EXTENDED_DEVICE_STATUS),
-                (8, "standardized_status_0", &tables::STANDARDIZED_STATUS_0),
-                (9, "standardized_status_1", &tables::STANDARDIZED_STATUS_1),
-                (
-                    10,
-                    "analog_channel_saturated",
-                    &tables::ANALOG_CHANNEL_SATURATED,
-                ),
-                (11, "standardized_status_2", &tables::STANDARDIZED_STATUS_2),
-                (12, "standardized_status_3", &tables::STANDARDIZED_STATUS_3),
-                (13, "analog_channel_fixed", &tables::ANALOG_CHANNEL_FIXED),
-            ];
-            for (at, key, table) in named {
-                if let Some(&b) = data.get(at) {
-                    v[key] = fj::bits_set(table, b);
-                }
-            }
-            if let Some(ds6) = data.get(..6) {
-                v["device_specific_status"] = json!(hex::compact(ds6));
+            // Each part the reply holds, named and explained by hart-proto's table.
+            for &(at, len, key, meaning) in &cmd::ADDITIONAL_STATUS_PARTS {
+                let Some(bytes) = data
+                    .get(at..(at + len).min(data.len()))
+                    .filter(|b| !b.is_empty())
+                else {
+                    continue;
+                };
+                v[key] = match meaning {
+                    Meaning::Bits(table) => fj::bits_set(table, bytes[0]),
+                    Meaning::Code(table) => json!(table.name(bytes[0])),
+                    _ => json!(hex::compact(bytes)),
+                };
             }
             v
         }
         "info" => {
             let mut v = device_json(&d);
-            if let Ok(r) = c.command(&d, 13, &[]).await {
+            if let Ok(r) = c
+                .request(&d, &Request::ReadTagDescriptorDate(Empty {}))
+                .await
+            {
                 if let Ok(t) = cmd::TagDescriptorDate::decode(&mut Reader::new(&r.data)) {
                     v["tag"] = json!(t.tag.to_string());
                     v["descriptor"] = json!(t.descriptor.to_string());
                     v["date"] = json!(t.date.to_string());
                 }
             }
-            if let Ok(r) = c.command(&d, 12, &[]).await {
+            if let Ok(r) = c.request(&d, &Request::ReadMessage(Empty {})).await {
                 if let Ok(m) = cmd::Message::decode(&mut Reader::new(&r.data)) {
                     v["message"] = json!(m.message.to_string());
                 }
             }
             if d.revision() >= 6 {
-                if let Ok(r) = c.command(&d, 20, &[]).await {
+                if let Ok(r) = c.request(&d, &Request::ReadLongTag(Empty {})).await {
                     if let Ok(t) = cmd::LongTag::decode(&mut Reader::new(&r.data)) {
                         v["long_tag"] = json!(t.long_tag.to_string());
                     }
                 }
             }
-            if let Ok(r) = c.command(&d, 15, &[]).await {
+            if let Ok(r) = c
+                .request(&d, &Request::ReadDeviceInformation(Empty {}))
+                .await
+            {
                 if let Ok(i) = cmd::DeviceInformation::decode(&mut Reader::new(&r.data)) {
                     v["range"] = json!({"units": i.range_units.0, "units_symbol": units(i.range_units.0), "upper": f(i.upper_range_value), "lower": f(i.lower_range_value)});
                     v["damping"] = f(i.damping.0);
@@ -401,7 +426,10 @@ pub async fn read(
                     v["write_protect"] = json!(tables::WRITE_PROTECT.name(i.write_protect.0));
                 }
             }
-            if let Ok(r) = c.command(&d, 16, &[]).await {
+            if let Ok(r) = c
+                .request(&d, &Request::ReadFinalAssemblyNumber(Empty {}))
+                .await
+            {
                 if let Ok(n) = cmd::FinalAssemblyNumber::decode(&mut Reader::new(&r.data)) {
                     v["final_assembly_number"] = json!(n.final_assembly_number.get());
                 }
@@ -479,11 +507,12 @@ pub async fn write(
     as_json: bool,
 ) -> Result<String, Failure> {
     let d = c.resolve(target).await.map_err(fail)?;
-    let (command, data, confirm) = c.write_request(&d, what, args).await.map_err(fail)?;
-    let r = c.command(&d, command, &data).await.map_err(fail)?;
+    let write = c.write_request(&d, what, args).await.map_err(fail)?;
+    let (command, confirm) = (write.request.command(), write.read_back.command());
+    let r = c.request(&d, &write.request).await.map_err(fail)?;
     let warn = check_rc(&r);
     // Confirm by reading back.
-    let back = c.command(&d, confirm, &[]).await.map_err(fail)?;
+    let back = c.request(&d, &write.read_back).await.map_err(fail)?;
     let pdu = back.pdu.clone();
     let frame = Frame::parse_pdu(&pdu).map_err(|e| usage(e.to_string()))?;
     if as_json {
@@ -542,36 +571,32 @@ pub async fn burst(
             level,
         } => {
             let m = *message;
-            let r = c
-                .command(&d, 108, &[&command.to_be_bytes()[..], &[m]].concat())
-                .await
-                .map_err(fail)?;
+            let request = Request::WriteBurstCommandNumber(cmd::BurstCommand {
+                command_number: *command,
+                burst_message: Some(m),
+            });
+            let r = c.request(&d, &request).await.map_err(fail)?;
             notes.push(format!("command {command}{}", check_rc(&r)));
             if !vars.is_empty() {
-                let mut slots = [250u8; 8];
-                for (i, v) in vars.iter().take(8).enumerate() {
-                    slots[i] = *v;
+                // Eight slots; those not given are 250, "not used".
+                let mut slots = [DeviceVariableCode(250); 8];
+                for (slot, v) in slots.iter_mut().zip(vars.iter()) {
+                    *slot = DeviceVariableCode(*v);
                 }
-                let r = c
-                    .command(&d, 107, &[&slots[..], &[m]].concat())
-                    .await
-                    .map_err(fail)?;
+                let request = Request::WriteBurstDeviceVariables(cmd::BurstVariables {
+                    slots: List::from_slice(&slots).map_err(|e| usage(e.to_string()))?,
+                    burst_message: Some(m),
+                });
+                let r = c.request(&d, &request).await.map_err(fail)?;
                 notes.push(format!("slots {vars:?}{}", check_rc(&r)));
             }
             let max = max_period.unwrap_or(p.max(60.0));
-            let r = c
-                .command(
-                    &d,
-                    103,
-                    &[
-                        &[m][..],
-                        &period(*p).to_be_bytes(),
-                        &period(max).to_be_bytes(),
-                    ]
-                    .concat(),
-                )
-                .await
-                .map_err(fail)?;
+            let request = Request::WriteBurstPeriod(cmd::BurstPeriod {
+                burst_message: m,
+                update_period: HartTime(period(*p)),
+                max_update_period: HartTime(period(max)),
+            });
+            let r = c.request(&d, &request).await.map_err(fail)?;
             let bp = cmd::BurstPeriod::decode(&mut Reader::new(&r.data))
                 .map_err(|e| usage(e.to_string()))?;
             notes.push(format!(
@@ -603,7 +628,12 @@ pub async fn burst(
                 } else {
                     246
                 };
-                let v = c.command(&d, 9, &[src]).await.map_err(fail)?;
+                let request =
+                    Request::ReadDeviceVariablesWithStatus(cmd::ReadDeviceVariablesRequest {
+                        slots: List::from_slice(&[DeviceVariableCode(src)])
+                            .map_err(|e| usage(e.to_string()))?,
+                    });
+                let v = c.request(&d, &request).await.map_err(fail)?;
                 let slot = cmd::ReadDeviceVariablesResponse::decode(&mut Reader::new(&v.data))
                     .map_err(|e| usage(e.to_string()))?;
                 let s = slot
@@ -615,13 +645,23 @@ pub async fn burst(
                     .ok_or_else(|| usage("no trigger variable"))?;
                 (s.classification.0, s.units.0, level)
             };
-            let t = [&[m, mode, class, unit][..], &lvl.to_be_bytes()].concat();
-            let r = c.command(&d, 104, &t).await.map_err(fail)?;
+            let request = Request::WriteBurstTrigger(cmd::BurstTrigger {
+                burst_message: m,
+                trigger_mode: TriggerMode(mode),
+                classification: Classification(class),
+                units: UnitCode(unit),
+                trigger_level: lvl,
+            });
+            let r = c.request(&d, &request).await.map_err(fail)?;
             notes.push(format!("trigger {trigger}{}", check_rc(&r)));
         }
         BurstAction::On { message } | BurstAction::Off { message } => {
             let code = u8::from(matches!(action, BurstAction::On { .. }));
-            let r = c.command(&d, 109, &[code, *message]).await.map_err(fail)?;
+            let request = Request::BurstModeControl(cmd::BurstModeControlRequest {
+                control: BurstModeControl(code),
+                burst_message: Some(*message),
+            });
+            let r = c.request(&d, &request).await.map_err(fail)?;
             notes.push(format!(
                 "burst message {message} {}{}",
                 if code == 1 { "on" } else { "off" },
@@ -636,7 +676,10 @@ pub async fn burst(
         | BurstAction::Off { message }
         | BurstAction::Show { message } => *message,
     };
-    let r = c.command(&d, 105, &[message]).await.map_err(fail)?;
+    let request = Request::ReadBurstConfiguration(cmd::BurstMessageSelect {
+        burst_message: Some(message),
+    });
+    let r = c.request(&d, &request).await.map_err(fail)?;
     let frame = Frame::parse_pdu(&r.pdu).map_err(|e| usage(e.to_string()))?;
     if as_json {
         let mut v = fj::frame(&frame);
