@@ -2,10 +2,23 @@
 
 use hart_host::transport::Transport;
 use hart_link::Micros;
-use hart_proto::command::Identity;
+use hart_proto::command::{
+    info, BurstCommand, BurstConfiguration, BurstMessageSelect, BurstModeControlRequest,
+    BurstPeriod, BurstTrigger, BurstVariables, CodeUnitValue, DeviceInformation,
+    DynamicVariableAssignments, Empty, FinalAssemblyNumber, Identity, LongTag, LoopConfiguration,
+    Message, ReadAdditionalStatusRequest, ReadDeviceVariablesRequest, ReadDeviceVariablesResponse,
+    ReadDynamicVariablesResponse, ReadPvResponse, ReadVariablesRequest, ReadVariablesResponse,
+    ResetConfigChanged, ResponsePreambles, TagDescriptorDate, TagRequest, TransducerInfo,
+    VariableCode,
+};
 use hart_proto::frame::{Address, FrameType, MasterKind, UniqueId};
 use hart_proto::tables;
-use hart_proto::wire::{Reader, Wire};
+use hart_proto::types::{
+    hart_nan, BurstModeControl, Classification, DeviceVariableCode, HartTime, Latin1String,
+    PackedString, TriggerMode, UnitCode, U24,
+};
+use hart_proto::wire::{List, Reader, Wire, Writer};
+use hart_proto::{decode_response, Request, Response};
 
 use crate::catalog::{Needs, TestDef, TESTS};
 use crate::expect::Expect;
@@ -78,6 +91,40 @@ fn na(s: impl Into<String>) -> Outcome {
 }
 fn cnr(s: impl Into<String>) -> Outcome {
     (Verdict::CouldNotRun, s.into())
+}
+
+/// Command 0: identity.
+const READ_0: Request = Request::ReadUniqueIdentifier(Empty {});
+/// Command 1: primary variable.
+const READ_1: Request = Request::ReadPrimaryVariable(Empty {});
+/// Command 12: message.
+const READ_12: Request = Request::ReadMessage(Empty {});
+/// Command 13: tag, descriptor, date.
+const READ_13: Request = Request::ReadTagDescriptorDate(Empty {});
+
+/// `data` decoded with the layout `L`, when it decodes.
+fn decode<L: Wire>(data: &[u8]) -> Option<L> {
+    L::decode(&mut Reader::new(data)).ok()
+}
+
+/// The bytes `value` encodes to (empty when it does not encode).
+fn encoded<L: Wire>(value: &L) -> Vec<u8> {
+    let mut buf = [0u8; 255];
+    let mut w = Writer::new(&mut buf);
+    match value.encode(&mut w) {
+        Ok(()) => w.written().to_vec(),
+        Err(_) => vec![],
+    }
+}
+
+/// A list of device variable codes (a request's slots); codes beyond its room are
+/// left out.
+fn slots<const N: usize, const MIN: usize>(codes: &[u8]) -> List<DeviceVariableCode, N, MIN> {
+    let mut l = List::default();
+    for &c in codes {
+        let _ = l.push(DeviceVariableCode(c));
+    }
+    l
 }
 
 /// What the run learnt about the device.
@@ -223,7 +270,7 @@ async fn identify<T: Transport>(p: &mut Probe<'_, T>, a: DeviceAddress) -> Resul
             format!("command 0 at unique ID {}", hex_id(id)),
         ),
     };
-    let req = Probe::<T>::request(20, address, 0, &[]);
+    let req = Probe::<T>::frame(20, address, &Request::ReadUniqueIdentifier(Empty {}));
     let mut last = Exchange::default();
     for attempt in 1..=3 {
         last = p
@@ -280,11 +327,32 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     /// A request to the device (long frame, primary master) and its reply.
-    async fn cmd(&mut self, command: u16, data: &[u8]) -> Exchange {
-        self.cmd_as(MasterKind::Primary, command, data).await
+    async fn cmd(&mut self, req: &Request) -> Exchange {
+        self.cmd_as(MasterKind::Primary, req).await
     }
 
-    async fn cmd_as(&mut self, m: MasterKind, command: u16, data: &[u8]) -> Exchange {
+    /// A request to the device from master `m` and its reply.
+    async fn cmd_as(&mut self, m: MasterKind, req: &Request) -> Exchange {
+        match req.to_vec() {
+            Ok(data) => self.cmd_raw_as(m, req.command(), &data).await,
+            Err(e) => Exchange {
+                error: Some(format!(
+                    "command {}: the request does not encode ({e})",
+                    req.command()
+                )),
+                ..Exchange::default()
+            },
+        }
+    }
+
+    /// Raw request data, for what no layout makes on purpose: requests too short for
+    /// their command (CMD-101), a command hart-proto does not know (CMD-102) and the
+    /// device-specific commands of an `--expect` file (CMD-200).
+    async fn cmd_raw(&mut self, command: u16, data: &[u8]) -> Exchange {
+        self.cmd_raw_as(MasterKind::Primary, command, data).await
+    }
+
+    async fn cmd_raw_as(&mut self, m: MasterKind, command: u16, data: &[u8]) -> Exchange {
         let req = Probe::<T>::request(self.dev.preambles, self.long(m), command, data);
         let what = if data.is_empty() {
             format!("command {command}")
@@ -294,9 +362,19 @@ impl<T: Transport> Runner<'_, '_, T> {
         self.p.exchange(&what, &req, true).await
     }
 
-    /// Reads `command` and expects response code 0 (or a warning) with data.
-    async fn read(&mut self, command: u16, data: &[u8]) -> Result<(u8, Vec<u8>, u8), Outcome> {
-        let ex = self.cmd(command, data).await;
+    /// Reads with `req` and expects a reply: its response code, data and device status.
+    async fn read(&mut self, req: &Request) -> Result<(u8, Vec<u8>, u8), Outcome> {
+        let ex = self.cmd(req).await;
+        Self::replied(req.command(), ex)
+    }
+
+    /// [`Runner::read`] with raw request data (see [`Runner::cmd_raw`]).
+    async fn read_raw(&mut self, command: u16, data: &[u8]) -> Result<(u8, Vec<u8>, u8), Outcome> {
+        let ex = self.cmd_raw(command, data).await;
+        Self::replied(command, ex)
+    }
+
+    fn replied(command: u16, ex: Exchange) -> Result<(u8, Vec<u8>, u8), Outcome> {
         if let Some(e) = ex.error {
             return Err(cnr(e));
         }
@@ -308,13 +386,12 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn tag(&mut self) -> Option<String> {
-        let (rc, data, _) = self.read(13, &[]).await.ok()?;
-        if rc != 0 || data.len() < 6 {
+        let (rc, data, _) = self.read(&READ_13).await.ok()?;
+        if rc != 0 {
             return None;
         }
-        let mut out = [0u8; 8];
-        let n = hart_proto::types::packed_ascii::unpack(&data[..6], &mut out);
-        Some(String::from_utf8_lossy(&out[..n]).trim_end().to_string())
+        let t = decode::<TagDescriptorDate>(&data)?;
+        Some(t.tag.with_str(str::to_string))
     }
 
     async fn one(&mut self, d: &TestDef) -> Outcome {
@@ -360,30 +437,49 @@ impl<T: Transport> Runner<'_, '_, T> {
             "LINK-015" => self.link_gap_in_request().await,
             "LINK-016" => self.link_reply_check_bytes().await,
             "LINK-017" => self.link_busy_rules(),
-            "CMD-000" => self.cmd_layout(0, &[]).await,
-            "CMD-001" | "CMD-002" | "CMD-003" | "CMD-012" | "CMD-013" | "CMD-014" | "CMD-015"
-            | "CMD-016" => {
-                let n: u16 = d.id[4..].parse().unwrap_or(0);
-                self.cmd_layout(n, &[]).await
+            "CMD-000" => self.cmd_layout(&READ_0).await,
+            "CMD-001" => self.cmd_layout(&READ_1).await,
+            "CMD-002" => self.cmd_layout(&Request::ReadLoopCurrent(Empty {})).await,
+            "CMD-003" => self.cmd_layout(&Request::ReadDynamicVariables(Empty {})).await,
+            "CMD-012" => self.cmd_layout(&READ_12).await,
+            "CMD-013" => self.cmd_layout(&READ_13).await,
+            "CMD-014" => {
+                self.cmd_layout(&Request::ReadPvTransducerInformation(Empty {}))
+                    .await
             }
-            "CMD-007" | "CMD-008" | "CMD-020" => match needs6(d.id) {
+            "CMD-015" => self.cmd_layout(&Request::ReadDeviceInformation(Empty {})).await,
+            "CMD-016" => self.cmd_layout(&Request::ReadFinalAssemblyNumber(Empty {})).await,
+            "CMD-007" => match needs6(d.id) {
+                Some(o) => o,
+                None => self.cmd_layout(&Request::ReadLoopConfiguration(Empty {})).await,
+            },
+            "CMD-008" => match needs6(d.id) {
                 Some(o) => o,
                 None => {
-                    let n: u16 = d.id[4..].parse().unwrap_or(0);
-                    self.cmd_layout(n, &[]).await
+                    self.cmd_layout(&Request::ReadDynamicVariableClassifications(Empty {}))
+                        .await
                 }
+            },
+            "CMD-020" => match needs6(d.id) {
+                Some(o) => o,
+                None => self.cmd_layout(&Request::ReadLongTag(Empty {})).await,
             },
             "CMD-009" => match needs6(d.id) {
                 Some(o) => o,
-                None => self.cmd_layout(9, &[0]).await,
+                None => {
+                    self.cmd_layout(&Request::ReadDeviceVariablesWithStatus(
+                        ReadDeviceVariablesRequest { slots: slots(&[0]) },
+                    ))
+                    .await
+                }
             },
             "CMD-048" => self.cmd_48().await,
-            "CMD-017" => self.write_readback(12, 17, 24).await,
-            "CMD-018" => self.write_readback(13, 18, 21).await,
-            "CMD-019" => self.write_readback(16, 19, 3).await,
+            "CMD-017" => self.readback_message().await,
+            "CMD-018" => self.readback_tag().await,
+            "CMD-019" => self.readback_final_assembly_number().await,
             "CMD-022" => match needs6(d.id) {
                 Some(o) => o,
-                None => self.write_readback(20, 22, 32).await,
+                None => self.readback_long_tag().await,
             },
             "CMD-038" => self.cmd_38().await,
             "CMD-101" => self.rc_too_few().await,
@@ -419,7 +515,7 @@ impl<T: Transport> Runner<'_, '_, T> {
         let Some(poll) = self.known_poll().await else {
             return na("the device's polling address is unknown (tested by unique ID, HART 5: no command 7)");
         };
-        let req = Probe::<T>::request(self.dev.preambles, Address::short(poll), 0, &[]);
+        let req = Probe::<T>::frame(self.dev.preambles, Address::short(poll), &READ_0);
         let ex = self
             .p
             .exchange(
@@ -459,14 +555,19 @@ impl<T: Transport> Runner<'_, '_, T> {
         if self.dev.revision < 6 {
             return None;
         }
-        let (rc, data, _) = self.read(7, &[]).await.ok()?;
+        let (rc, data, _) = self
+            .read(&Request::ReadLoopConfiguration(Empty {}))
+            .await
+            .ok()?;
         // Learnt once (command 7), used by the tests of other addresses too.
-        self.dev.poll = (rc == 0 && !data.is_empty()).then(|| data[0] & 0x3F);
+        self.dev.poll = decode::<LoopConfiguration>(&data)
+            .filter(|_| rc == 0)
+            .map(|c| c.polling_address & 0x3F);
         self.dev.poll
     }
 
     async fn link_long(&mut self) -> Outcome {
-        let ex = self.cmd(0, &[]).await;
+        let ex = self.cmd(&READ_0).await;
         let Some(f) = ex.reply() else {
             return fail("no reply to command 0 at the device's unique ID");
         };
@@ -493,7 +594,7 @@ impl<T: Transport> Runner<'_, '_, T> {
             if cand == own {
                 continue;
             }
-            let req = Probe::<T>::request(self.dev.preambles, Address::short(cand), 0, &[]);
+            let req = Probe::<T>::frame(self.dev.preambles, Address::short(cand), &READ_0);
             let ex = self
                 .p
                 .exchange(
@@ -525,7 +626,7 @@ impl<T: Transport> Runner<'_, '_, T> {
         let b = self.dev.uid.to_bytes();
         let wrong =
             UniqueId::from_bytes([b[0] & 0x3F, b[1], b[2] ^ 0x5A, b[3] ^ 0xA5, b[4] ^ 0x3C]);
-        let req = Probe::<T>::request(self.dev.preambles, Address::long(wrong), 0, &[]);
+        let req = Probe::<T>::frame(self.dev.preambles, Address::long(wrong), &READ_0);
         let ex = self
             .p
             .exchange(
@@ -544,19 +645,45 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn link_tag(&mut self, command: u16) -> Outcome {
-        // The device's own tag: command 13 (packed, 6 bytes) or 20 (32 bytes).
-        let (read, len) = if command == 11 { (13, 6) } else { (20, 32) };
-        let tag = match self.read(read, &[]).await {
-            Ok((0, data, _)) if data.len() >= len => data[..len].to_vec(),
-            Ok((rc, _, _)) => {
-                return cnr(format!(
-                    "command {read} (to learn the tag) answered response code {rc}"
-                ))
-            }
+        // The device's own tag: command 13 (packed, 6 bytes) or 20 (32 bytes), and the
+        // request (11 or 21) that asks for it; the other tag differs from it in one bit
+        // of its first character.
+        let read = if command == 11 {
+            READ_13
+        } else {
+            Request::ReadLongTag(Empty {})
+        };
+        let (rc, data) = match self.read(&read).await {
+            Ok((rc, data, _)) => (rc, data),
             Err(o) => return o,
         };
+        let requests = if command == 11 {
+            decode::<TagDescriptorDate>(&data).map(|t| {
+                let mut other_tag = t.tag;
+                other_tag.0[0] ^= 0x04; // raw: one bit of the first character flipped, for a tag not the device's
+                (
+                    Request::ReadUniqueIdentifierByTag(TagRequest { tag: t.tag }),
+                    Request::ReadUniqueIdentifierByTag(TagRequest { tag: other_tag }),
+                )
+            })
+        } else {
+            decode::<LongTag>(&data).map(|t| {
+                let mut other_tag = t;
+                other_tag.long_tag.0[0] ^= 0x04; // raw: one bit of the first character flipped, for a tag not the device's
+                (
+                    Request::ReadUniqueIdentifierByLongTag(t),
+                    Request::ReadUniqueIdentifierByLongTag(other_tag),
+                )
+            })
+        };
+        let Some((own, other)) = requests.filter(|_| rc == 0) else {
+            return cnr(format!(
+                "command {} (to learn the tag) answered response code {rc}",
+                read.command()
+            ));
+        };
         let broadcast = Address::long(UniqueId::BROADCAST);
-        let req = Probe::<T>::request(self.dev.preambles, broadcast, command, &tag);
+        let req = Probe::<T>::frame(self.dev.preambles, broadcast, &own);
         let ex = self
             .p
             .exchange(
@@ -583,11 +710,7 @@ impl<T: Transport> Runner<'_, '_, T> {
             }
             None => return fail(format!("the command {command} reply carries no identity")),
         }
-        let mut other = tag.clone();
-        if let Some(x) = other.first_mut() {
-            *x ^= 0x04;
-        }
-        let req = Probe::<T>::request(self.dev.preambles, broadcast, command, &other);
+        let req = Probe::<T>::frame(self.dev.preambles, broadcast, &other);
         let ex = self
             .p
             .exchange(
@@ -606,7 +729,7 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     async fn link_master_bit(&mut self) -> Outcome {
         for m in [MasterKind::Primary, MasterKind::Secondary] {
-            let ex = self.cmd_as(m, 0, &[]).await;
+            let ex = self.cmd_as(m, &READ_0).await;
             let Some(f) = ex.reply() else {
                 return fail(format!("no reply to the {} master", m.name()));
             };
@@ -628,7 +751,7 @@ impl<T: Transport> Runner<'_, '_, T> {
                 self.dev.revision
             ));
         };
-        let ex = self.cmd(0, &[]).await;
+        let ex = self.cmd(&READ_0).await;
         let Some(a) = ex.ack() else {
             return fail("no reply to command 0");
         };
@@ -645,7 +768,7 @@ impl<T: Transport> Runner<'_, '_, T> {
         let min = usize::from(self.dev.identity.min_request_preambles);
         let mut notes = vec![];
         for n in [2usize, 5, 20] {
-            let req = Probe::<T>::request(n, self.long(MasterKind::Primary), 0, &[]);
+            let req = Probe::<T>::frame(n, self.long(MasterKind::Primary), &READ_0);
             let ex = self
                 .p
                 .exchange(&format!("command 0 with {n} preambles"), &req, n >= min)
@@ -685,7 +808,7 @@ impl<T: Transport> Runner<'_, '_, T> {
         };
         let mut worst = 0;
         for i in 1..=3 {
-            let ex = self.cmd(if i == 2 { 13 } else { 0 }, &[]).await;
+            let ex = self.cmd(if i == 2 { &READ_13 } else { &READ_0 }).await;
             let Some(a) = ex.ack() else {
                 return fail("no reply to measure");
             };
@@ -726,7 +849,7 @@ impl<T: Transport> Runner<'_, '_, T> {
     async fn link_bad_check(&mut self) -> Outcome {
         // Command 1, harmless if executed, with its check byte inverted.
         let mut req =
-            Probe::<T>::request(self.dev.preambles, self.long(MasterKind::Primary), 1, &[]);
+            Probe::<T>::frame(self.dev.preambles, self.long(MasterKind::Primary), &READ_1);
         if let Some(last) = req.last_mut() {
             *last ^= 0xFF;
         }
@@ -760,7 +883,7 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     async fn link_bad_delimiter(&mut self) -> Outcome {
         let mut req =
-            Probe::<T>::request(self.dev.preambles, self.long(MasterKind::Primary), 0, &[]);
+            Probe::<T>::frame(self.dev.preambles, self.long(MasterKind::Primary), &READ_0);
         let pre = self.dev.preambles;
         let Some(&old) = req.get(pre) else {
             return cnr("the request could not be built");
@@ -785,7 +908,7 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn link_gap_in_request(&mut self) -> Outcome {
-        let req = Probe::<T>::request(self.dev.preambles, self.long(MasterKind::Primary), 0, &[]);
+        let req = Probe::<T>::frame(self.dev.preambles, self.long(MasterKind::Primary), &READ_0);
         let cut = (self.dev.preambles + 3).min(req.len());
         let pause = self.p.char_time * 3;
         let ex = self
@@ -811,8 +934,9 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn link_reply_check_bytes(&mut self) -> Outcome {
-        for c in [0u16, 1, 13] {
-            let ex = self.cmd(c, &[]).await;
+        for req in [READ_0, READ_1, READ_13] {
+            let c = req.command();
+            let ex = self.cmd(&req).await;
             let Some(f) = ex.reply() else {
                 return fail(format!("no reply to command {c}"));
             };
@@ -863,133 +987,154 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     // ---- commands ----
 
-    async fn cmd_layout(&mut self, c: u16, req: &[u8]) -> Outcome {
+    /// Reads with `req` and checks the reply against the command's layout: at least
+    /// the layout's minimum length (or the revision's length the catalogue names), then
+    /// the codes the layout's fields carry.
+    async fn cmd_layout(&mut self, req: &Request) -> Outcome {
+        let c = req.command();
         let rev = self.dev.revision;
-        let (rc, d, _) = match self.read(c, req).await {
+        let (rc, d, _) = match self.read(req).await {
             Ok(x) => x,
             Err(o) => return o,
         };
         if tables::response_class(rc) == tables::ResponseClass::Error {
             return fail(format!("command {c} answered error response code {rc}"));
         }
-        let unit_ok = |u: u8| {
+        let unit_ok = |u: UnitCode| {
+            let u = u.0;
             tables::unit(u).is_some() || tables::is_manufacturer_specific_unit(u) || u == 250
         };
         let len = d.len();
         let bad_len = |want: &str| fail(format!("command {c}: {len} data bytes, {want} expected"));
-        // Lengths of the replies whose length is all there is to check (or that need
-        // it before their fields are looked at).
-        let min = match c {
-            1 => 5,
-            2 => 8,
-            7 => 2,
-            8 => 4,
-            9 => 13,
-            12 => 24,
-            13 => 21,
-            14 => 16,
-            16 => 3,
-            20 => 32,
-            _ => 0,
+        // The length the catalogue's rule names, where it says more than the layout's
+        // minimum: per revision (0, 15), one slot with its time stamp (9), whole
+        // variables (3).
+        let want = match c {
+            0 => Some(match rev {
+                5 => (12, "12 (HART 5)".to_string()),
+                6 => (17, "17 (HART 6)".to_string()),
+                _ => (22, format!("22 (HART {rev})")),
+            }),
+            3 if len < 9 || (len - 4) % 5 != 0 && len < 24 => {
+                return bad_len("9, 14, 19 or 24");
+            }
+            9 => Some((13, "13".to_string())),
+            15 if rev >= 6 => Some((18, "18".to_string())),
+            15 => Some((17, "17".to_string())),
+            _ => info(c).map(|i| (i.response_min, i.response_min.to_string())),
         };
-        if len < min {
-            return bad_len(&min.to_string());
+        if let Some((min, text)) = want {
+            if len < min {
+                return bad_len(&text);
+            }
         }
-        match c {
-            0 => {
-                let want = match rev {
-                    5 => 12,
-                    6 => 17,
-                    _ => 22,
-                };
-                if len < want {
-                    return bad_len(&format!("{want} (HART {rev})"));
+        let decoded = match decode_response(c, &d) {
+            Some(Ok(r)) => r,
+            Some(Err(e)) => return fail(format!("command {c}: the reply does not decode ({e})")),
+            None => return cnr(format!("command {c} has no layout in this version")),
+        };
+        match decoded {
+            Response::ReadUniqueIdentifier(id) => {
+                if id.expansion_code != 254 {
+                    return fail(format!("byte 0 is {}, 254 expected", id.expansion_code));
                 }
-                if d[0] != 254 {
-                    return fail(format!("byte 0 is {}, 254 expected", d[0]));
+                if !(5..=7).contains(&id.universal_revision) {
+                    return fail(format!(
+                        "universal revision {} (5, 6 or 7 expected)",
+                        id.universal_revision
+                    ));
                 }
-                if !(5..=7).contains(&d[4]) {
-                    return fail(format!("universal revision {} (5, 6 or 7 expected)", d[4]));
-                }
-                if !(2..=20).contains(&d[3]) {
+                if !(2..=20).contains(&id.min_request_preambles) {
                     return fail(format!(
                         "minimum request preambles {} (2-20 expected)",
-                        d[3]
+                        id.min_request_preambles
                     ));
                 }
             }
-            1 if !unit_ok(d[0]) => {
-                return fail(format!("units code {} is in no table", d[0]));
+            Response::ReadPrimaryVariable(ReadPvResponse { pv_units, .. })
+                if !unit_ok(pv_units) =>
+            {
+                return fail(format!("units code {} is in no table", pv_units.0));
             }
-            3 => {
-                if len < 9 || (len - 4) % 5 != 0 && len < 24 {
-                    return bad_len("9, 14, 19 or 24");
-                }
-                for k in 0..((len.min(24) - 4) / 5) {
-                    if !unit_ok(d[4 + 5 * k]) {
-                        return fail(format!("units code {} is in no table", d[4 + 5 * k]));
-                    }
+            Response::ReadDynamicVariables(ReadDynamicVariablesResponse { variables, .. }) => {
+                if let Some(v) = variables.as_slice().iter().find(|v| !unit_ok(v.units)) {
+                    return fail(format!("units code {} is in no table", v.units.0));
                 }
             }
-            7 => {
-                if self.dev.poll.is_some_and(|p| p != d[0] & 0x3F) {
+            Response::ReadLoopConfiguration(LoopConfiguration {
+                polling_address,
+                loop_current_mode,
+            }) => {
+                if self.dev.poll.is_some_and(|p| p != polling_address & 0x3F) {
                     return fail(format!(
-                        "polling address {} reported, {:?} used",
-                        d[0], self.dev.poll
+                        "polling address {polling_address} reported, {:?} used",
+                        self.dev.poll
                     ));
                 }
-                if d[1] > 1 {
-                    return fail(format!("loop current mode {} (0 or 1 expected)", d[1]));
+                if loop_current_mode.0 > 1 {
+                    return fail(format!(
+                        "loop current mode {} (0 or 1 expected)",
+                        loop_current_mode.0
+                    ));
                 }
             }
-            9 => {
-                if d[1] != 0 {
+            Response::ReadDeviceVariablesWithStatus(ReadDeviceVariablesResponse {
+                data, ..
+            }) => {
+                let Some(slot) = data.slots.as_slice().first() else {
+                    return bad_len("13");
+                };
+                if slot.code.0 != 0 {
                     return fail(format!(
                         "slot 0 carries device variable {}, 0 was asked",
-                        d[1]
+                        slot.code.0
                     ));
                 }
-                if !unit_ok(d[3]) {
-                    return fail(format!("units code {} is in no table", d[3]));
+                if !unit_ok(slot.units) {
+                    return fail(format!("units code {} is in no table", slot.units.0));
                 }
             }
-            13 => {
-                let (day, month) = (d[18], d[19]);
+            Response::ReadTagDescriptorDate(TagDescriptorDate { date, .. }) => {
+                let (day, month) = (date.day, date.month);
                 if !(1..=31).contains(&day) || !(1..=12).contains(&month) {
                     return fail(format!("date day {day} month {month} is no date"));
                 }
             }
-            14 if !unit_ok(d[3]) => {
-                return fail(format!("units code {} is in no table", d[3]));
+            Response::ReadPvTransducerInformation(TransducerInfo { limits_units, .. })
+                if !unit_ok(limits_units) =>
+            {
+                return fail(format!("units code {} is in no table", limits_units.0));
             }
-            15 => {
-                let want = if rev >= 6 { 18 } else { 17 };
-                if len < want {
-                    return bad_len(&want.to_string());
-                }
-                if tables::ALARM_SELECTION.name(d[0]).is_none() {
+            Response::ReadDeviceInformation(i) => {
+                if tables::ALARM_SELECTION.name(i.alarm_selection.0).is_none() {
                     return fail(format!(
                         "alarm selection code {} is not in Common Table 6",
-                        d[0]
+                        i.alarm_selection.0
                     ));
                 }
-                if tables::TRANSFER_FUNCTION.name(d[1]).is_none() {
+                if tables::TRANSFER_FUNCTION
+                    .name(i.transfer_function.0)
+                    .is_none()
+                {
                     return fail(format!(
                         "transfer function code {} is not in Common Table 3",
-                        d[1]
+                        i.transfer_function.0
                     ));
                 }
-                if !unit_ok(d[2]) {
-                    return fail(format!("range units code {} is in no table", d[2]));
+                if !unit_ok(i.range_units) {
+                    return fail(format!(
+                        "range units code {} is in no table",
+                        i.range_units.0
+                    ));
                 }
-                if tables::WRITE_PROTECT.name(d[15]).is_none() {
+                if tables::WRITE_PROTECT.name(i.write_protect.0).is_none() {
                     return fail(format!(
                         "write protect code {} is not in Common Table 7",
-                        d[15]
+                        i.write_protect.0
                     ));
                 }
-                if rev >= 6 && d[16] != 250 {
-                    return fail(format!("byte 16 is {}, 250 expected (HART 6+)", d[16]));
+                if rev >= 6 && i.reserved != 250 {
+                    return fail(format!("byte 16 is {}, 250 expected (HART 6+)", i.reserved));
                 }
             }
             _ => {}
@@ -998,12 +1143,13 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn cmd_48(&mut self) -> Outcome {
-        let (rc0, _, status) = match self.read(0, &[]).await {
+        let (rc0, _, status) = match self.read(&READ_0).await {
             Ok(x) => x,
             Err(o) => return o,
         };
         let _ = rc0;
-        let (rc, d, _) = match self.read(48, &[]).await {
+        let legacy = Request::ReadAdditionalStatus(ReadAdditionalStatusRequest::default());
+        let (rc, d, _) = match self.read(&legacy).await {
             Ok(x) => x,
             Err(o) => return o,
         };
@@ -1025,103 +1171,150 @@ impl<T: Transport> Runner<'_, '_, T> {
         pass(format!("{} bytes of additional status", d.len()))
     }
 
-    async fn write_readback(&mut self, read: u16, write: u16, len: usize) -> Outcome {
-        let original = match self.read(read, &[]).await {
-            Ok((0, d, _)) if d.len() >= len => d[..len].to_vec(),
-            Ok((rc, d, _)) => {
-                return fail(format!(
-                    "command {read} answered response code {rc} with {} bytes",
-                    d.len()
-                ))
-            }
+    /// CMD-017: command 17 writes a message, command 12 reads it back.
+    async fn readback_message(&mut self) -> Outcome {
+        self.write_readback(READ_12, Request::WriteMessage, |_: &Message| {
+            [
+                "HARTKIT CONFORMANCE TEST",
+                // The same bytes with one bit of the first character changed.
+                "IARTKIT CONFORMANCE TEST",
+            ]
+            .map(|text| Message {
+                message: PackedString::new(text).unwrap_or_default(),
+            })
+        })
+        .await
+    }
+
+    /// CMD-018: command 18 writes the tag (descriptor and date kept), command 13 reads
+    /// it back.
+    async fn readback_tag(&mut self) -> Outcome {
+        self.write_readback(READ_13, Request::WriteTagDescriptorDate, |o| {
+            ["CONFORM", "BONFORM"].map(|text| TagDescriptorDate {
+                tag: PackedString::new(text).unwrap_or_default(),
+                ..*o
+            })
+        })
+        .await
+    }
+
+    /// CMD-019: command 19 writes another final assembly number, command 16 reads it
+    /// back.
+    async fn readback_final_assembly_number(&mut self) -> Outcome {
+        self.write_readback(
+            Request::ReadFinalAssemblyNumber(Empty {}),
+            Request::WriteFinalAssemblyNumber,
+            |o: &FinalAssemblyNumber| {
+                // Never the same number: the lowest byte's bits change.
+                let n = o.final_assembly_number.get() ^ 0x5A;
+                let changed = FinalAssemblyNumber {
+                    final_assembly_number: U24::new(n).unwrap_or(o.final_assembly_number),
+                };
+                [changed, changed]
+            },
+        )
+        .await
+    }
+
+    /// CMD-022: command 22 writes the long tag, command 20 reads it back.
+    async fn readback_long_tag(&mut self) -> Outcome {
+        self.write_readback(
+            Request::ReadLongTag(Empty {}),
+            Request::WriteLongTag,
+            |_| {
+                ["hartkit-conform", "lartkit-conform"].map(|text| LongTag {
+                    long_tag: Latin1String::new(text).unwrap_or_default(),
+                })
+            },
+        )
+        .await
+    }
+
+    /// Reads a value with `read`, writes another with `write` (the first of `new`'s two
+    /// candidates that differs from what the device has), reads it back, and writes the
+    /// original back.
+    async fn write_readback<L: Wire + PartialEq + Copy + Default>(
+        &mut self,
+        read: Request,
+        write: fn(L) -> Request,
+        new: impl Fn(&L) -> [L; 2],
+    ) -> Outcome {
+        let (r, w) = (read.command(), write(L::default()).command());
+        let original = match self.read(&read).await {
+            Ok((rc, d, _)) => match decode::<L>(&d).filter(|_| rc == 0) {
+                Some(v) => v,
+                None => {
+                    return fail(format!(
+                        "command {r} answered response code {rc} with {} bytes",
+                        d.len()
+                    ))
+                }
+            },
             Err(o) => return o,
         };
-        // A new value: the message, tag or long tag text changed; a valid date kept.
-        let mut new = original.clone();
-        match write {
-            17 => {
-                let _ = hart_proto::types::packed_ascii::pack(
-                    "HARTKIT CONFORMANCE TEST",
-                    &mut new[..24],
-                );
-            }
-            18 => {
-                let _ = hart_proto::types::packed_ascii::pack("CONFORM", &mut new[..6]);
-            }
-            22 => {
-                new.iter_mut().for_each(|b| *b = 0);
-                new[..15].copy_from_slice(b"hartkit-conform");
-            }
-            // The final assembly number (3 bytes): another number.
-            _ => {
-                if let Some(b) = new.last_mut() {
-                    *b ^= 0x5A;
-                }
-            }
-        }
-        if new == original {
-            new[0] ^= 0x04;
-        }
+        let [first, second] = new(&original);
+        let new = if first == original { second } else { first };
         let mut verdict = None;
-        let ex = self.cmd(write, &new).await;
+        let ex = self.cmd(&write(new)).await;
         match ex.rc_data() {
             Some((7, _)) => return cnr(WRITE_PROTECTED),
             Some((rc, _)) if tables::response_class(rc) == tables::ResponseClass::Error => {
-                verdict = Some(fail(format!("command {write} answered response code {rc}")));
+                verdict = Some(fail(format!("command {w} answered response code {rc}")));
             }
-            None => verdict = Some(fail(format!("no reply to command {write}"))),
+            None => verdict = Some(fail(format!("no reply to command {w}"))),
             Some(_) => {}
         }
         if verdict.is_none() {
-            match self.read(read, &[]).await {
-                Ok((0, d, _)) if d.len() >= len && d[..len] == new[..] => {}
+            match self.read(&read).await {
+                Ok((0, d, _)) if decode::<L>(&d) == Some(new) => {}
                 Ok((_, d, _)) => {
                     verdict = Some(fail(format!(
-                        "command {read} read back {} instead of what was written, {}",
+                        "command {r} read back {} instead of what was written, {}",
                         crate::model::hex(&d),
-                        crate::model::hex(&new)
+                        crate::model::hex(&encoded(&new))
                     )))
                 }
                 Err(o) => verdict = Some(o),
             }
         }
         // Restore, and check.
-        let ex = self.cmd(write, &original).await;
+        let ex = self.cmd(&write(original)).await;
         let restored = matches!(ex.rc_data(), Some((rc, _)) if tables::response_class(rc) != tables::ResponseClass::Error);
-        let back = matches!(self.read(read, &[]).await, Ok((0, d, _)) if d.len() >= len && d[..len] == original[..]);
+        let back =
+            matches!(self.read(&read).await, Ok((0, d, _)) if decode::<L>(&d) == Some(original));
         if !(restored && back) {
             return fail(format!(
-                "the original value could not be restored with command {write}: set it again by hand ({})",
-                crate::model::hex(&original)
+                "the original value could not be restored with command {w}: set it again by hand ({})",
+                crate::model::hex(&encoded(&original))
             ));
         }
         verdict.unwrap_or_else(|| {
             pass(format!(
-                "command {write} wrote, command {read} read back exactly; original restored"
+                "command {w} wrote, command {r} read back exactly; original restored"
             ))
         })
     }
 
     /// Status byte the master `m` sees (from a command 0 reply).
     async fn status_of(&mut self, m: MasterKind) -> Option<u8> {
-        let ex = self.cmd_as(m, 0, &[]).await;
+        let ex = self.cmd_as(m, &READ_0).await;
         ex.reply().and_then(|f| f.device_status)
     }
 
     async fn reset_38(&mut self, m: MasterKind) -> Option<u8> {
-        let data = if self.dev.revision >= 7 {
-            let ex = self.cmd_as(m, 0, &[]).await;
-            let counter = ex
-                .reply()
-                .and_then(|f| Identity::decode(&mut Reader::new(f.data)).ok())
-                .and_then(|i| i.config_change_counter);
-            counter
-                .map(|c| c.to_be_bytes().to_vec())
-                .unwrap_or_default()
+        // HART 7 names the change counter it resets; older revisions send nothing.
+        let config_change_counter = if self.dev.revision >= 7 {
+            let ex = self.cmd_as(m, &READ_0).await;
+            ex.reply()
+                .and_then(|f| decode::<Identity>(f.data))
+                .and_then(|i| i.config_change_counter)
         } else {
-            vec![]
+            None
         };
-        let ex = self.cmd_as(m, 38, &data).await;
+        let req = Request::ResetConfigurationChanged(ResetConfigChanged {
+            config_change_counter,
+        });
+        let ex = self.cmd_as(m, &req).await;
         ex.rc_data().map(|(rc, _)| rc)
     }
 
@@ -1133,12 +1326,14 @@ impl<T: Transport> Runner<'_, '_, T> {
             return fail("no reply to command 0");
         };
         // A write that changes nothing visible: the message written as it is.
-        let msg = match self.read(12, &[]).await {
-            Ok((0, d, _)) if d.len() >= 24 => d[..24].to_vec(),
-            Ok((rc, _, _)) => return cnr(format!("command 12 answered response code {rc}")),
+        let msg = match self.read(&READ_12).await {
+            Ok((rc, d, _)) => match decode::<Message>(&d).filter(|_| rc == 0) {
+                Some(m) => m,
+                None => return cnr(format!("command 12 answered response code {rc}")),
+            },
             Err(o) => return o,
         };
-        let ex = self.cmd(17, &msg).await;
+        let ex = self.cmd(&Request::WriteMessage(msg)).await;
         if matches!(ex.rc_data(), Some((7, _))) {
             return cnr(WRITE_PROTECTED);
         }
@@ -1211,7 +1406,8 @@ impl<T: Transport> Runner<'_, '_, T> {
             ]
         };
         for &(c, _what) in candidates {
-            let ex = self.cmd(c, &[]).await;
+            // Deliberately without the data the command needs.
+            let ex = self.cmd_raw(c, &[]).await;
             let Some((rc, data)) = ex.rc_data() else {
                 return fail(format!("no reply to command {c} without its data"));
             };
@@ -1240,7 +1436,8 @@ impl<T: Transport> Runner<'_, '_, T> {
                 return na("--expect lists command 127");
             }
         }
-        let (rc, d, _) = match self.read(127, &[]).await {
+        // 127 has no layout: sent raw, on purpose.
+        let (rc, d, _) = match self.read_raw(127, &[]).await {
             Ok(x) => x,
             Err(o) => return o,
         };
@@ -1254,7 +1451,11 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn rc_invalid_selection(&mut self) -> Outcome {
-        let (rc, _, _) = match self.read(9, &[255]).await {
+        // 255 is no device variable code, on purpose.
+        let req = Request::ReadDeviceVariablesWithStatus(ReadDeviceVariablesRequest {
+            slots: slots(&[255]),
+        });
+        let (rc, _, _) = match self.read(&req).await {
             Ok(x) => x,
             Err(o) => return o,
         };
@@ -1267,24 +1468,27 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn rc_write_protected(&mut self) -> Outcome {
-        let (rc, d, _) = match self.read(15, &[]).await {
+        let (rc, d, _) = match self.read(&Request::ReadDeviceInformation(Empty {})).await {
             Ok(x) => x,
             Err(o) => return o,
         };
-        if rc != 0 || d.len() < 16 {
+        let Some(info) = decode::<DeviceInformation>(&d).filter(|_| rc == 0) else {
             return cnr("command 15 (write-protect code) did not answer");
-        }
-        if d[15] != 1 {
+        };
+        if info.write_protect.0 != 1 {
             return na(format!(
                 "the device is not write protected (code {})",
-                d[15]
+                info.write_protect.0
             ));
         }
-        let msg = match self.read(12, &[]).await {
-            Ok((0, m, _)) if m.len() >= 24 => m[..24].to_vec(),
-            _ => return cnr("command 12 did not answer"),
+        let msg = match self.read(&READ_12).await {
+            Ok((0, m, _)) => decode::<Message>(&m),
+            _ => None,
         };
-        let ex = self.cmd(17, &msg).await;
+        let Some(msg) = msg else {
+            return cnr("command 12 did not answer");
+        };
+        let ex = self.cmd(&Request::WriteMessage(msg)).await;
         match ex.rc_data() {
             Some((7, data)) if data.is_empty() => pass("a write answered response code 7"),
             Some((rc, _)) => fail(format!(
@@ -1295,16 +1499,18 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn common_practice(&mut self) -> Outcome {
-        // (command, request, minimum reply length)
-        let reads: [(u16, Vec<u8>, usize); 4] = [
-            (33, vec![0], 6),
-            (50, vec![], 4),
-            (54, vec![0], 27),
-            (95, vec![], 6),
+        let reads = [
+            Request::ReadDeviceVariables(ReadVariablesRequest { slots: slots(&[0]) }),
+            Request::ReadDynamicVariableAssignments(Empty {}),
+            Request::ReadDeviceVariableInformation(VariableCode {
+                code: DeviceVariableCode(0),
+            }),
+            Request::ReadCommunicationStatistics(Empty {}),
         ];
         let mut answered = vec![];
-        for (c, req, min) in reads {
-            let (rc, d, _) = match self.read(c, &req).await {
+        for req in reads {
+            let c = req.command();
+            let (rc, d, _) = match self.read(&req).await {
                 Ok(x) => x,
                 Err(o) => return o,
             };
@@ -1314,7 +1520,25 @@ impl<T: Transport> Runner<'_, '_, T> {
             if tables::response_class(rc) == tables::ResponseClass::Error {
                 return fail(format!("command {c} answered error response code {rc}"));
             }
-            if d.len() < min {
+            // The layout, and where it allows less than the rule asks: at least one
+            // variable (33), all four assignments (50).
+            let (whole, min) = match decode_response(c, &d) {
+                Some(Ok(Response::ReadDeviceVariables(ReadVariablesResponse { variables }))) => {
+                    (!variables.is_empty(), CodeUnitValue::MIN_LEN)
+                }
+                Some(Ok(Response::ReadDynamicVariableAssignments(a))) => {
+                    (a.qv_code.is_some(), DynamicVariableAssignments::MAX_LEN)
+                }
+                other => (
+                    matches!(other, Some(Ok(_))),
+                    match c {
+                        33 => CodeUnitValue::MIN_LEN,
+                        50 => DynamicVariableAssignments::MAX_LEN,
+                        _ => info(c).map_or(0, |i| i.response_min),
+                    },
+                ),
+            };
+            if !whole {
                 return fail(format!(
                     "command {c}: {} data bytes, at least {min} expected",
                     d.len()
@@ -1345,7 +1569,8 @@ impl<T: Transport> Runner<'_, '_, T> {
             {
                 continue;
             }
-            let (rc, d, _) = match self.read(c.number, &[]).await {
+            // Device-specific: no layout, sent as the --expect file gives it.
+            let (rc, d, _) = match self.read_raw(c.number, &[]).await {
                 Ok(x) => x,
                 Err(o) => return o,
             };
@@ -1415,40 +1640,29 @@ impl<T: Transport> Runner<'_, '_, T> {
         let mut max_msgs = 1u8;
         let mut m = 0u8;
         while m < max_msgs {
-            let req: Vec<u8> = if self.dev.revision >= 7 {
-                vec![m]
-            } else {
-                vec![]
-            };
-            let (rc, d, _) = self.read(105, &req).await?;
+            let req = Request::ReadBurstConfiguration(BurstMessageSelect {
+                burst_message: (self.dev.revision >= 7).then_some(m),
+            });
+            let (rc, d, _) = self.read(&req).await?;
             if rc == 64 {
                 return Err(na(
                     "command 105 not implemented: the device has no burst mode",
                 ));
             }
-            if tables::response_class(rc) == tables::ResponseClass::Error || d.len() < 22 {
-                return Err(fail(format!(
-                    "command 105 answered response code {rc} with {} bytes",
-                    d.len()
-                )));
-            }
-            if d.len() >= 12 {
-                max_msgs = d[11].clamp(1, 8);
-            }
-            let control = d[0];
-            let command = if d.len() >= 14 {
-                u16::from_be_bytes([d[12], d[13]])
-            } else {
-                u16::from(d[1])
+            let cfg = match burst_periods(rc, &d) {
+                Some(x) => x,
+                None => {
+                    return Err(fail(format!(
+                        "command 105 answered response code {rc} with {} bytes",
+                        d.len()
+                    )))
+                }
             };
-            let t = |b: &[u8]| u64::from(u32::from_be_bytes([b[0], b[1], b[2], b[3]])) * 1000 / 32;
-            let (period, max) = if d.len() >= 22 {
-                (t(&d[14..18]), t(&d[18..22]))
-            } else {
-                (0, 0)
-            };
-            if matches!(control, 1 | 3) {
-                out.push((m, command, period, max.max(period)));
+            let (c, period, max) = cfg;
+            max_msgs = c.max_burst_messages.unwrap_or(max_msgs).clamp(1, 8);
+            let (period, max) = (period.as_micros(), max.as_micros());
+            if matches!(c.control.0, 1 | 3) {
+                out.push((m, c.burst_command(), period, max.max(period)));
             }
             m += 1;
             if self.dev.revision < 7 {
@@ -1474,10 +1688,30 @@ impl<T: Transport> Runner<'_, '_, T> {
                 Ok(d) => d,
                 Err(o) => return o,
             };
-            if let Err(o) = self
-                .burst_setup(0, 1, 32_000, &[0, 0, 250], &[0x7F, 0xA0, 0, 0], 1)
-                .await
-            {
+            let second = HartTime::from_millis(1000);
+            let steps = [
+                Request::WriteBurstCommandNumber(BurstCommand {
+                    command_number: 1,
+                    burst_message: Some(0),
+                }),
+                Request::WriteBurstPeriod(BurstPeriod {
+                    burst_message: 0,
+                    update_period: second,
+                    max_update_period: second,
+                }),
+                Request::WriteBurstTrigger(BurstTrigger {
+                    burst_message: 0,
+                    trigger_mode: TriggerMode(0),
+                    classification: Classification(0),
+                    units: UnitCode(250),
+                    trigger_level: hart_nan(),
+                }),
+                Request::BurstModeControl(BurstModeControlRequest {
+                    control: BurstModeControl(1),
+                    burst_message: Some(0),
+                }),
+            ];
+            if let Err(o) = self.burst_setup(0, &steps).await {
                 self.burst_restore(&original).await;
                 return o;
             }
@@ -1489,35 +1723,18 @@ impl<T: Transport> Runner<'_, '_, T> {
                 ((v, d), true) => (v, format!("{d} (message 0 enabled for the test, then restored)")),
                 (_, false) => fail(format!(
                     "burst message 0 could not be put back as it was (command 105: {}); set it again",
-                    crate::model::hex(&original)
+                    crate::model::hex(&original.1)
                 )),
             };
         }
         self.burst_check(id, msgs).await
     }
 
-    /// Configures burst message `m` (command, period in 1/32 ms, trigger mode,
-    /// classification and units, trigger level bytes, control) with commands 108, 103,
-    /// 104 and 109.
-    async fn burst_setup(
-        &mut self,
-        m: u8,
-        command: u16,
-        period: u32,
-        trigger: &[u8; 3],
-        level: &[u8; 4],
-        control: u8,
-    ) -> Result<(), Outcome> {
-        let [hi, lo] = command.to_be_bytes();
-        let p = period.to_be_bytes();
-        let steps: [(u16, Vec<u8>); 4] = [
-            (108, vec![hi, lo, m]),
-            (103, [vec![m], p.to_vec(), p.to_vec()].concat()),
-            (104, [vec![m], trigger.to_vec(), level.to_vec()].concat()),
-            (109, vec![control, m]),
-        ];
-        for (c, req) in steps {
-            let ex = self.cmd(c, &req).await;
+    /// Configures burst message `m` with `steps` (commands 108, 103, 104 and 109).
+    async fn burst_setup(&mut self, m: u8, steps: &[Request]) -> Result<(), Outcome> {
+        for req in steps {
+            let c = req.command();
+            let ex = self.cmd(req).await;
             match ex.rc_data() {
                 Some((7, _)) => return Err(cnr(WRITE_PROTECTED)),
                 Some((rc, _)) if tables::response_class(rc) == tables::ResponseClass::Error => {
@@ -1533,33 +1750,19 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     /// Puts burst message 0 back as command 105 showed it; true when it reads back so.
-    async fn burst_restore(&mut self, original: &[u8]) -> bool {
-        if original.len() < 29 {
+    async fn burst_restore(&mut self, original: &(BurstConfiguration, Vec<u8>)) -> bool {
+        let Some(steps) = restore_steps(&original.0) else {
             return false;
+        };
+        for req in &steps {
+            let _ = self.cmd(req).await;
         }
-        let command = u16::from_be_bytes([original[12], original[13]]);
-        let period = u32::from_be_bytes([original[14], original[15], original[16], original[17]]);
-        let max = &original[18..22];
-        // Off first, so that nothing bursts half-configured.
-        let _ = self.cmd(109, &[0, 0]).await;
-        let _ = self.cmd(108, &[original[12], original[13], 0]).await;
-        let _ = self
-            .cmd(
-                103,
-                &[vec![0], period.to_be_bytes().to_vec(), max.to_vec()].concat(),
-            )
-            .await;
-        let _ = self
-            .cmd(104, &[vec![0], original[22..29].to_vec()].concat())
-            .await;
-        let _ = self.cmd(109, &[original[0], 0]).await;
-        let _ = command;
-        matches!(self.burst_config(0).await, Ok(d) if d == original)
+        matches!(self.burst_config(0).await, Ok((_, d)) if d == original.1)
     }
 
     async fn burst_check(&mut self, id: &str, msgs: Vec<(u8, u16, Micros, Micros)>) -> Outcome {
         if id == "BURST-003" {
-            let ex = self.cmd(1, &[]).await;
+            let ex = self.cmd(&READ_1).await;
             return match ex.reply() {
                 Some(_) => pass("a request between burst frames was answered"),
                 None => fail("a request while the device bursts got no reply"),
@@ -1662,21 +1865,24 @@ impl<T: Transport> Runner<'_, '_, T> {
         ))
     }
 
-    /// Command 105 for message 0: its reply data, or why not.
-    async fn burst_config(&mut self, m: u8) -> Result<Vec<u8>, Outcome> {
-        let (rc, d, _) = self.read(105, &[m]).await?;
+    /// Command 105 for message `m`: its configuration and reply data, or why not.
+    async fn burst_config(&mut self, m: u8) -> Result<(BurstConfiguration, Vec<u8>), Outcome> {
+        let req = Request::ReadBurstConfiguration(BurstMessageSelect {
+            burst_message: Some(m),
+        });
+        let (rc, d, _) = self.read(&req).await?;
         if rc == 64 {
             return Err(na(
                 "command 105 not implemented: the device has no burst mode",
             ));
         }
-        if tables::response_class(rc) == tables::ResponseClass::Error || d.len() < 22 {
-            return Err(fail(format!(
+        match burst_periods(rc, &d) {
+            Some((cfg, _, _)) => Ok((cfg, d)),
+            None => Err(fail(format!(
                 "command 105 answered response code {rc} with {} bytes",
                 d.len()
-            )));
+            ))),
         }
-        Ok(d)
     }
 
     async fn burst_invalid_message(&mut self) -> Outcome {
@@ -1684,25 +1890,38 @@ impl<T: Transport> Runner<'_, '_, T> {
             Ok(d) => d,
             Err(o) => return o,
         };
-        let n = before.get(11).copied().unwrap_or(1).max(1);
-        let nan = hart_proto::types::HART_NAN_BITS.to_be_bytes();
-        let requests: [(u16, Vec<u8>); 5] = [
-            (
-                103,
-                [
-                    vec![n],
-                    32000u32.to_be_bytes().to_vec(),
-                    32000u32.to_be_bytes().to_vec(),
-                ]
-                .concat(),
-            ),
-            (104, [vec![n, 0, 0, 250], nan.to_vec()].concat()),
-            (107, [vec![250; 8], vec![n]].concat()),
-            (108, vec![0, 1, n]),
-            (109, vec![0, n]),
+        // The first message number the device does not have, on purpose.
+        let n = before.0.max_burst_messages.unwrap_or(1).max(1);
+        let period = HartTime::from_millis(1000);
+        let requests = [
+            Request::WriteBurstPeriod(BurstPeriod {
+                burst_message: n,
+                update_period: period,
+                max_update_period: period,
+            }),
+            Request::WriteBurstTrigger(BurstTrigger {
+                burst_message: n,
+                trigger_mode: TriggerMode(0),
+                classification: Classification(0),
+                units: UnitCode(250),
+                trigger_level: hart_nan(),
+            }),
+            Request::WriteBurstDeviceVariables(BurstVariables {
+                slots: slots(&[250; 8]),
+                burst_message: Some(n),
+            }),
+            Request::WriteBurstCommandNumber(BurstCommand {
+                command_number: 1,
+                burst_message: Some(n),
+            }),
+            Request::BurstModeControl(BurstModeControlRequest {
+                control: BurstModeControl(0),
+                burst_message: Some(n),
+            }),
         ];
-        for (c, req) in requests {
-            let ex = self.cmd(c, &req).await;
+        for req in requests {
+            let c = req.command();
+            let ex = self.cmd(&req).await;
             match ex.rc_data() {
                 Some((9, _)) => {}
                 Some((7, _)) => return cnr(WRITE_PROTECTED),
@@ -1715,7 +1934,7 @@ impl<T: Transport> Runner<'_, '_, T> {
             }
         }
         match self.burst_config(0).await {
-            Ok(after) if after == before => pass(format!(
+            Ok(after) if after.1 == before.1 => pass(format!(
                 "commands 103-109 for message {n}: response code 9, nothing changed"
             )),
             Ok(_) => fail(
@@ -1730,22 +1949,24 @@ impl<T: Transport> Runner<'_, '_, T> {
             Ok(d) => d,
             Err(o) => return o,
         };
-        let original = before[14..22].to_vec();
+        let Some(original) = burst_periods(0, &before.1) else {
+            return cnr("command 105 carries no update periods to restore");
+        };
+        let original = (original.1, original.2);
         // 0.3 s = 9600 in 1/32 ms: between the legal 0.5 s and nothing shorter.
-        let asked = 9600u32;
-        let req = [
-            vec![0],
-            asked.to_be_bytes().to_vec(),
-            asked.to_be_bytes().to_vec(),
-        ]
-        .concat();
-        let ex = self.cmd(103, &req).await;
+        let asked = HartTime(9600);
+        let req = Request::WriteBurstPeriod(BurstPeriod {
+            burst_message: 0,
+            update_period: asked,
+            max_update_period: asked,
+        });
+        let ex = self.cmd(&req).await;
         if matches!(ex.rc_data(), Some((7, _))) {
             return cnr(WRITE_PROTECTED);
         }
         let verdict = match ex.rc_data() {
-            Some((8, d)) if d.len() >= 9 => {
-                let got = u32::from_be_bytes([d[1], d[2], d[3], d[4]]);
+            Some((8, d)) if decode::<BurstPeriod>(&d).is_some() => {
+                let got = decode::<BurstPeriod>(&d).map_or(0, |p| p.update_period.0);
                 const LEGAL: [u32; 7] = [16_000, 32_000, 64_000, 128_000, 256_000, 512_000, 1_024_000];
                 if LEGAL.contains(&got) || (1_920_000..=115_200_000).contains(&got) {
                     pass(format!(
@@ -1766,13 +1987,18 @@ impl<T: Transport> Runner<'_, '_, T> {
             None => fail("no reply to command 103"),
         };
         // Restore the periods.
-        let ex = self.cmd(103, &[vec![0], original.clone()].concat()).await;
+        let req = Request::WriteBurstPeriod(BurstPeriod {
+            burst_message: 0,
+            update_period: original.0,
+            max_update_period: original.1,
+        });
+        let ex = self.cmd(&req).await;
         let restored = matches!(ex.rc_data(), Some((0 | 8, _)));
-        let back = matches!(self.burst_config(0).await, Ok(d) if d[14..22] == original[..]);
+        let back = matches!(self.burst_config(0).await, Ok((_, d)) if burst_periods(0, &d).map(|p| (p.1, p.2)) == Some(original));
         if !(restored && back) {
             return fail(format!(
                 "the burst period of message 0 could not be restored: set it again ({})",
-                crate::model::hex(&original)
+                crate::model::hex(&[encoded(&original.0), encoded(&original.1)].concat())
             ));
         }
         verdict
@@ -1780,40 +2006,44 @@ impl<T: Transport> Runner<'_, '_, T> {
 
     /// BURST-007: command 104 with trigger mode 5, which Common Table 33 does not define.
     async fn burst_trigger_mode_refused(&mut self) -> Outcome {
-        let nan = hart_proto::types::HART_NAN_BITS.to_be_bytes();
-        let request = [vec![0, 5, 0, 250], nan.to_vec()].concat();
-        self.burst_write_refused(104, request, 13, "trigger mode 5 (not in Common Table 33)")
+        let request = Request::WriteBurstTrigger(BurstTrigger {
+            burst_message: 0,
+            trigger_mode: TriggerMode(5),
+            classification: Classification(0),
+            units: UnitCode(250),
+            trigger_level: hart_nan(),
+        });
+        self.burst_write_refused(request, 13, "trigger mode 5 (not in Common Table 33)")
             .await
     }
 
     /// BURST-008: command 108 with command 6 (write polling address): a write, which no
     /// device bursts.
     async fn burst_command_refused(&mut self) -> Outcome {
-        self.burst_write_refused(108, vec![0, 6, 0], 2, "command 6 (a write, not burstable)")
+        let request = Request::WriteBurstCommandNumber(BurstCommand {
+            command_number: 6,
+            burst_message: Some(0),
+        });
+        self.burst_write_refused(request, 2, "command 6 (a write, not burstable)")
             .await
     }
 
-    /// Sends `command` with `request` for burst message 0 and expects response code
-    /// `want` with message 0's configuration (command 105) unchanged; a configuration
-    /// the device did change is written back (command number, then trigger).
-    async fn burst_write_refused(
-        &mut self,
-        command: u16,
-        request: Vec<u8>,
-        want: u8,
-        what: &str,
-    ) -> Outcome {
+    /// Sends `request` for burst message 0 and expects response code `want` with
+    /// message 0's configuration (command 105) unchanged; a configuration the device did
+    /// change is written back (command number, then trigger).
+    async fn burst_write_refused(&mut self, request: Request, want: u8, what: &str) -> Outcome {
+        let command = request.command();
         let before = match self.burst_config(0).await {
             Ok(d) => d,
             Err(o) => return o,
         };
-        if before.len() < 29 {
+        let Some([_, write_command, _, write_trigger, _]) = restore_steps(&before.0) else {
             return cnr(format!(
                 "command 105 answered {} bytes, without the trigger (29 for HART 7): nothing to compare",
-                before.len()
+                before.1.len()
             ));
-        }
-        let ex = self.cmd(command, &request).await;
+        };
+        let ex = self.cmd(&request).await;
         let verdict = match ex.rc_data() {
             Some((rc, _)) if rc == want => pass(format!(
                 "command {command} with {what}: response code {want}"
@@ -1828,24 +2058,18 @@ impl<T: Transport> Runner<'_, '_, T> {
             Ok(d) => d,
             Err(o) => return o,
         };
-        if after == before {
+        if after.1 == before.1 {
             return verdict;
         }
         // Put message 0 back as it was: its command first (command 108 may reset the
         // trigger), then its trigger.
-        let restored = matches!(
-            self.cmd(108, &[before[12], before[13], 0]).await.rc_data(),
-            Some((0 | 8, _))
-        ) && matches!(
-            self.cmd(104, &[vec![0], before[22..29].to_vec()].concat())
-                .await
-                .rc_data(),
-            Some((0 | 8, _))
-        ) && matches!(self.burst_config(0).await, Ok(d) if d == before);
+        let restored = matches!(self.cmd(&write_command).await.rc_data(), Some((0 | 8, _)))
+            && matches!(self.cmd(&write_trigger).await.rc_data(), Some((0 | 8, _)))
+            && matches!(self.burst_config(0).await, Ok((_, d)) if d == before.1);
         let changed = format!(
             "command {command} with {what} changed burst message 0 (command 105: {} before, {} after)",
-            crate::model::hex(&before),
-            crate::model::hex(&after)
+            crate::model::hex(&before.1),
+            crate::model::hex(&after.1)
         );
         if restored {
             fail(format!("{changed}; it was written back"))
@@ -1862,7 +2086,10 @@ impl<T: Transport> Runner<'_, '_, T> {
         };
         let mut verdict = None;
         for (value, code, what) in [(255u8, 3u8, "too large"), (0, 4, "too small")] {
-            let ex = self.cmd(59, &[value]).await;
+            let req = Request::WriteResponsePreambles(ResponsePreambles {
+                response_preambles: value,
+            });
+            let ex = self.cmd(&req).await;
             match ex.rc_data() {
                 Some((64, _)) => {
                     verdict = Some(na("command 59 not implemented"));
@@ -1870,7 +2097,9 @@ impl<T: Transport> Runner<'_, '_, T> {
                 }
                 Some((7, _)) => return cnr(WRITE_PROTECTED),
                 Some((rc, _)) if rc == code => {}
-                Some((8, d)) if d.first().is_some_and(|&v| (5..=20).contains(&v)) => {}
+                Some((8, d))
+                    if decode::<ResponsePreambles>(&d)
+                        .is_some_and(|r| (5..=20).contains(&r.response_preambles)) => {}
                 Some((rc, d)) => {
                     verdict = Some(fail(format!(
                         "command 59 with {value} preambles answered response code {rc} {}; {code} ({what}) or 8 with 5-20 expected",
@@ -1885,7 +2114,10 @@ impl<T: Transport> Runner<'_, '_, T> {
             }
         }
         // Restore (harmless when nothing changed).
-        let ex = self.cmd(59, &[original]).await;
+        let req = Request::WriteResponsePreambles(ResponsePreambles {
+            response_preambles: original,
+        });
+        let ex = self.cmd(&req).await;
         if !matches!(ex.rc_data(), Some((0 | 64, _))) {
             return fail(format!(
                 "the reply preambles could not be restored to {original} with command 59"
@@ -1897,12 +2129,10 @@ impl<T: Transport> Runner<'_, '_, T> {
     }
 
     async fn burst_105(&mut self) -> Outcome {
-        let req: Vec<u8> = if self.dev.revision >= 7 {
-            vec![0]
-        } else {
-            vec![]
-        };
-        let (rc, d, _) = match self.read(105, &req).await {
+        let req = Request::ReadBurstConfiguration(BurstMessageSelect {
+            burst_message: (self.dev.revision >= 7).then_some(0),
+        });
+        let (rc, d, _) = match self.read(&req).await {
             Ok(x) => x,
             Err(o) => return o,
         };
@@ -1921,8 +2151,13 @@ impl<T: Transport> Runner<'_, '_, T> {
                     d.len()
                 ));
             }
-            let count = d.get(11).copied().unwrap_or(1);
-            let (rc, _, _) = match self.read(105, &[count]).await {
+            let count = decode::<BurstConfiguration>(&d)
+                .and_then(|c| c.max_burst_messages)
+                .unwrap_or(1);
+            let req = Request::ReadBurstConfiguration(BurstMessageSelect {
+                burst_message: Some(count),
+            });
+            let (rc, _, _) = match self.read(&req).await {
                 Ok(x) => x,
                 Err(o) => return o,
             };
@@ -1937,4 +2172,47 @@ impl<T: Transport> Runner<'_, '_, T> {
         }
         pass(format!("command 105: {} data bytes", d.len()))
     }
+}
+
+/// A command 105 reply with response code `rc` that carries the update periods (22 bytes
+/// and more): the configuration, its update period and its maximum update period.
+fn burst_periods(rc: u8, data: &[u8]) -> Option<(BurstConfiguration, HartTime, HartTime)> {
+    if tables::response_class(rc) == tables::ResponseClass::Error {
+        return None;
+    }
+    let cfg = decode::<BurstConfiguration>(data)?;
+    Some((cfg, cfg.update_period?, cfg.max_update_period?))
+}
+
+/// The requests that put burst message 0 back as `cfg` shows it: off first, so that
+/// nothing bursts half-configured, then its command (108), periods (103), trigger (104)
+/// and control (109). `None` when `cfg` lacks one of them (a reply shorter than the 29
+/// bytes of HART 7).
+fn restore_steps(cfg: &BurstConfiguration) -> Option<[Request; 5]> {
+    Some([
+        Request::BurstModeControl(BurstModeControlRequest {
+            control: BurstModeControl(0),
+            burst_message: Some(0),
+        }),
+        Request::WriteBurstCommandNumber(BurstCommand {
+            command_number: cfg.command_number?.0,
+            burst_message: Some(0),
+        }),
+        Request::WriteBurstPeriod(BurstPeriod {
+            burst_message: 0,
+            update_period: cfg.update_period?,
+            max_update_period: cfg.max_update_period?,
+        }),
+        Request::WriteBurstTrigger(BurstTrigger {
+            burst_message: 0,
+            trigger_mode: cfg.trigger_mode?,
+            classification: cfg.trigger_classification?,
+            units: cfg.trigger_units?,
+            trigger_level: cfg.trigger_level?,
+        }),
+        Request::BurstModeControl(BurstModeControlRequest {
+            control: cfg.control,
+            burst_message: Some(0),
+        }),
+    ])
 }
