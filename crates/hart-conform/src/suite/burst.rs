@@ -376,9 +376,11 @@ impl<T: Transport> Runner<'_, '_, T> {
         if matches!(ex.rc_data(), Some((7, _))) {
             return cnr(WRITE_PROTECTED);
         }
-        let verdict = match ex.rc_data() {
-            Some((8, d)) if decode::<BurstPeriod>(&d).is_some() => {
-                let got = decode::<BurstPeriod>(&d).map_or(0, |p| p.update_period.0);
+        // The reply's periods, when it carries them.
+        let reply = ex.rc_data().map(|(rc, d)| (rc, decode::<BurstPeriod>(&d)));
+        let verdict = match reply {
+            Some((8, Some(adjusted))) => {
+                let got = adjusted.update_period.0;
                 const LEGAL: [u32; 7] = [16_000, 32_000, 64_000, 128_000, 256_000, 512_000, 1_024_000];
                 if LEGAL.contains(&got) || (1_920_000..=115_200_000).contains(&got) {
                     pass(format!(
