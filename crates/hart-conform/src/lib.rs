@@ -26,6 +26,8 @@ pub mod phy;
 pub mod probe;
 pub mod report;
 pub mod run;
+mod runner;
+mod suite;
 
 pub use catalog::{TestDef, TESTS};
 pub use model::{Group, Report, TestResult, Verdict};

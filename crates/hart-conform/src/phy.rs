@@ -6,7 +6,7 @@
 
 use hart_modem::demod::{DemodConfig, DemodEvent, Demodulator};
 
-use crate::catalog::TESTS;
+use crate::catalog::{PhyTest, Test, TESTS};
 use crate::model::{hex, Evidence, Group, Report, SeenFrame, TestResult, Verdict};
 
 /// Limits of the physical-layer tests (see docs/conform.md for where each comes from).
@@ -158,7 +158,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
             let results = defs
                 .iter()
                 .map(|d| {
-                    let (verdict, detail) = if d.id == "PHY-004" {
+                    let (verdict, detail) = if d.test == Test::Phy(PhyTest::PhaseContinuity) {
                         (
                             Verdict::Fail,
                             format!("{why}: phase jumps or distortion break the FSK signal"),
@@ -221,7 +221,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
     let results = defs
         .iter()
         .map(|d| {
-            let (verdict, detail) = judge(d.id, &frames, snr, noise.unwrap_or(0.0), limits);
+            let (verdict, detail) = judge(d.test, &frames, snr, noise.unwrap_or(0.0), limits);
             TestResult::of(d, verdict, detail, evidence.clone(), 0)
         })
         .collect();
@@ -229,7 +229,7 @@ pub fn run(wav: &[u8], name: &str, limits: &Limits) -> Report {
 }
 
 fn judge(
-    id: &str,
+    test: Test,
     frames: &[FrameMeasure],
     snr: Option<f64>,
     noise_rms: f64,
@@ -242,8 +242,14 @@ fn judge(
             .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a })
     };
     let ok = |b: bool, s: String| (if b { Verdict::Pass } else { Verdict::Fail }, s);
-    match id {
-        "PHY-001" => {
+    let Test::Phy(test) = test else {
+        return (
+            Verdict::CouldNotRun,
+            format!("{}: not a physical-layer test", test.id()),
+        );
+    };
+    match test {
+        PhyTest::Amplitude => {
             let lo = frames.iter().map(|f| f.level_vpp).fold(f64::MAX, f64::min);
             let hi = frames.iter().map(|f| f.level_vpp).fold(0.0, f64::max);
             ok(
@@ -257,7 +263,7 @@ fn judge(
                 ),
             )
         }
-        "PHY-002" => {
+        PhyTest::Frequencies => {
             let e = worst(&|f| f.tone_error);
             ok(
                 e.abs() <= l.tone_error,
@@ -270,7 +276,7 @@ fn judge(
                 ),
             )
         }
-        "PHY-003" => {
+        PhyTest::BitRate => {
             let e = worst(&|f| f.rate_error);
             ok(
                 e.abs() <= l.rate_error,
@@ -282,7 +288,7 @@ fn judge(
                 ),
             )
         }
-        "PHY-004" => {
+        PhyTest::PhaseContinuity => {
             let unclean = frames.iter().filter(|f| !f.clean).count();
             // A phase-continuous tone moves at most `tone_step_v` between samples;
             // noise adds up to about 5·√2·σ; a phase jump steps up to the full
@@ -303,7 +309,7 @@ fn judge(
                 ),
             )
         }
-        "PHY-005" => {
+        PhyTest::CarrierTiming => {
             let lead = frames.iter().filter_map(|f| f.lead_s).fold(0.0, f64::max);
             let lag = frames.iter().filter_map(|f| f.lag_s).fold(0.0, f64::max);
             if frames
@@ -325,7 +331,7 @@ fn judge(
                 ),
             )
         }
-        "PHY-006" => match snr {
+        PhyTest::SignalToNoise => match snr {
             None => (
                 Verdict::CouldNotRun,
                 "no quiet stretch of 20 ms in the recording to measure the noise".into(),
@@ -335,10 +341,6 @@ fn judge(
                 format!("signal-to-noise {db:.1} dB (limit {:.0} dB)", l.min_snr_db),
             ),
         },
-        other => (
-            Verdict::CouldNotRun,
-            format!("{other}: not a physical-layer test"),
-        ),
     }
 }
 

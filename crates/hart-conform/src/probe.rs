@@ -4,6 +4,7 @@
 use hart_host::transport::Transport;
 use hart_link::Micros;
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType};
+use hart_proto::Request;
 
 use crate::frames::{split, Char, RxFrame};
 use crate::model::{hex, Evidence};
@@ -159,7 +160,17 @@ impl<'a, T: Transport> Probe<'a, T> {
         }
     }
 
-    /// A request frame: `preambles`, STX to `address`, `command`, `data`.
+    /// A request frame: `preambles`, STX to `address`, the request `req` (its command
+    /// number and data from hart-proto's layouts). Empty when `req` does not encode.
+    pub fn frame(preambles: usize, address: Address, req: &Request) -> Vec<u8> {
+        match req.to_vec() {
+            Ok(data) => Self::request(preambles, address, req.command(), &data),
+            Err(_) => vec![],
+        }
+    }
+
+    /// A request frame: `preambles`, STX to `address`, `command`, raw `data` (for what
+    /// no layout makes: a request too short on purpose, a device-specific command).
     pub fn request(preambles: usize, address: Address, command: u16, data: &[u8]) -> Vec<u8> {
         let spec = FrameSpec {
             preambles,

@@ -82,10 +82,6 @@ const OTHER_LAYERS: &[(&str, &[&str], &str)] = &[
 /// entry is to be lowered.
 const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-access/src/lib.rs", "data_offset", 1),
-    ("crates/hart-conform/src/run.rs", "be_bytes", 13),
-    ("crates/hart-conform/src/run.rs", "concat_bytes", 8),
-    ("crates/hart-conform/src/run.rs", "data_offset", 51),
-    ("crates/hart-conform/src/run.rs", "literal_command_data", 17),
     ("crates/hart-device/src/device.rs", "be_bytes", 2),
     ("crates/hart-device/src/device.rs", "data_offset", 1),
     ("crates/hart-ip-server/src/io_system.rs", "be_bytes", 2),
