@@ -20,7 +20,7 @@ function statusWords(d) {
 
 // One row of the plant table: the same cells as the server's.
 function plantRow(d) {
-  var pct = d.percent_range;
+  var pct = d.percent_of_range;
   var bar = (typeof pct === "number")
     ? '<meter class="bar" min="0" max="100" value="' + Math.max(0, Math.min(100, pct)).toFixed(1) + '"></meter>' : "";
   var pv = d.pv || {};
@@ -28,7 +28,7 @@ function plantRow(d) {
     '<td><a href="/device/' + d.unit + '" class="tag">' + esc(d.name) + '</a><div class="muted small">' + esc(d.descriptor) + '</div></td>' +
     '<td>' + esc(d.loop) + '</td><td>' + (d.polling_address === null ? "—" : d.polling_address) + '</td>' +
     '<td class="muted small">' + esc(d.unique_id) + '</td>' +
-    '<td class="num pv">' + text(pv.value, 3) + '</td><td class="units">' + esc(pv.units) + '</td>' +
+    '<td class="num pv">' + text(pv.value, 3) + '</td><td class="units">' + esc(pv.units_symbol) + '</td>' +
     '<td class="pct">' + bar + '<span class="small">' + (typeof pct === "number" ? pct.toFixed(1) + " %" : "") + '</span></td>' +
     '<td class="num current">' + (typeof d.loop_current === "number" ? d.loop_current.toFixed(3) + " mA" : "—") + '</td>' +
     '<td class="status">' + esc(statusWords(d)) + '</td>' +
@@ -88,10 +88,10 @@ function devicePage() {
     ["pv", "sv", "tv", "qv"].forEach(function (k) {
       var v = d[k] || {};
       setField(values, k, text(v.value, 3));
-      setField(values, k + "_units", v.units || "");
+      setField(values, k + "_units", v.units_symbol || "");
     });
     setField(values, "loop_current", text(d.loop_current, 3));
-    setField(values, "percent_range", text(d.percent_range, 1));
+    setField(values, "percent_of_range", text(d.percent_of_range, 1));
     setField(document, "status", statusWords(d));
     var q = document.querySelector('h1 [data-field="quality"]');
     if (q) { q.textContent = d.quality; q.className = "q q-" + d.quality; }

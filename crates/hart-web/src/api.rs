@@ -804,8 +804,8 @@ fn history_json(
         "source": source,
         "from": t(from),
         "to": t(to),
-        "pv_units_code": units,
-        "pv_units": units.and_then(hart_proto::tables::unit_symbol),
+        "pv_units": units,
+        "pv_units_symbol": units.and_then(hart_proto::tables::unit_symbol),
         "points": points,
     })
 }

@@ -41,8 +41,8 @@ pub(crate) fn device_json(d: &DeviceImage, engine: &Engine) -> Value {
         d.variables[i].map_or(Value::Null, |v| {
             json!({
                 "value": f(v.value),
-                "units_code": v.units,
-                "units": tables::unit_symbol(v.units).unwrap_or(""),
+                "units": v.units,
+                "units_symbol": tables::unit_symbol(v.units).unwrap_or(""),
             })
         })
     };
@@ -59,18 +59,18 @@ pub(crate) fn device_json(d: &DeviceImage, engine: &Engine) -> Value {
         "polling_address": d.polling_address,
         "manufacturer_id": info.map(|i| i.manufacturer_id()),
         "expanded_device_type": info.map(|i| i.identity.expanded_device_type),
-        "hart_revision": info.map(|i| i.revision()),
+        "universal_revision": info.map(|i| i.revision()),
         "pv": var(0),
         "sv": var(1),
         "tv": var(2),
         "qv": var(3),
         "loop_current": d.loop_current.map(f),
-        "percent_range": d.percent_range.map(f),
+        "percent_of_range": d.percent_range.map(f),
         "range": d.range.map(|r| json!({
             "upper": f(r.upper),
             "lower": f(r.lower),
-            "units_code": r.units,
-            "units": tables::unit_symbol(r.units).unwrap_or(""),
+            "units": r.units,
+            "units_symbol": tables::unit_symbol(r.units).unwrap_or(""),
             "damping": f(r.damping),
             "write_protect": r.write_protect,
         })),

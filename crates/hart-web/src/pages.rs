@@ -34,7 +34,7 @@ fn num(v: &Value, digits: usize) -> String {
 /// One row of the plant table (the script builds the same from the event stream).
 fn plant_row(d: &Value) -> String {
     let unit = d["unit"].as_u64().unwrap_or(0);
-    let pct = d["percent_range"].as_f64();
+    let pct = d["percent_of_range"].as_f64();
     let bar = pct.map_or(String::new(), |p| {
         format!(
             "<meter class=\"bar\" min=\"0\" max=\"100\" value=\"{:.1}\"></meter>",
@@ -56,7 +56,7 @@ fn plant_row(d: &Value) -> String {
         poll = d["polling_address"].as_u64().map_or("—".into(), |p| p.to_string()),
         uid = esc(d["unique_id"].as_str().unwrap_or("")),
         pv = num(&d["pv"]["value"], 3),
-        units = esc(d["pv"]["units"].as_str().unwrap_or("")),
+        units = esc(d["pv"]["units_symbol"].as_str().unwrap_or("")),
         pcts = pct.map_or(String::new(), |p| format!("{p:.1} %")),
         current = d["loop_current"].as_f64().map_or("—".into(), |c| format!("{c:.3} mA")),
         status = esc(&if status.is_empty() { "ok".to_string() } else { status.join(", ") }),
@@ -136,15 +136,15 @@ pub(crate) async fn device(
             body,
             "<div class=\"value\"><div class=\"label\">{label}</div><div class=\"big\" data-field=\"{key}\">{}</div><div class=\"muted\" data-field=\"{key}_units\">{}</div></div>",
             num(&d[key]["value"], 3),
-            esc(d[key]["units"].as_str().unwrap_or(""))
+            esc(d[key]["units_symbol"].as_str().unwrap_or(""))
         );
     }
     let _ = write!(
         body,
         "<div class=\"value\"><div class=\"label\">Loop current</div><div class=\"big\" data-field=\"loop_current\">{}</div><div class=\"muted\">mA</div></div>\
-<div class=\"value\"><div class=\"label\">% of range</div><div class=\"big\" data-field=\"percent_range\">{}</div><div class=\"muted\">%</div></div></section>",
+<div class=\"value\"><div class=\"label\">% of range</div><div class=\"big\" data-field=\"percent_of_range\">{}</div><div class=\"muted\">%</div></div></section>",
         num(&d["loop_current"], 3),
-        num(&d["percent_range"], 1),
+        num(&d["percent_of_range"], 1),
     );
     let status: Vec<&str> = d["device_status_set"]
         .as_array()
@@ -188,13 +188,13 @@ pub(crate) async fn device(
                 "<p>Range {} to {} {} · damping {} s · write protect {}</p>",
                 num(&r["lower"], 3),
                 num(&r["upper"], 3),
-                esc(r["units"].as_str().unwrap_or("")),
+                esc(r["units_symbol"].as_str().unwrap_or("")),
                 num(&r["damping"], 2),
                 r["write_protect"]
             )
         )
     );
-    let revision = d["hart_revision"].as_u64().unwrap_or(5) as u8;
+    let revision = d["universal_revision"].as_u64().unwrap_or(5) as u8;
     let reads: [(&str, Request); 5] = [
         (
             "Identity (command 0)",
@@ -325,7 +325,7 @@ fn forms(state: &AppState, unit: usize, d: &Value, visitor: &Visitor<'_>) -> Str
             input("upper_range", &num(&r["upper"], 3).replace('—', ""), 8, ""),
             input(
                 "range_units",
-                &esc(r["units"].as_str().unwrap_or("")),
+                &esc(r["units_symbol"].as_str().unwrap_or("")),
                 6,
                 "title=\"units symbol or code\""
             )

@@ -13,7 +13,7 @@ use hart_proto::tables;
 use hart_proto::types::{
     BurstModeControl, Classification, DeviceVariableCode, HartTime, TriggerMode, UnitCode,
 };
-use hart_proto::wire::{List, Meaning, Reader, Wire};
+use hart_proto::wire::{List, Reader, Wire};
 use hart_proto::Request;
 use serde_json::{json, Value};
 
@@ -367,26 +367,13 @@ pub async fn read(
             let reply = c.request(&d, &request).await.map_err(fail)?;
             let ds = reply.device_status;
             let status: cmd::ReadAdditionalStatusResponse = decode(&reply, "command 48")?;
-            let data = status.additional_status.as_slice();
-            let mut v = json!({
-                "device_status": ds,
-                "device_status_set": fj::device_status_set(ds),
-                "additional_status": hex::compact(data),
-            });
-            // Each part the reply holds, named and explained by hart-proto's table.
-            for &(at, len, key, meaning) in &cmd::ADDITIONAL_STATUS_PARTS {
-                let Some(bytes) = data
-                    .get(at..(at + len).min(data.len()))
-                    .filter(|b| !b.is_empty())
-                else {
-                    continue;
-                };
-                v[key] = match meaning {
-                    Meaning::Bits(table) => fj::bits_set(table, bytes[0]),
-                    Meaning::Code(table) => json!(table.name(bytes[0])),
-                    _ => json!(hex::compact(bytes)),
-                };
-            }
+            // The reply's parts as the frame view names them, with their words
+            // (`extended_status` and `extended_status_set`, ...).
+            let mut words = fj::JsonVisitor::with_words();
+            cmd::Response::ReadAdditionalStatus(status).describe(&mut words);
+            let mut v = words.finish();
+            v["device_status"] = json!(ds);
+            v["device_status_set"] = fj::device_status_set(ds);
             v
         }
         "info" => {

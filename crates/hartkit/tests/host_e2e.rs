@@ -79,7 +79,12 @@ fn host_commands_over_a_pseudo_terminal() {
     );
     let (code, out, _) = hartkit(&["read", "-p", p, "--poll", "1", "status", "--json"]);
     assert_eq!(code, 0);
-    assert!(serde_json::from_str::<Value>(&out).unwrap()["device_status_set"].is_array());
+    let status = serde_json::from_str::<Value>(&out).unwrap();
+    assert!(status["device_status_set"].is_array(), "{status}");
+    // Command 48's parts as the frame view names them, each with its words.
+    assert!(status["extended_status"].is_u64(), "{status}");
+    assert!(status["extended_status_set"].is_array(), "{status}");
+    assert!(status["additional_status"].is_string(), "{status}");
 
     // Writes confirm by reading back.
     let (code, out, err) = hartkit(&["write", "-p", p, "--poll", "1", "tag", "PT-777"]);
