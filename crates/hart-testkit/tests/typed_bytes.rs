@@ -533,3 +533,36 @@ fn the_rules_see_what_they_are_meant_to() {
         hit("let s = \"// (9, vec![1])\"; let x = (9, vec![1]);").contains(&"literal_command_data")
     );
 }
+
+/// The Python package's pass: a `Device` method sends a command it has a layout for
+/// with `self.request(commands.X, ...)`, not `self.command(N, bytes(...))`, so its
+/// data also comes from hart-proto's layouts (through the native module).
+#[test]
+fn python_uses_typed_requests() {
+    let raw = Regex::new(r#"\.command\(\s*\d+\s*,\s*(?:bytes\(|b["'])"#).unwrap();
+    assert!(raw.is_match("return self.command(9, bytes(codes))"));
+    assert!(!raw.is_match("return self.command(cls.number, cls.encode_request(fields))"));
+    let dir = root().join("crates/hartkit-py/python/hartkit");
+    let mut found = vec![];
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "py"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no Python files under {}", dir.display());
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            if raw.is_match(line) && !line.contains("# raw:") {
+                found.push(format!("{}:{}: {}", file.display(), n + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "command data built by hand in the Python package; send it with \
+         self.request(commands.<Name>, ...) (or mark a deliberate one `# raw: <why>`):\n{}",
+        found.join("\n")
+    );
+}

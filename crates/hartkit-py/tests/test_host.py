@@ -30,6 +30,10 @@ def test_scan_read_and_write_with_asyncio():
             assert r.variables[0].units_symbol == "kPa"
             assert isinstance(r.loop_current, float)
             assert r.frame.frame_type == "ACK"
+            # Command 9 with the codes given, built from its layout.
+            v = await dev.read_variables(0, 1)
+            assert v.command == 9 and v.response_code == 0
+            assert [s.code for s in v.slots] == [0, 1]
             by_tag = await loop.device(tag="TT-200")
             # Found by tag (command 11), it keeps the polling address the scan found.
             assert by_tag.info.polling_address == 2

@@ -147,7 +147,7 @@ class _DeviceOps:
 
     def read_variables(self, *codes: int):
         """Command 9: device variables with status (up to 8 codes)."""
-        return self.command(9, bytes(codes))
+        return self.request(9, slots=list(codes))
 
     def write(self, what: str, *values: Any):
         """Writes as ``hartkit write WHAT VALUES...`` does (tag, long-tag,
