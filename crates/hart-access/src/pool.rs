@@ -1,5 +1,5 @@
 //! The connection pool of the gateway's TCP front ends (Modbus TCP, OPC UA, the web
-//! dashboard), sans-IO: the time is given, and the caller closes what the pool says.
+//! dashboard, HART-IP), sans-IO: the time is given, and the caller closes what the pool says.
 //!
 //! As the Modbus messaging implementation guide describes connection management
 //! (Modbus Messaging on TCP/IP Implementation Guide V1.0b, 4.2.1: a bounded pool; when
@@ -27,7 +27,10 @@
 //! holds more connections in that class than its own.
 //!
 //! Each front end keeps its own per-connection state in the pool (`S`), ranks it, and
-//! logs refusals and evictions through a [`LogLimit`].
+//! logs refusals and evictions through a [`LogLimit`]. The HART-IP server keeps its
+//! sessions here too (its limits per server and per host, nothing evicted; a UDP
+//! initiate is refused from [`Pool::refusal`] before any task is started for it), and
+//! its TCP connections.
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
@@ -103,11 +106,7 @@ impl<S> Pool<S> {
         rank: impl Fn(&Entry<S>) -> Option<(u8, Instant)>,
     ) -> Result<Admitted<S>, Refused> {
         let priority = limits.priority.contains(peer.ip());
-        let from_here = self
-            .entries
-            .values()
-            .filter(|e| same_host(e.peer.ip(), peer.ip()))
-            .count();
+        let from_here = self.from_host(peer.ip());
         let mut evicted = None;
         if !priority && from_here >= limits.max_per_address {
             let own = host(peer.ip());
@@ -166,6 +165,33 @@ impl<S> Pool<S> {
             .filter(|c| c.2 == lowest)
             .min_by_key(|c| (std::cmp::Reverse(per_host[&c.1]), c.3, c.0))
             .map(|c| c.0)
+    }
+
+    /// What [`Pool::admit`] would refuse a connection from `peer` now, were no
+    /// connection to be closed for it (`None`: it would be admitted): for a front end
+    /// that answers a refusal before it starts anything for the new connection.
+    pub fn refusal(&self, peer: SocketAddr, limits: &Admission<'_>) -> Option<Refused> {
+        let from_here = self.from_host(peer.ip());
+        if !limits.priority.contains(peer.ip()) && from_here >= limits.max_per_address {
+            Some(Refused::PerAddress(from_here))
+        } else if self.entries.len() >= limits.max_connections {
+            Some(Refused::Full(self.entries.len()))
+        } else {
+            None
+        }
+    }
+
+    /// Connections open now from `ip`'s host ([`same_host`]).
+    pub fn from_host(&self, ip: IpAddr) -> usize {
+        self.entries
+            .values()
+            .filter(|e| same_host(e.peer.ip(), ip))
+            .count()
+    }
+
+    /// Forgets every connection `keep` does not keep (those that have ended).
+    pub fn retain(&mut self, mut keep: impl FnMut(&Entry<S>) -> bool) {
+        self.entries.retain(|_, e| keep(e));
     }
 
     /// Connection `id`, while it is in the pool.
@@ -404,6 +430,37 @@ mod tests {
                 .err(),
             Some(Refused::PerAddress(1))
         );
+    }
+
+    #[test]
+    fn a_refusal_is_told_before_admitting_and_ended_connections_are_forgotten() {
+        let none = NetList::empty();
+        let limits = Admission {
+            max_connections: 2,
+            max_per_address: 1,
+            priority: &none,
+            evict_at_address_limit: false,
+        };
+        let now = Instant::now();
+        let mut pool: Pool<bool> = Pool::default();
+        assert_eq!(pool.refusal(addr("10.0.0.1:1"), &limits), None);
+        pool.admit(addr("10.0.0.1:1"), &limits, now, true, |_| None)
+            .unwrap();
+        assert_eq!(
+            pool.refusal(addr("10.0.0.1:2"), &limits),
+            Some(Refused::PerAddress(1))
+        );
+        assert_eq!(pool.from_host("10.0.0.1".parse().unwrap()), 1);
+        pool.admit(addr("10.0.0.2:1"), &limits, now, false, |_| None)
+            .unwrap();
+        assert_eq!(
+            pool.refusal(addr("10.0.0.3:1"), &limits),
+            Some(Refused::Full(2))
+        );
+        // The one whose state says it ended goes.
+        pool.retain(|e| e.state);
+        assert_eq!(pool.len(), 1);
+        assert_eq!(pool.refusal(addr("10.0.0.3:1"), &limits), None);
     }
 
     #[test]

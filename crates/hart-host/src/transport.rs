@@ -16,7 +16,6 @@ use hart_device::{profiles, Device, Node};
 use hart_link::{Micros, TimingProfile};
 use hart_proto::deframer::UartFlags;
 use hart_sim::bus::{Attach, Bus, BusEvent, Station};
-use tokio::io::unix::AsyncFd;
 
 /// A line to talk HART on.
 #[allow(async_fn_in_trait)]
@@ -109,7 +108,7 @@ pub use hart_serial::BAUD_RATES;
 
 /// A serial port or pseudo-terminal.
 pub struct SerialTransport {
-    fd: AsyncFd<hart_serial::Port>,
+    port: hart_serial::aio::AsyncPort,
     opts: SerialOptions,
     profile: TimingProfile,
     start: Instant,
@@ -146,11 +145,9 @@ impl SerialTransport {
         } else {
             TimingProfile::fsk()
         };
-        // SAFETY: the port owns its descriptor; it stays open and refers to the same
-        // port until the AsyncFd (which owns the port) is dropped.
-        let fd = unsafe { AsyncFd::register(port) }?;
+        let port = hart_serial::aio::AsyncPort::new(port)?;
         let t = SerialTransport {
-            fd,
+            port,
             opts,
             profile,
             start: Instant::now(),
@@ -167,7 +164,7 @@ impl SerialTransport {
             Rts::HighTx => transmitting,
             Rts::LowTx => !transmitting,
         };
-        let _ = self.fd.get_ref().set_rts(level);
+        let _ = self.port.get_ref().set_rts(level);
     }
 }
 
@@ -185,25 +182,12 @@ impl Transport for SerialTransport {
         if !self.opts.rts_pre.is_zero() {
             tokio::time::sleep(self.opts.rts_pre).await;
         }
-        let port = self.fd.get_ref();
-        let mut rest = bytes;
-        while !rest.is_empty() {
-            match port.write(rest) {
-                Ok(n) => rest = &rest[n..],
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    tokio::time::sleep(Duration::from_millis(1)).await;
-                }
-                Err(e) => {
-                    self.set_rts(false);
-                    return Err(io::Error::new(
-                        e.kind(),
-                        format!("write to {}: {e}", self.opts.path.display()),
-                    ));
-                }
-            }
+        if let Err(e) = self.port.write_all(bytes).await {
+            self.set_rts(false);
+            return Err(e);
         }
         // Wait until the UART has sent everything (a pseudo-terminal returns at once).
-        port.drain();
+        self.port.get_ref().drain();
         if !self.opts.rts_post.is_zero() {
             tokio::time::sleep(self.opts.rts_post).await;
         }
@@ -227,44 +211,16 @@ impl Transport for SerialTransport {
                 return Ok(vec![]);
             }
             let wait = Duration::from_micros(deadline - now);
-            let Ok(guard) = tokio::time::timeout(wait, self.fd.readable()).await else {
+            let mut buf = [0u8; 512];
+            // A hang-up (a pseudo-terminal whose other end closed, a modem that
+            // dropped the line) is an error: it would otherwise look like silence
+            // forever.
+            let Ok(n) = tokio::time::timeout(wait, self.port.read(&mut buf)).await else {
                 return Ok(vec![]);
             };
-            let mut guard = guard?;
-            let mut buf = [0u8; 512];
-            let port = self.fd.get_ref();
-            let n = match port.read(&mut buf) {
-                Ok(n) => n,
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    guard.clear_ready();
-                    continue;
-                }
-                Err(e) => {
-                    return Err(io::Error::new(
-                        e.kind(),
-                        format!("read from {}: {e}", self.opts.path.display()),
-                    ))
-                }
-            };
-            if n == 0 {
-                // Nothing to read (a raw port with VMIN 0 answers 0), or the line hung
-                // up: a pseudo-terminal whose other end closed, a modem that dropped
-                // the line. A hang-up would otherwise look like silence forever.
-                if port.hung_up() {
-                    return Err(io::Error::new(
-                        io::ErrorKind::BrokenPipe,
-                        format!(
-                            "{} hung up (the other end closed it or the line dropped)",
-                            self.opts.path.display()
-                        ),
-                    ));
-                }
-                guard.clear_ready();
-                tokio::time::sleep(Duration::from_millis(5)).await;
-                continue;
-            }
+            let n = n?;
             let t = self.now();
-            let chars = self.reader.decode(self.fd.get_ref(), &buf[..n]);
+            let chars = self.reader.decode(self.port.get_ref(), &buf[..n]);
             let n = chars.len();
             let mut out = Vec::with_capacity(n);
             for (i, (byte, flags)) in chars.into_iter().enumerate() {
@@ -291,7 +247,7 @@ impl Transport for SerialTransport {
         if !self.opts.carrier_detect {
             return None;
         }
-        Some(self.fd.get_ref().modem_lines().ok()?.carrier)
+        Some(self.port.get_ref().modem_lines().ok()?.carrier)
     }
 
     fn describe(&self) -> String {

@@ -24,6 +24,7 @@ pub mod access;
 mod audit;
 mod dtls;
 pub mod io_system;
+mod limits;
 mod session;
 pub use session::MAX_DIRECT_ENTRIES;
 mod stream;
@@ -212,10 +213,8 @@ pub(crate) struct Shared {
     pub(crate) policy: hart_access::Policy,
     /// Where writes let through are recorded.
     pub(crate) write_audit: hart_access::Audit,
-    /// Sessions open now.
-    pub(crate) sessions: std::sync::Mutex<usize>,
-    /// Sessions open now, by client address (for `max_sessions_per_host`).
-    pub(crate) per_host: std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
+    /// Sessions open now, within `max_sessions` and `max_sessions_per_host`.
+    pub(crate) sessions: limits::SessionPool,
     pub(crate) stats: Counters,
     pub(crate) io: IoSystem,
     pub(crate) bursts: broadcast::Sender<Vec<u8>>,
@@ -260,7 +259,7 @@ impl Server {
 
     /// Sessions open now (UDP and TCP).
     pub async fn active_sessions(&self) -> usize {
-        *lock(&self.shared.sessions)
+        self.shared.sessions.len()
     }
 
     /// Waits until every loop has been scanned once (`Config::scan_to`), so that
@@ -331,8 +330,7 @@ pub async fn start_with_engine(
             device_commands: config.device_commands.clone(),
         },
         write_audit,
-        sessions: std::sync::Mutex::new(0),
-        per_host: Default::default(),
+        sessions: limits::SessionPool::new(config.max_sessions, config.max_sessions_per_host),
         stats: Counters::default(),
         io,
         bursts,

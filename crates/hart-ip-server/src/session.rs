@@ -8,6 +8,7 @@ use hart_proto::frame::{Frame, FrameType};
 
 use crate::audit::AuditRecord;
 use crate::io_system::{LoopOutcome, Requester, Route};
+use crate::limits::Refusal;
 use crate::subscriptions::{subscription_command, Subscriptions};
 use crate::{local_frame, lock, message, unix_now, Counters, Shared};
 use hart_access::{Allowed, Rights, WriteRecord};
@@ -138,6 +139,8 @@ pub(crate) struct Session {
     pub(crate) secure: Option<(String, hart_ip_tls::Rights)>,
     /// Messages the client sent since its session initiate.
     pub(crate) after_initiate: u64,
+    /// Its place in the server's session pool, while it is open.
+    pub(crate) place: Option<u64>,
 }
 
 impl Session {
@@ -154,6 +157,7 @@ impl Session {
             version: 1,
             secure: None,
             after_initiate: 0,
+            place: None,
         }
     }
 
@@ -355,25 +359,20 @@ pub(crate) async fn handle(shared: &Shared, s: &mut Session, h: Header, body: &[
             }
             let asked = u32::from_be_bytes([body[1], body[2], body[3], body[4]]);
             if !s.open {
-                let mut n = lock(&shared.sessions);
-                if *n >= shared.config.max_sessions {
-                    Counters::count(&shared.stats.sessions_refused);
-                    return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
+                match shared.sessions.open(s.peer) {
+                    Ok(place) => s.place = Some(place),
+                    Err(refusal) => {
+                        Counters::count(&shared.stats.sessions_refused);
+                        if let Refusal::PerHost(from_host) = refusal {
+                            tracing::debug!(
+                                "refused a session from {}: {} sessions from that address already (max_sessions_per_host)",
+                                s.peer,
+                                from_host
+                            );
+                        }
+                        return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
+                    }
                 }
-                let mut hosts = lock(&shared.per_host);
-                let from_host = hosts.entry(s.peer.ip()).or_default();
-                if *from_host >= shared.config.max_sessions_per_host {
-                    Counters::count(&shared.stats.sessions_refused);
-                    tracing::debug!(
-                        "refused a session from {}: {} sessions from that address already (max_sessions_per_host)",
-                        s.peer,
-                        from_host
-                    );
-                    return Action::Reply(reply(status::ALL_SESSIONS_IN_USE, &[]));
-                }
-                *from_host += 1;
-                drop(hosts);
-                *n += 1;
                 s.open = true;
                 Counters::count(&shared.stats.sessions_opened);
                 // A plain session is an insecure session (0x0010).
@@ -602,14 +601,8 @@ pub(crate) async fn close_session(shared: &Shared, s: &mut Session, why: u16) {
                 rec.status |= why;
             }
         }
-        let mut n = lock(&shared.sessions);
-        *n = n.saturating_sub(1);
-        let mut hosts = lock(&shared.per_host);
-        if let Some(c) = hosts.get_mut(&s.peer.ip()) {
-            *c = c.saturating_sub(1);
-            if *c == 0 {
-                hosts.remove(&s.peer.ip());
-            }
+        if let Some(place) = s.place.take() {
+            shared.sessions.close(place);
         }
     }
 }

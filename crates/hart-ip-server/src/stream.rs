@@ -3,8 +3,9 @@
 
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
+use hart_access::pool::{Admission, Pool};
 use hart_ip::{Message, MessageId, MessageType};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -35,28 +36,32 @@ pub(crate) async fn serve_tcp(
     shared: Arc<Shared>,
     tls: Option<Arc<crate::Security>>,
 ) {
-    // Sessions end with the server.
-    let mut sessions: Vec<(std::net::IpAddr, AbortOnDrop)> = vec![];
+    // Connections beyond the session limit (and a few in their handshake or initiate)
+    // are closed at once: they could only be refused. So are those from a host that
+    // already holds its share (and a couple more, so that a client over its limit
+    // still hears status 15 rather than a closed connection): a connection carries at
+    // most one session, so one host's connections, in their handshake or not, can
+    // never keep the others out. None is closed to admit another.
+    let none = hart_access::NetList::empty();
+    let limits = Admission {
+        max_connections: shared.config.max_sessions + PENDING_CONNECTIONS,
+        max_per_address: shared.config.max_sessions_per_host + PENDING_PER_HOST,
+        priority: &none,
+        evict_at_address_limit: false,
+    };
+    // Each connection's task (its session ends with the server).
+    let mut connections: Pool<Option<AbortOnDrop>> = Pool::default();
     loop {
         let Ok((stream, peer)) = listener.accept().await else {
             continue;
         };
         let _ = stream.set_nodelay(true);
-        sessions.retain(|(_, s)| !s.0.is_finished());
-        // Connections beyond the session limit (and a few in their handshake or
-        // initiate) are closed at once: they could only be refused. So are those from
-        // a host that already holds its share (and a couple more, so that a client
-        // over its limit still hears status 15 rather than a closed connection): a
-        // connection carries at most one session, so one host's connections, in their
-        // handshake or not, can never keep the others out.
-        let from_host = sessions.iter().filter(|(ip, _)| *ip == peer.ip()).count();
-        if sessions.len() >= shared.config.max_sessions + PENDING_CONNECTIONS
-            || from_host >= shared.config.max_sessions_per_host + PENDING_PER_HOST
-        {
+        connections.retain(|c| c.state.as_ref().is_some_and(|t| !t.0.is_finished()));
+        let Ok((id, _)) = connections.admit(peer, &limits, Instant::now(), None, |_| None) else {
             Counters::count(&shared.stats.sessions_refused);
             drop(stream);
             continue;
-        }
+        };
         let shared = shared.clone();
         let task = match tls.clone() {
             None => tokio::task::spawn_local(async move {
@@ -65,7 +70,9 @@ pub(crate) async fn serve_tcp(
             }),
             Some(tls) => tokio::task::spawn_local(tls_session(stream, peer, shared, tls)),
         };
-        sessions.push((peer.ip(), AbortOnDrop(task)));
+        if let Some(c) = connections.get_mut(id) {
+            c.state = Some(AbortOnDrop(task));
+        }
     }
 }
 

@@ -27,7 +27,7 @@ use tokio::net::UdpSocket;
 use tokio::sync::mpsc;
 
 use crate::session::{close_session, forwarded, handle, Action, Session};
-use crate::{lock, message, AbortOnDrop, Counters, PeerTable, Peers, Shared};
+use crate::{message, AbortOnDrop, Counters, PeerTable, Peers, Shared};
 
 /// Datagrams queued for one session's task; more are dropped until it catches up.
 pub(crate) const SESSION_QUEUE: usize = 8;
@@ -87,10 +87,7 @@ pub(crate) async fn serve_udp(sock: Arc<UdpSocket>, shared: Arc<Shared>) {
         // The limits, checked here so that a refusal costs no task. (The session's
         // own initiate checks them again, with the count it then takes.)
         let full = {
-            let open = *lock(&shared.sessions);
-            let from_host = lock(&shared.per_host).get(&peer.ip()).copied().unwrap_or(0);
-            open >= shared.config.max_sessions
-                || from_host >= shared.config.max_sessions_per_host
+            shared.sessions.would_refuse(peer)
                 // Tasks of initiates still being handled count too.
                 || peers.borrow().len() >= shared.config.max_sessions + PENDING_INITIATES
         };

@@ -843,19 +843,6 @@ impl RtuPort {
     }
 }
 
-/// What a serial port's reader ([`read_port`]) hands over: bytes and when they were
-/// read, or the port's failure.
-pub type Read = std::io::Result<(Vec<u8>, Instant)>;
-
-/// Aborts a task when dropped (a port's reader, when its serving loop ends).
-pub struct AbortOnDrop(pub tokio::task::AbortHandle);
-
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
-    }
-}
-
 /// Opens `port` and serves Modbus RTU on it until the port fails (an error that says
 /// how). Frames are found by [`rtu::Framer`] (silence, length and CRC); requests for
 /// the gateway's units are answered by the same code as Modbus TCP's, t3.5 after the
@@ -873,10 +860,9 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
         },
     )?;
     let writer = serial.try_clone()?;
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     // Reads are timestamped by their own task, so that the times stay right while a
     // write request is carried to a device.
-    let _reader = AbortOnDrop(tokio::spawn(read_port(serial, tx)).abort_handle());
+    let mut reader = hart_serial::aio::Reader::spawn(serial);
     let timing = rtu::Timing::for_line(&line);
     let units = |gw: &Gateway| {
         1..=u8::try_from(gw.engine.image().len())
@@ -893,17 +879,12 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
         let deadline = framer.deadline().map(tokio::time::Instant::from_std);
         let first = tokio::select! {
             biased;
-            r = rx.recv() => Some(r),
+            r = reader.recv() => Some(r),
             _ = tokio::time::sleep_until(deadline.unwrap_or_else(tokio::time::Instant::now)),
                 if deadline.is_some() => None,
         };
-        let mut reads: Vec<Read> = vec![];
-        match first {
-            Some(Some(r)) => reads.push(r),
-            Some(None) => return Err(std::io::Error::other("the port's reader stopped")),
-            None => {}
-        }
-        while let Ok(r) = rx.try_recv() {
+        let mut reads: Vec<hart_serial::aio::Read> = first.into_iter().collect();
+        while let Some(r) = reader.try_recv() {
             reads.push(r);
         }
         if !reads.is_empty() {
@@ -942,87 +923,10 @@ pub async fn serve_rtu(gateway: Arc<Gateway>, port: RtuPort) -> std::io::Result<
                 // (A broadcast has no reply: its master goes on at once, and its next
                 // request may come in the same read.)
                 busy_until = Instant::now();
-                write_port(&writer, &reply).await?;
+                writer.write_all_async(&reply).await?;
             }
         }
     }
-}
-
-/// Reads `port` as bytes come, each read with the time it returned, until the port
-/// fails or hangs up (sent as an error) or the receiver is gone. Shared by the serial
-/// front ends (Modbus RTU, PROFIBUS DP).
-pub async fn read_port(port: hart_serial::Port, tx: tokio::sync::mpsc::UnboundedSender<Read>) {
-    use std::io::{Error, ErrorKind};
-    let path = port.path().display().to_string();
-    // SAFETY: the port owns its descriptor; it stays open and refers to the same port
-    // until the AsyncFd (which owns the port) is dropped.
-    let fd = match unsafe { tokio::io::unix::AsyncFd::register(port) } {
-        Ok(fd) => fd,
-        Err(e) => {
-            let _ = tx.send(Err(Error::from(e)));
-            return;
-        }
-    };
-    let mut buf = [0u8; 1024];
-    loop {
-        let mut guard = match fd.readable().await {
-            Ok(g) => g,
-            Err(e) => {
-                let _ = tx.send(Err(e));
-                return;
-            }
-        };
-        let failure = match fd.get_ref().read(&mut buf) {
-            Ok(0) if fd.get_ref().hung_up() => Error::new(
-                ErrorKind::BrokenPipe,
-                format!("{path} hung up (the other end closed it or the adapter is gone)"),
-            ),
-            Ok(0) => {
-                // Nothing to read (a raw port with VMIN 0 answers 0).
-                guard.clear_ready();
-                continue;
-            }
-            Ok(n) => {
-                if tx.send(Ok((buf[..n].to_vec(), Instant::now()))).is_err() {
-                    return;
-                }
-                continue;
-            }
-            Err(e) if e.kind() == ErrorKind::WouldBlock => {
-                guard.clear_ready();
-                continue;
-            }
-            Err(e) if e.kind() == ErrorKind::Interrupted => continue,
-            Err(e) => Error::new(e.kind(), format!("read from {path}: {e}")),
-        };
-        let _ = tx.send(Err(failure));
-        return;
-    }
-}
-
-/// Writes `bytes` to `port`, waiting while its buffer is full (at most a second).
-pub async fn write_port(port: &hart_serial::Port, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::ErrorKind;
-    let give_up = Instant::now() + std::time::Duration::from_secs(1);
-    let mut rest = bytes;
-    while !rest.is_empty() {
-        match port.write(rest) {
-            Ok(n) => rest = &rest[n..],
-            Err(e)
-                if (e.kind() == ErrorKind::WouldBlock || e.kind() == ErrorKind::Interrupted)
-                    && Instant::now() < give_up =>
-            {
-                tokio::time::sleep(std::time::Duration::from_millis(1)).await
-            }
-            Err(e) => {
-                return Err(std::io::Error::new(
-                    e.kind(),
-                    format!("write to {}: {e}", port.path().display()),
-                ))
-            }
-        }
-    }
-    Ok(())
 }
 
 /// The map as text: one line per entry, for `hartkit serve --print-map`.

@@ -6,6 +6,8 @@
 use std::time::Instant;
 
 use hart_poller::DeviceImage;
+/// The values the registers hold and their numbers: the front ends' shared model.
+pub use hart_values::{number, Value};
 use serde::{Deserialize, Serialize};
 use tokio_modbus::ExceptionCode;
 
@@ -32,75 +34,12 @@ pub enum Format {
 }
 
 impl Format {
-    /// Registers the format takes.
-    pub fn words(self) -> u16 {
-        match self {
-            Format::U16 => 1,
-            Format::Float | Format::U32 => 2,
-        }
-    }
-}
-
-/// A value of a device's image (or, for holding registers, of its configuration).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Value {
-    /// Primary variable.
-    Pv,
-    /// Secondary variable.
-    Sv,
-    /// Tertiary variable.
-    Tv,
-    /// Quaternary variable.
-    Qv,
-    /// Loop current, mA.
-    LoopCurrent,
-    /// PV percent of range.
-    PercentRange,
-    /// PV units code (HART Common Table 2).
-    PvUnits,
-    /// SV units code.
-    SvUnits,
-    /// TV units code.
-    TvUnits,
-    /// QV units code.
-    QvUnits,
-    /// Field device status byte.
-    DeviceStatus,
-    /// Extended device status byte.
-    ExtendedStatus,
-    /// Quality: 0 good, 1 stale, 2 no reply, 3 device malfunction, 4 configuration
-    /// changed, 5 waiting for first data (nothing asked yet), 6 loop disturbed (a babbling
-    /// device on the loop).
-    Quality,
-    /// Seconds since the last good reply (0xFFFFFFFF: none yet).
-    Age,
-    /// Polling address (0xFFFF: unknown).
-    PollingAddress,
-    /// Device ID (24 bits).
-    DeviceId,
-    /// Manufacturer ID.
-    ManufacturerId,
-    /// Expanded device type.
-    DeviceType,
-    /// PV upper range value (20 mA point), in the range units; writable (command 35).
-    UpperRange,
-    /// PV lower range value (4 mA point); writable (command 35).
-    LowerRange,
-    /// Units of the range values; writable (command 35).
-    RangeUnits,
-    /// PV damping, s; writable (command 34).
-    Damping,
-    /// Loop current held in fixed current mode, mA (0: not fixed); writable (command
-    /// 40: a value enters the mode, 0 leaves it).
-    FixedCurrent,
-}
-
-impl Value {
-    /// The format the value has unless the map says otherwise.
-    pub fn default_format(self) -> Format {
+    /// The format `value` has unless the map says otherwise: floats for the process
+    /// values, currents, ranges and damping; 32 bits for the age and the device ID; one
+    /// register for codes and the rest.
+    pub fn default_for(value: Value) -> Format {
         use Value::*;
-        match self {
+        match value {
             Pv | Sv | Tv | Qv | LoopCurrent | PercentRange | UpperRange | LowerRange | Damping
             | FixedCurrent => Format::Float,
             Age | DeviceId => Format::U32,
@@ -108,53 +47,11 @@ impl Value {
         }
     }
 
-    /// Whether a holding register with this value writes to the device.
-    pub fn writable(self) -> bool {
-        matches!(
-            self,
-            Value::UpperRange
-                | Value::LowerRange
-                | Value::RangeUnits
-                | Value::Damping
-                | Value::FixedCurrent
-        )
-    }
-
-    /// The name in the map's JSON and the configuration file.
-    pub fn name(self) -> String {
-        serde_json::to_value(self)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_string))
-            .unwrap_or_default()
-    }
-
-    /// A description for the printed map.
-    pub fn description(self) -> &'static str {
-        use Value::*;
+    /// Registers the format takes.
+    pub fn words(self) -> u16 {
         match self {
-            Pv => "PV, in PV units",
-            Sv => "SV, in SV units",
-            Tv => "TV, in TV units",
-            Qv => "QV, in QV units",
-            LoopCurrent => "loop current, mA",
-            PercentRange => "PV percent of range, %",
-            PvUnits => "PV units code (HART Common Table 2)",
-            SvUnits => "SV units code",
-            TvUnits => "TV units code",
-            QvUnits => "QV units code",
-            DeviceStatus => "field device status byte",
-            ExtendedStatus => "extended device status byte",
-            Quality => "0 good, 1 stale, 2 no reply, 3 device malfunction, 4 configuration changed, 5 waiting for first data, 6 loop disturbed",
-            Age => "seconds since the last good reply (4294967295: none yet)",
-            PollingAddress => "polling address (65535: unknown)",
-            DeviceId => "device ID",
-            ManufacturerId => "manufacturer ID",
-            DeviceType => "expanded device type",
-            UpperRange => "PV upper range value (20 mA), range units; write: command 35",
-            LowerRange => "PV lower range value (4 mA), range units; write: command 35",
-            RangeUnits => "range units code; write: command 35",
-            Damping => "PV damping, s; write: command 34",
-            FixedCurrent => "fixed loop current, mA, 0 = not fixed; write: command 40 (0 leaves)",
+            Format::U16 => 1,
+            Format::Float | Format::U32 => 2,
         }
     }
 }
@@ -177,7 +74,7 @@ pub struct Entry {
 impl Entry {
     /// The format in effect.
     pub fn format(&self) -> Format {
-        self.format.unwrap_or(self.value.default_format())
+        self.format.unwrap_or(Format::default_for(self.value))
     }
 
     /// Registers `register..end`.
@@ -435,53 +332,6 @@ impl RegisterMap {
             i += n;
         }
         Ok(out)
-    }
-}
-
-/// The number `value` has for device `d` at `now`, as every front end that publishes
-/// the image's values as numbers gives it (Modbus registers, PROFIBUS input modules):
-/// NaN for a float the device has not given, 250 ("not used") for unknown units, the
-/// quality's code, `u32::MAX` for the age before the first good reply; `None` for an
-/// identity not known yet.
-pub fn number(value: Value, d: &DeviceImage, now: Instant) -> Option<f64> {
-    use Value::*;
-    let var = |i: usize| d.variables[i];
-    let f = |x: Option<f32>| x.unwrap_or(f32::NAN);
-    let id = d.info.as_ref().map(|i| i.identity);
-    match value {
-        Pv | Sv | Tv | Qv => {
-            let i = [Pv, Sv, Tv, Qv]
-                .iter()
-                .position(|v| *v == value)
-                .unwrap_or(0);
-            Some(f64::from(f(var(i).map(|v| v.value))))
-        }
-        LoopCurrent => Some(f64::from(f(d.loop_current))),
-        PercentRange => Some(f64::from(f(d.percent_range))),
-        PvUnits | SvUnits | TvUnits | QvUnits => {
-            let i = [PvUnits, SvUnits, TvUnits, QvUnits]
-                .iter()
-                .position(|v| *v == value)
-                .unwrap_or(0);
-            // 250: "not used" in Common Table 2.
-            Some(f64::from(var(i).map_or(250, |v| v.units)))
-        }
-        DeviceStatus => Some(f64::from(d.device_status)),
-        ExtendedStatus => Some(f64::from(d.extended_status)),
-        Quality => Some(f64::from(d.quality(now).code())),
-        Age => Some(
-            d.seconds_since_good(now)
-                .map_or(f64::from(u32::MAX), f64::from),
-        ),
-        PollingAddress => Some(f64::from(d.polling_address.map_or(0xFFFF, u16::from))),
-        DeviceId => id.map(|i| f64::from(i.device_id.get())),
-        ManufacturerId => d.info.as_ref().map(|i| f64::from(i.manufacturer_id())),
-        DeviceType => id.map(|i| f64::from(i.expanded_device_type)),
-        UpperRange => Some(f64::from(f(d.range.map(|r| r.upper)))),
-        LowerRange => Some(f64::from(f(d.range.map(|r| r.lower)))),
-        RangeUnits => Some(f64::from(d.range.map_or(250, |r| r.units))),
-        Damping => Some(f64::from(f(d.range.map(|r| r.damping)))),
-        FixedCurrent => Some(f64::from(d.fixed_current.unwrap_or(0.0))),
     }
 }
 

@@ -12,8 +12,8 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use hart_modbus::map::{number, Value};
 use hart_poller::DeviceImage;
+use hart_values::{number, Value};
 
 use crate::cfg;
 
@@ -51,7 +51,7 @@ impl Kind {
 /// Where an input field's value comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Source {
-    /// A value of the device's image, with the Modbus map's codes.
+    /// A value of the device's image, with the codes every front end gives it.
     Value(Value),
     /// The write counter of the output write last taken.
     WriteCounter,

@@ -425,9 +425,7 @@ pub async fn serve(engine: Engine, port: ProfibusPort) -> std::io::Result<()> {
     )
     .map_err(|e| std::io::Error::new(e.kind(), format!("--profibus {}: {e}", port.path)))?;
     let writer = serial.try_clone()?;
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
-    let _reader =
-        hart_modbus::AbortOnDrop(tokio::spawn(hart_modbus::read_port(serial, tx)).abort_handle());
+    let mut reader = hart_serial::aio::Reader::spawn(serial);
     let states = front.write_states();
     let mut next_refresh = Instant::now();
     loop {
@@ -447,7 +445,7 @@ pub async fn serve(engine: Engine, port: ProfibusPort) -> std::io::Result<()> {
             engine.release_held_by(&holder(station));
         }
         if let Some(reply) = reply {
-            hart_modbus::write_port(&writer, &reply).await?;
+            writer.write_all_async(&reply).await?;
         }
         for (fault, line) in log {
             if fault {
@@ -469,13 +467,10 @@ pub async fn serve(engine: Engine, port: ProfibusPort) -> std::io::Result<()> {
             .map_or(next_refresh, |d| d.min(next_refresh));
         tokio::select! {
             biased;
-            r = rx.recv() => {
-                let Some(r) = r else {
-                    return Err(std::io::Error::other("the port's reader stopped"));
-                };
+            r = reader.recv() => {
                 let (bytes, at) = r?;
                 front.receive(at, &bytes);
-                while let Ok(r) = rx.try_recv() {
+                while let Some(r) = reader.try_recv() {
                     let (bytes, at) = r?;
                     front.receive(at, &bytes);
                 }

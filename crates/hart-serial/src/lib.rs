@@ -13,6 +13,9 @@
 //!   keeps them, its error counters: the same report on every port.
 //! * [`pty`]: pseudo-terminal pairs, raw, for simulated devices and buses.
 //! * RTS keying, the modem lines (DCD as carrier detect), hang-up detection.
+//! * With the feature `tokio`, [`aio`]: the one registration of a port with tokio's
+//!   reactor ([`aio::AsyncPort`]), writes that wait without blocking, and a reader task
+//!   that timestamps what it reads ([`aio::Reader`]).
 //!
 //! Built on `nix`'s termios and ioctl wrappers; no other crate of hartkit touches
 //! terminal settings.
@@ -29,6 +32,8 @@ use nix::sys::termios::{
     SetArg, SpecialCharacterIndices,
 };
 
+#[cfg(feature = "tokio")]
+pub mod aio;
 pub mod pty;
 
 /// Parity of a character.

@@ -3,13 +3,25 @@
 //! compile the command-line crate or the gateway's front ends and stores (OPC UA,
 //! SQLite, PostgreSQL, the web server, the MQTT client, the well network, the
 //! conformance tester), which would multiply its build time for nothing it uses.
+//! Front ends do not lean on each other: PROFIBUS takes its value model and its serial
+//! line from the crates below the front ends, not from the Modbus front end.
 
 use std::process::Command;
 
 /// The packages `package` links in a normal (non-dev, non-build) build, by name.
 fn normal_dependencies(package: &str) -> Vec<String> {
+    normal_dependencies_with(package, &[])
+}
+
+/// [`normal_dependencies`] with the package's `features` on.
+fn normal_dependencies_with(package: &str, features: &[&str]) -> Vec<String> {
+    let mut args = vec!["tree", "-p", package, "-e", "normal", "--prefix", "none"];
+    let joined = features.join(",");
+    if !features.is_empty() {
+        args.extend(["--features", &joined]);
+    }
     let out = Command::new(env!("CARGO"))
-        .args(["tree", "-p", package, "-e", "normal", "--prefix", "none"])
+        .args(&args)
         .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
         .output()
         .expect("cargo tree runs");
@@ -64,6 +76,22 @@ fn the_wheel_builds_no_front_end() {
     );
     // The libraries it is built on are still there (the check above is not vacuous).
     for needed in ["hart-proto", "hart-host", "hart-sim", "pyo3"] {
+        assert!(linked.iter().any(|l| l == needed), "{needed} is missing");
+    }
+}
+
+#[test]
+fn profibus_does_not_link_modbus() {
+    let linked = normal_dependencies_with("hart-profibus", &["hart-profibus/gateway"]);
+    assert!(
+        !linked.iter().any(|l| l == "hart-modbus"),
+        "hart-profibus (with its gateway feature) now links hart-modbus: front ends do not \
+         lean on each other; take the value model from hart-values and the serial line from \
+         hart-serial's `aio`; `cargo tree -p hart-profibus -F gateway -i hart-modbus` shows \
+         the path"
+    );
+    // What it takes instead is there (the check above is not vacuous).
+    for needed in ["hart-values", "hart-serial", "hart-poller"] {
         assert!(linked.iter().any(|l| l == needed), "{needed} is missing");
     }
 }
