@@ -81,7 +81,6 @@ const OTHER_LAYERS: &[(&str, &[&str], &str)] = &[
 /// Each count is exact: more is a new one (use hart-proto's layouts), fewer means the
 /// entry is to be lowered.
 const PENDING: &[(&str, &str, usize)] = &[
-    ("crates/hart-access/src/lib.rs", "data_offset", 1),
     ("crates/hart-conform/src/run.rs", "be_bytes", 13),
     ("crates/hart-conform/src/run.rs", "concat_bytes", 8),
     ("crates/hart-conform/src/run.rs", "data_offset", 51),
@@ -93,15 +92,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-host/src/client.rs", "string_bytes", 2),
     ("crates/hart-host/src/write.rs", "be_bytes", 2),
     ("crates/hart-host/src/write.rs", "literal_command_data", 2),
-    ("crates/hart-ip-server/src/io_system.rs", "be_bytes", 2),
-    ("crates/hart-ip-server/src/io_system.rs", "data_offset", 10),
-    ("crates/hart-ip-server/src/io_system.rs", "string_bytes", 2),
-    ("crates/hart-ip-server/src/subscriptions.rs", "be_bytes", 3),
-    (
-        "crates/hart-ip-server/src/subscriptions.rs",
-        "data_offset",
-        2,
-    ),
     ("crates/hart-poller/src/lib.rs", "primary_request", 1),
     ("crates/hart-poller/src/task.rs", "be_bytes", 1),
     ("crates/hart-poller/src/task.rs", "literal_command_data", 2),
