@@ -85,8 +85,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-conform/src/run.rs", "concat_bytes", 8),
     ("crates/hart-conform/src/run.rs", "data_offset", 51),
     ("crates/hart-conform/src/run.rs", "literal_command_data", 17),
-    ("crates/hart-device/src/device.rs", "be_bytes", 2),
-    ("crates/hart-device/src/device.rs", "data_offset", 1),
     ("crates/hart-host/src/client.rs", "be_bytes", 5),
     ("crates/hart-host/src/client.rs", "data_offset", 10),
     ("crates/hart-host/src/client.rs", "string_bytes", 2),
@@ -99,8 +97,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-poller/src/write.rs", "be_bytes", 1),
     ("crates/hart-poller/src/write.rs", "data_offset", 1),
     ("crates/hart-poller/src/write.rs", "string_bytes", 1),
-    ("crates/hart-sim/src/device.rs", "data_offset", 2),
-    ("crates/hart-sim/src/device.rs", "string_bytes", 1),
     ("crates/hart-web/src/device.rs", "primary_request", 1),
     ("crates/hart-wells/src/archive.rs", "data_offset", 3),
     (
