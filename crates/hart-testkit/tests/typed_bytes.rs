@@ -98,12 +98,6 @@ const PENDING: &[(&str, &str, usize)] = &[
     ("crates/hart-poller/src/write.rs", "data_offset", 1),
     ("crates/hart-poller/src/write.rs", "string_bytes", 1),
     ("crates/hart-web/src/device.rs", "primary_request", 1),
-    ("crates/hart-wells/src/archive.rs", "data_offset", 3),
-    (
-        "crates/hart-wells/src/handheld.rs",
-        "literal_command_data",
-        1,
-    ),
     ("crates/hartkit/src/demo.rs", "be_bytes", 1),
     ("crates/hartkit/src/demo.rs", "data_offset", 1),
     ("crates/hartkit/src/host.rs", "be_bytes", 3),

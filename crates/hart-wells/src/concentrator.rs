@@ -8,9 +8,9 @@ use tracing::{error, info, warn};
 use crate::calibration::{Sensor, Table};
 use crate::proto::{
     decode_transfer_request, Assembled, Diagnosis, Groups, Message, Parameters, Record,
-    SegmentRequest, SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS, NO_VALUE,
-    PARAMETERS, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, RC_TOO_LARGE, READ_VALUES, SEGMENT_TAKEN,
-    STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
+    SegmentReply, SegmentRequest, SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS,
+    NO_VALUE, PARAMETERS, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, RC_TOO_LARGE, READ_VALUES,
+    SEGMENT_TAKEN, STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
     VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
 };
 use crate::store::{PollOutcome, Store, StoreError};
@@ -458,7 +458,7 @@ impl Concentrator {
                 Ok(seg) => {
                     let (rc, state) = self.take_segment(seg);
                     let d = if rc == 0 {
-                        vec![seg.sensor.code(), seg.number, state]
+                        SegmentReply::to(&seg, state).encode()
                     } else {
                         vec![]
                     };
