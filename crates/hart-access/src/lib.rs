@@ -36,8 +36,9 @@ pub use devices::DeviceCommands;
 pub use nets::NetList;
 pub use writes::{NotPermitted, WritePolicy};
 
-use hart_proto::command::Access;
-use hart_proto::frame::{checksum, Address, Frame};
+use hart_proto::command::{Access, SendCommandToSubDevice};
+use hart_proto::frame::{Address, Frame, MAX_PDU_LEN};
+use hart_proto::wire::{Reader, Wire};
 
 /// What a session may do.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -198,11 +199,12 @@ impl std::error::Error for Refusal {}
 /// the frame from its delimiter through its data, without the check byte), or `None`
 /// when the data is not such a frame.
 pub fn wrapped<'a>(data: &[u8], buf: &'a mut Vec<u8>) -> Option<Frame<'a>> {
+    let request = SendCommandToSubDevice::decode(&mut Reader::new(data)).ok()?;
     buf.clear();
-    buf.extend_from_slice(data.get(3..)?);
-    let check = checksum(buf);
-    buf.push(check);
-    Frame::parse_pdu(buf).ok()
+    buf.resize(MAX_PDU_LEN, 0);
+    request
+        .embedded_frame(buf.as_mut_slice().try_into().ok()?)
+        .ok()
 }
 
 /// HART-IP's publish subscription commands (532 read client subscription summary, 533

@@ -11,7 +11,7 @@ use hart_proto::command::{self as cmd, Request};
 use hart_proto::frame::{Frame, MasterKind, UniqueId};
 use hart_proto::tables::rc;
 use hart_proto::types::*;
-use hart_proto::wire::{List, Wire, Writer};
+use hart_proto::wire::{List, Reader, Wire, Writer};
 
 use crate::burst::{self, BurstRuntime};
 use crate::config::{DeviceConfig, DeviceKind, Waveform};
@@ -78,6 +78,19 @@ fn encode(v: &impl Wire) -> Vec<u8> {
     let mut w = Writer::new(&mut buf);
     let _ = v.encode(&mut w);
     buf
+}
+
+/// The device variable codes a burst message's slots select for command 9 (`N` = 8)
+/// or 33 (`N` = 4): up to the first unused slot (250), device variable 0 when none.
+fn burst_slots<const N: usize>(slots: &[u8]) -> List<DeviceVariableCode, N, 1> {
+    let mut list = List::default();
+    for &c in slots.iter().take(N).take_while(|&&c| c != 250) {
+        let _ = list.push(DeviceVariableCode(c));
+    }
+    if list.is_empty() {
+        let _ = list.push(DeviceVariableCode(0));
+    }
+    list
 }
 
 fn master_index(m: MasterKind) -> usize {
@@ -458,22 +471,20 @@ impl Device {
     }
 
     /// Command 48 bytes 0-13.
-    fn additional_status(&self) -> [u8; 14] {
-        let mut s = [0u8; 14];
-        s[6] = self.extended_status();
-        // Standardized status 0: bit 0 device variable simulation active.
-        if self.simulated.iter().any(Option::is_some) {
-            s[8] |= 0x01;
-        }
+    fn additional_status(&self) -> cmd::AdditionalStatus {
         // Device-specific byte 0: bit 0 self test running.
-        if self
+        let self_test = self
             .delayed
             .as_ref()
-            .is_some_and(|d| d.command == 41 && !d.dead)
-        {
-            s[0] |= 0x01;
-        }
-        s
+            .is_some_and(|d| d.command == 41 && !d.dead);
+        // Standardized status 0: bit 0 device variable simulation active.
+        let simulating = self.simulated.iter().any(Option::is_some);
+        cmd::AdditionalStatus::from(cmd::AdditionalStatusParts {
+            device_specific_status: [u8::from(self_test), 0, 0, 0, 0, 0],
+            extended_status: ExtendedStatus(self.extended_status()),
+            standardized_status_0: StandardizedStatus0(u8::from(simulating)),
+            ..Default::default()
+        })
     }
 
     fn extended_status(&self) -> u8 {
@@ -502,7 +513,7 @@ impl Device {
         if m.cold_start {
             s |= 0x20;
         }
-        if self.additional_status()[..9] != m.acked48 {
+        if self.additional_status().acknowledged() != m.acked48 {
             s |= 0x10;
         }
         if fixed {
@@ -669,19 +680,19 @@ impl Device {
                 .collect();
             return ok(bytes);
         }
-        let float_reply = |units: u8, v: f32| {
-            let mut b = vec![units];
-            b.extend_from_slice(&v.to_be_bytes());
-            b
+        // The profile's own commands have no layout of their own; their replies are a
+        // units code and a value.
+        let float_reply = |units: u8, value: f32| {
+            encode(&cmd::UnitValue {
+                units: UnitCode(units),
+                value,
+            })
         };
         match c.computed.as_deref() {
             Some("setpoint") => ok(float_reply(57, self.setpoint())),
             Some("input_current") => ok(float_reply(39, self.cfg.valve.input_current)),
             Some("write_setpoint") | Some("write_input_current") => {
-                let Some(v) = data
-                    .get(..4)
-                    .map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]]))
-                else {
+                let Ok(v) = f32::decode(&mut Reader::new(data)) else {
                     return err(rc::TOO_FEW_DATA_BYTES);
                 };
                 // Device-specific writes follow the same rules as the table's writes.
@@ -1090,22 +1101,24 @@ impl Device {
             }
             R::TrimLoopCurrentZero(r) => self.trim(r.measured_current.0, 4.0, true),
             R::TrimLoopCurrentGain(r) => self.trim(r.measured_current.0, 20.0, false),
-            R::ReadAdditionalStatus(_) => {
+            R::ReadAdditionalStatus(r) => {
                 let status = self.additional_status();
+                let shown = status.acknowledged();
                 let m = &mut self.masters[master_index(master)];
-                let code = if raw.len() >= 9 {
-                    if raw[..9] == status[..9] {
-                        m.acked48.copy_from_slice(&status[..9]);
+                let copy = r.status_copy.as_slice();
+                let code = if copy.len() >= shown.len() {
+                    if copy.starts_with(shown) {
+                        m.acked48.copy_from_slice(shown);
                         rc::SUCCESS
                     } else {
                         14 // status bytes mismatch (warning)
                     }
                 } else {
                     // A legacy read acknowledges what it returns.
-                    m.acked48.copy_from_slice(&status[..9]);
+                    m.acked48.copy_from_slice(shown);
                     rc::SUCCESS
                 };
-                Outcome::Reply(code, status.to_vec())
+                Outcome::Reply(code, encode(&status))
             }
             R::ReadDynamicVariableAssignments(_) => ok(self.cfg.mapping.to_vec()),
             R::WriteDynamicVariableAssignments(r) => {
@@ -1621,36 +1634,29 @@ impl Device {
         let Some(b) = self.cfg.burst.get(m) else {
             return (0, rc::NOT_IMPLEMENTED, vec![]);
         };
-        let slots = |max: usize| -> Vec<u8> {
-            let codes: Vec<u8> = b
-                .slots
-                .iter()
-                .copied()
-                .take(max)
-                .take_while(|&c| c != 250)
-                .collect();
-            if codes.is_empty() {
-                vec![0]
-            } else {
-                codes
-            }
-        };
+
         let outcome = match b.command {
             // The reply to a master's command 38, without resetting its flag.
             38 => ok(encode(&cmd::ResetConfigChanged {
                 config_change_counter: Some(self.cfg.config_change_counter),
             })),
             // The reply to a legacy command 48, without acknowledging anything.
-            48 => ok(self.additional_status().to_vec()),
+            48 => ok(encode(&self.additional_status())),
             c @ (1 | 2 | 3 | 9 | 33) => {
                 let request = match c {
-                    9 => slots(8),
-                    33 => slots(4),
-                    _ => vec![],
+                    9 => Some(Request::ReadDeviceVariablesWithStatus(
+                        cmd::ReadDeviceVariablesRequest {
+                            slots: burst_slots(&b.slots),
+                        },
+                    )),
+                    33 => Some(Request::ReadDeviceVariables(cmd::ReadVariablesRequest {
+                        slots: burst_slots(&b.slots),
+                    })),
+                    _ => hart_proto::decode_request(c, &[]).and_then(Result::ok),
                 };
-                match hart_proto::decode_request(c, &request) {
-                    Some(Ok(r)) => self.process_read(&r, now),
-                    _ => err(rc::TOO_FEW_DATA_BYTES),
+                match request {
+                    Some(r) => self.process_read(&r, now),
+                    None => err(rc::TOO_FEW_DATA_BYTES),
                 }
             }
             // Only a hand-written profile or state file can name another command.

@@ -11,15 +11,20 @@
 
 use std::sync::Arc;
 
-use hart_proto::command::{self as cmd, Identity, LongTag, TagDescriptorDate};
-use hart_proto::frame::{checksum, Address, Frame, MasterKind, UniqueId};
+use hart_proto::command::{
+    self as cmd, AdditionalStatus, AdditionalStatusParts, Identity, LongTag, TagDescriptorDate,
+    TagRequest,
+};
+use hart_proto::frame::{Address, Frame, MasterKind, UniqueId, MAX_PDU_LEN};
 use hart_proto::tables::rc;
 use hart_proto::types::{
     hart_nan, AlarmSelection, Classification, Date, DeviceId, DeviceProfile, DeviceVariableCode,
     ExtendedStatus, Flags, HardwareRevision, Latin1String, LoopCurrentMode, MilliAmps,
-    PackedString, Percent, Seconds, TransferFunction, UnitCode, WriteProtect, U24,
+    PackedString, Percent, Seconds, StandardizedStatus2, TransferFunction, UnitCode, WriteProtect,
+    U24,
 };
 use hart_proto::wire::{List, Reader, Wire, Writer};
+use hart_proto::Request;
 use tokio::sync::Mutex;
 
 pub use hart_poller::{
@@ -242,24 +247,24 @@ impl IoSystem {
             Address::Long(a) if a.id.is_broadcast() => {
                 // Commands 11 and 21 find a device by its tag: the I/O system's own,
                 // else the sub-device that has it.
-                let state = self.state();
-                let mine = match f.command {
-                    11 => f.data.get(..6) == Some(&state.tag.0[..]),
-                    21 => f.data.get(..32) == Some(&state.long_tag.0[..]),
-                    _ => false,
+                let wanted = Wanted::of(f.command, f.data);
+                let mine = {
+                    let state = self.state();
+                    wanted.is_some_and(|w| w.matches(&state.tag, &state.long_tag))
                 };
-                drop(state);
                 if mine {
                     return Route::Local;
                 }
-                let by_tag = subs.iter().find(|s| match f.command {
-                    11 => s.info.tag.as_deref().is_some_and(|t| {
-                        PackedString::<6>::new(t).is_ok_and(|p| f.data.get(..6) == Some(&p.0[..]))
+                let by_tag = subs.iter().find(|s| match wanted {
+                    Some(Wanted::Tag(want)) => s
+                        .info
+                        .tag
+                        .as_deref()
+                        .is_some_and(|t| PackedString::<6>::new(t).is_ok_and(|p| p == want.tag)),
+                    Some(Wanted::LongTag(want)) => s.info.long_tag.as_deref().is_some_and(|t| {
+                        Latin1String::<32>::new(t).is_ok_and(|p| p == want.long_tag)
                     }),
-                    21 => s.info.long_tag.as_deref().is_some_and(|t| {
-                        Latin1String::<32>::new(t).is_ok_and(|p| f.data.get(..32) == Some(&p.0[..]))
-                    }),
-                    _ => false,
+                    None => false,
                 });
                 match by_tag {
                     Some(s) => on_loop(s.channel, true),
@@ -414,12 +419,12 @@ impl IoSystem {
                 // status 2 (bit 0: sub-device list changed, reported once), 3, analog
                 // channel fixed.
                 let mut st = self.state();
-                let mut d = vec![0u8; 14];
+                let mut parts = AdditionalStatusParts::default();
                 if st.reported != ids {
-                    d[11] |= 0x01;
+                    parts.standardized_status_2 = StandardizedStatus2(0x01);
                     st.reported = ids.clone();
                 }
-                (rc::SUCCESS, d)
+                (rc::SUCCESS, encode(&AdditionalStatus::from(parts)))
             }
             _ => self.universal(command, data),
         };
@@ -438,13 +443,14 @@ impl IoSystem {
         let not_used = UnitCode(250);
         match command {
             0 => ok(self.identity_reply(&st)),
-            11 if data.len() < 6 => (rc::TOO_FEW_DATA_BYTES, vec![]),
-            11 if data[..6] == st.tag.0 => ok(self.identity_reply(&st)),
-            21 if data.len() < 32 => (rc::TOO_FEW_DATA_BYTES, vec![]),
-            21 if data[..32] == st.long_tag.0 => ok(self.identity_reply(&st)),
-            // Not this device's tag: the I/O system stays silent like a field device
-            // (answered as "not implemented" only when a host sends it here directly).
-            11 | 21 => (rc::NOT_IMPLEMENTED, vec![]),
+            11 | 21 => match Wanted::of(command, data) {
+                None => (rc::TOO_FEW_DATA_BYTES, vec![]),
+                Some(w) if w.matches(&st.tag, &st.long_tag) => ok(self.identity_reply(&st)),
+                // Not this device's tag: the I/O system stays silent like a field device
+                // (answered as "not implemented" only when a host sends it here
+                // directly).
+                Some(_) => (rc::NOT_IMPLEMENTED, vec![]),
+            },
             1 => ok(encode(&cmd::ReadPvResponse {
                 pv_units: not_used,
                 pv: hart_nan(),
@@ -561,14 +567,17 @@ impl IoSystem {
             },
             38 => {
                 // HART 7: the request carries the counter the host read; a stale one
-                // leaves the flag set (RC 9).
-                if data.len() >= 2
-                    && u16::from_be_bytes([data[0], data[1]]) != st.config_change_counter
-                {
+                // leaves the flag set (RC 9). Older hosts send none.
+                let asked = cmd::ResetConfigChanged::decode(&mut Reader::new(data))
+                    .ok()
+                    .and_then(|r| r.config_change_counter);
+                if asked.is_some_and(|c| c != st.config_change_counter) {
                     return (CONFIG_CHANGE_COUNTER_MISMATCH, vec![]);
                 }
                 st.changed = [false; 2];
-                ok(st.config_change_counter.to_be_bytes().to_vec())
+                ok(encode(&cmd::ResetConfigChanged {
+                    config_change_counter: Some(st.config_change_counter),
+                }))
             }
             _ => (rc::NOT_IMPLEMENTED, vec![]),
         }
@@ -596,7 +605,12 @@ impl IoSystem {
     /// Command 75: poll sub-device (card, channel, polling address): command 0 in a
     /// short frame on that channel; the reply is the sub-device's command 0 data.
     async fn poll_sub_device(&self, data: &[u8], from: &Requester) -> (u8, Vec<u8>) {
-        let [card, channel, poll, ..] = *data else {
+        let Ok(cmd::PollSubDevice {
+            io_card: card,
+            channel,
+            polling_address: poll,
+        }) = cmd::PollSubDevice::decode(&mut Reader::new(data))
+        else {
             return (rc::TOO_FEW_DATA_BYTES, vec![]);
         };
         if card != 0 {
@@ -839,11 +853,10 @@ impl IoSystem {
                     continue;
                 }
                 *due = now + std::time::Duration::from_micros(u64::from(b.period) * 1000 / 32);
-                let data: Vec<u8> = match b.command {
-                    9 | 33 => b.slots.iter().copied().take_while(|&c| c != 250).collect(),
-                    _ => vec![],
+                let Some(request) = b.request() else {
+                    continue;
                 };
-                if let Some(frame) = self.burst_frame(index, b.command, &data).await {
+                if let Some(frame) = self.burst_frame(index, &request).await {
                     let _ = out.send(frame);
                 }
             }
@@ -852,11 +865,13 @@ impl IoSystem {
 
     /// The burst frame of one burst message: the reply to `command` of sub-device
     /// `index` (0: the I/O system) turned into a BACK frame with the burst bit set.
-    async fn burst_frame(&self, index: u16, command: u16, data: &[u8]) -> Option<Vec<u8>> {
+    async fn burst_frame(&self, index: u16, request: &Request) -> Option<Vec<u8>> {
+        let command = request.command();
         let (address, code, status, reply) = if index == 0 {
             let reader = Requester::reader("hart-ip", "burst message of the I/O system");
+            let data = request.to_vec().ok()?;
             let (code, status, d) = self
-                .local(MasterKind::Primary, command, data, &reader)
+                .local(MasterKind::Primary, command, &data, &reader)
                 .await;
             (Address::long(self.unique_id()), code, status, d)
         } else {
@@ -867,9 +882,7 @@ impl IoSystem {
                 .get(usize::from(index) - 1)
                 .cloned()?;
             let address = Address::long(sub.info.unique_id());
-            let pdu = pdu_of(&hart_proto::frame::FrameSpec::request(
-                address, command, data,
-            ));
+            let pdu = request.frame(address).ok()?.to_vec();
             let reader = Requester::reader("hart-ip", "burst message of the I/O system");
             let Ok(LoopOutcome::Reply(reply)) = self
                 .forward(usize::from(sub.channel), pdu, KNOWN_RETRIES, &reader)
@@ -897,27 +910,29 @@ impl IoSystem {
     /// from the delimiter through the data (no check byte). The reply carries card,
     /// channel and the sub-device's reply frame in the same form.
     async fn send_to_sub_device(&self, data: &[u8], from: &Requester) -> (u8, Vec<u8>) {
-        if data.len() < 4 {
-            return (rc::TOO_FEW_DATA_BYTES, vec![]);
-        }
-        let (card, channel) = (data[0], data[1]);
+        let request = match cmd::SendCommandToSubDevice::decode(&mut Reader::new(data)) {
+            Ok(r) if !r.frame.as_slice().is_empty() => r,
+            _ => return (rc::TOO_FEW_DATA_BYTES, vec![]),
+        };
+        let (card, channel) = (request.io_card, request.channel);
         if card != 0 {
             return (rc::INVALID_IO_CARD, vec![]);
         }
         if usize::from(channel) >= self.engine.loop_count() {
             return (rc::INVALID_CHANNEL, vec![]);
         }
-        let mut pdu = data[3..].to_vec();
-        pdu.push(checksum(&pdu));
-        let Ok(f) = Frame::parse_pdu(&pdu) else {
+        let mut buf = [0u8; MAX_PDU_LEN];
+        let Ok(address) = request.embedded_frame(&mut buf).map(|f| f.address) else {
             return (rc::TOO_FEW_DATA_BYTES, vec![]);
         };
+        // The embedded frame with its check byte, as the loop sends it.
+        let pdu = buf[..=request.frame.as_slice().len()].to_vec();
         let known = {
             let subs = self.subs.lock().await;
             subs.iter().any(|s| {
                 s.present
                     && s.channel == channel
-                    && match f.address {
+                    && match address {
                         Address::Long(a) => s.info.unique_id() == a.id,
                         Address::Short(a) => s.info.polling_address == Some(a.polling_address),
                     }
@@ -936,14 +951,88 @@ impl IoSystem {
             Err(_) => (rc::ACCESS_RESTRICTED, vec![]),
             Ok(LoopOutcome::Busy) => (rc::BUSY, vec![]),
             Ok(LoopOutcome::Reply(reply)) => {
-                let mut d = vec![card, channel];
-                d.extend_from_slice(&reply[..reply.len().saturating_sub(1)]);
-                if d.len() > 253 {
-                    return (rc::SUB_DEVICE_RESPONSE_TOO_LONG, vec![]);
+                // The reply frame without its check byte; card, channel and frame
+                // must fit the 253 bytes of a reply's data.
+                let body = reply.split_last().map_or(&[][..], |(_, body)| body);
+                match hart_proto::types::Bytes::<253>::new(body) {
+                    Ok(frame) if body.len() + 2 <= 253 => (
+                        rc::SUCCESS,
+                        encode(&cmd::SendCommandToSubDeviceResponse {
+                            io_card: card,
+                            channel,
+                            frame,
+                        }),
+                    ),
+                    _ => (rc::SUB_DEVICE_RESPONSE_TOO_LONG, vec![]),
                 }
-                (rc::SUCCESS, d)
             }
             Ok(LoopOutcome::NoReply) => (SUB_DEVICE_NOT_RESPONDING, vec![]),
+        }
+    }
+}
+
+/// The tag a command 11 or 21 request looks for; `None` for another command or a
+/// request too short to carry one.
+#[derive(Debug, Clone, Copy)]
+enum Wanted {
+    /// Command 11: the packed tag.
+    Tag(TagRequest),
+    /// Command 21: the long tag.
+    LongTag(LongTag),
+}
+
+impl Wanted {
+    fn of(command: u16, data: &[u8]) -> Option<Self> {
+        match command {
+            11 => TagRequest::decode(&mut Reader::new(data))
+                .ok()
+                .map(Wanted::Tag),
+            21 => LongTag::decode(&mut Reader::new(data))
+                .ok()
+                .map(Wanted::LongTag),
+            _ => None,
+        }
+    }
+
+    /// Whether it names a device with `tag` and `long_tag`.
+    fn matches(&self, tag: &PackedString<6>, long_tag: &Latin1String<32>) -> bool {
+        match self {
+            Wanted::Tag(t) => t.tag == *tag,
+            Wanted::LongTag(t) => t.long_tag == *long_tag,
+        }
+    }
+}
+
+impl GatewayBurst {
+    /// The request a burst message sends: its command, with the device variable codes
+    /// it selects for commands 9 and 33 (250 ends them). `None` for a command without
+    /// a typed request.
+    fn request(&self) -> Option<Request> {
+        let codes = self
+            .slots
+            .iter()
+            .take_while(|&&c| c != 250)
+            .map(|&c| DeviceVariableCode(c));
+        match self.command {
+            9 => {
+                let mut slots = List::default();
+                codes.for_each(|c| {
+                    let _ = slots.push(c);
+                });
+                Some(Request::ReadDeviceVariablesWithStatus(
+                    cmd::ReadDeviceVariablesRequest { slots },
+                ))
+            }
+            33 => {
+                let mut slots = List::default();
+                codes.take(4).for_each(|c| {
+                    let _ = slots.push(c);
+                });
+                Some(Request::ReadDeviceVariables(cmd::ReadVariablesRequest {
+                    slots,
+                }))
+            }
+            c => hart_proto::decode_request(c, &[]).and_then(Result::ok),
         }
     }
 }

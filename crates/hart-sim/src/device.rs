@@ -5,8 +5,9 @@
 
 use hart_link::slave::{Handler, Reply};
 use hart_proto::command::{
-    Identity, ReadDeviceVariablesResponse, ReadDynamicVariablesResponse, ReadLoopCurrentResponse,
-    ReadPvResponse, SlotsWithTimestamp, UnitValue, VariableSlot,
+    Identity, ReadDeviceVariablesRequest, ReadDeviceVariablesResponse,
+    ReadDynamicVariablesResponse, ReadLoopCurrentResponse, ReadPvResponse, ResetConfigChanged,
+    SlotsWithTimestamp, TagRequest, UnitValue, VariableSlot,
 };
 use hart_proto::frame::{Frame, UniqueId};
 use hart_proto::tables::rc;
@@ -14,7 +15,7 @@ use hart_proto::types::{
     DeviceId, DeviceProfile, DeviceVariableCode, ExtendedStatus, Flags, HardwareRevision, HartTime,
     MilliAmps, Percent, UnitCode, VariableStatus,
 };
-use hart_proto::wire::{List, Wire, Writer};
+use hart_proto::wire::{List, Reader, Wire, Writer};
 
 /// Expanded device type used by simulated devices.
 pub const SIM_DEVICE_TYPE: u16 = 0x26F0;
@@ -92,8 +93,9 @@ impl SimpleDevice {
                 ) {
                     tag = t;
                 }
-                if data.get(..6) != Some(&tag.0[..]) {
-                    return false;
+                match TagRequest::decode(&mut Reader::new(data)) {
+                    Ok(r) if r.tag == tag => {}
+                    _ => return false,
                 }
                 self.identity().encode(&mut w)
             }
@@ -133,8 +135,12 @@ impl SimpleDevice {
                 .encode(&mut w)
             }
             9 => {
+                let Ok(request) = ReadDeviceVariablesRequest::decode(&mut Reader::new(data)) else {
+                    reply.response_code = rc::TOO_FEW_DATA_BYTES;
+                    return true;
+                };
                 let mut slots = List::<VariableSlot, 8>::default();
-                for &code in data.iter().take(8) {
+                for &DeviceVariableCode(code) in request.slots.as_slice() {
                     let _ = slots.push(VariableSlot {
                         code: DeviceVariableCode(code),
                         classification: hart_proto::types::Classification(if code == 0 {
@@ -164,7 +170,16 @@ impl SimpleDevice {
                 }
                 .encode(&mut w)
             }
-            38 => w.put(data.get(..2).unwrap_or(&[0, 0])),
+            // The counter the master sent back (0 from a master that sent none).
+            38 => ResetConfigChanged {
+                config_change_counter: Some(
+                    ResetConfigChanged::decode(&mut Reader::new(data))
+                        .ok()
+                        .and_then(|r| r.config_change_counter)
+                        .unwrap_or(0),
+                ),
+            }
+            .encode(&mut w),
             _ => {
                 reply.response_code = rc::NOT_IMPLEMENTED;
                 return true;

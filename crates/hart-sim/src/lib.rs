@@ -34,10 +34,11 @@ pub use hart_modem::line::{AnalogDisturbance, LineOptions};
 use hart_link::master::{MasterOutput, RetryPolicy};
 use hart_link::slave::{BurstConfig, Slave, SlaveConfig};
 use hart_link::{LinkError, Master, Micros, TimingProfile};
-use hart_proto::command::Identity;
+use hart_proto::command::{Identity, ReadDeviceVariablesRequest, ReadVariablesRequest, Request};
 use hart_proto::deframer::UartFlags;
 use hart_proto::frame::{Address, Frame, FrameSpec, FrameType, MasterKind, UniqueId};
-use hart_proto::wire::{Reader, Wire};
+use hart_proto::types::DeviceVariableCode;
+use hart_proto::wire::{List, Reader, Wire, Writer};
 
 use bus::{Attach, Bus, BusEvent, Sender};
 use device::SimpleDevice;
@@ -932,10 +933,8 @@ fn next_request(ms: &mut MasterStation, now: Micros) {
             Phase::Poll(k) => {
                 let (poll, id) = ms.found[k % ms.found.len()];
                 ms.current = (poll, now);
-                let _ = ms.m.request(
-                    &FrameSpec::request(Address::long(id), ms.command, request_data(ms.command)),
-                    now,
-                );
+                let command = ms.command;
+                send(ms, Address::long(id), command, now);
                 return;
             }
             Phase::Scheduled(k) => {
@@ -957,10 +956,7 @@ fn next_request(ms: &mut MasterStation, now: Micros) {
                     Address::short(r.device)
                 };
                 ms.current = (r.device, now);
-                let _ = ms.m.request(
-                    &FrameSpec::request(address, r.command, request_data(r.command)),
-                    now,
-                );
+                send(ms, address, r.command, now);
                 return;
             }
             Phase::Done => return,
@@ -982,14 +978,34 @@ fn request_done(ms: &mut MasterStation, reply: Option<&[u8]>, _now: Micros) {
     }
 }
 
-/// Request data the simulated devices need: one slot (device variable 0) for commands 9
-/// and 33.
-fn request_data(command: u16) -> &'static [u8] {
-    if command == 9 || command == 33 {
-        &[0]
-    } else {
-        &[]
+/// The request the simulated master sends with `command`: one slot (device variable 0)
+/// for commands 9 and 33, the request without data for the others; `None` for a
+/// command whose request needs data (it is sent without any, and the device answers
+/// "too few data bytes") or that hart-proto does not know.
+fn request(command: u16) -> Option<Request> {
+    let variable_0 = DeviceVariableCode(0);
+    match command {
+        9 => Some(Request::ReadDeviceVariablesWithStatus(
+            ReadDeviceVariablesRequest {
+                slots: List::from_slice(&[variable_0]).ok()?,
+            },
+        )),
+        33 => Some(Request::ReadDeviceVariables(ReadVariablesRequest {
+            slots: List::from_slice(&[variable_0]).ok()?,
+        })),
+        c => hart_proto::decode_request(c, &[]).and_then(Result::ok),
     }
+}
+
+/// Starts the master's transaction of `command` with `address`.
+fn send(ms: &mut MasterStation, address: Address, command: u16, now: Micros) {
+    let mut buf = [0u8; 255];
+    let mut w = Writer::new(&mut buf);
+    let n = request(command)
+        .and_then(|r| r.encode(&mut w).ok())
+        .map_or(0, |()| w.position());
+    let _ =
+        ms.m.request(&FrameSpec::request(address, command, &buf[..n]), now);
 }
 
 fn identity_of(pdu: &[u8]) -> Option<UniqueId> {

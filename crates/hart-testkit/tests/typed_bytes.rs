@@ -5,14 +5,9 @@
 //! own).
 //!
 //! What is deliberately raw is allowed explicitly, here, so that a change shows in
-//! review: whole files whose bytes are another protocol's ([`OTHER_LAYERS`]), a line
-//! marked `// raw: <why>` (at its end or on the line above), and, while issue 38's
-//! series is under way, the exact counts still to be replaced ([`PENDING`]).
-//!
-//! `TYPED_BYTES_BASELINE=1 cargo test -p hart-testkit --test typed_bytes` prints the
-//! current counts in `PENDING`'s syntax instead of checking them.
+//! review: whole files whose bytes are another protocol's ([`OTHER_LAYERS`]), and a
+//! line marked `// raw: <why>` (at its end or on the line above).
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use regex::Regex;
@@ -74,32 +69,6 @@ const OTHER_LAYERS: &[(&str, &[&str], &str)] = &[
         "crates/hart-wells/src/proto.rs",
         &["be_bytes", "data_offset", "literal_command_data"],
         "the well network's own commands 1, 14, 144, 160, 161: their layouts, defined once here",
-    ),
-];
-
-/// Hand-built command bytes still to be replaced (issue 38), as (file, rule, count).
-/// Each count is exact: more is a new one (use hart-proto's layouts), fewer means the
-/// entry is to be lowered.
-const PENDING: &[(&str, &str, usize)] = &[
-    ("crates/hart-access/src/lib.rs", "data_offset", 1),
-    ("crates/hart-device/src/device.rs", "be_bytes", 2),
-    ("crates/hart-device/src/device.rs", "data_offset", 1),
-    ("crates/hart-ip-server/src/io_system.rs", "be_bytes", 2),
-    ("crates/hart-ip-server/src/io_system.rs", "data_offset", 10),
-    ("crates/hart-ip-server/src/io_system.rs", "string_bytes", 2),
-    ("crates/hart-ip-server/src/subscriptions.rs", "be_bytes", 3),
-    (
-        "crates/hart-ip-server/src/subscriptions.rs",
-        "data_offset",
-        2,
-    ),
-    ("crates/hart-sim/src/device.rs", "data_offset", 2),
-    ("crates/hart-sim/src/device.rs", "string_bytes", 1),
-    ("crates/hart-wells/src/archive.rs", "data_offset", 3),
-    (
-        "crates/hart-wells/src/handheld.rs",
-        "literal_command_data",
-        1,
     ),
 ];
 
@@ -393,44 +362,10 @@ fn scan() -> (Vec<Hit>, Vec<Marker>) {
 #[test]
 fn hand_built_command_bytes_stay_out() {
     let (hits, _) = scan();
-    let mut counts: BTreeMap<(String, &str), Vec<&Hit>> = BTreeMap::new();
-    for h in &hits {
-        counts.entry((h.file.clone(), h.rule)).or_default().push(h);
-    }
-    if std::env::var_os("TYPED_BYTES_BASELINE").is_some() {
-        println!("const PENDING: &[(&str, &str, usize)] = &[");
-        for ((file, rule), v) in &counts {
-            println!("    ({file:?}, {rule:?}, {}),", v.len());
-        }
-        println!("];");
-        return;
-    }
-    let mut problems = vec![];
-    for ((file, rule), v) in &counts {
-        let allowed = PENDING
-            .iter()
-            .find(|(f, r, _)| f == file && r == rule)
-            .map_or(0, |p| p.2);
-        if v.len() > allowed {
-            problems.push(format!(
-                "{file}: {} [{rule}] where {allowed} are pending:",
-                v.len()
-            ));
-            for h in v {
-                problems.push(format!("  {}:{}: [{}] {}", h.file, h.line, h.rule, h.text));
-            }
-        }
-    }
-    for (file, rule, n) in PENDING {
-        let found = counts
-            .get(&(file.to_string(), *rule))
-            .map_or(0, |v| v.len());
-        if found < *n {
-            problems.push(format!(
-                "lower PENDING for {file}/{rule} to {found} (it says {n})"
-            ));
-        }
-    }
+    let problems: Vec<String> = hits
+        .iter()
+        .map(|h| format!("  {}:{}: [{}] {}", h.file, h.line, h.rule, h.text))
+        .collect();
     assert!(
         problems.is_empty(),
         "hand-built HART command bytes:\n{}\n\nbuild the data with hart-proto's typed layouts \
@@ -455,14 +390,6 @@ fn markers_and_allowances_are_current() {
             if !rules().iter().any(|(id, _)| id == r) || EVERYWHERE.contains(r) {
                 problems.push(format!("OTHER_LAYERS entry {path}: no excusable rule {r}"));
             }
-        }
-    }
-    for (path, rule, _) in PENDING {
-        if !root.join(path).exists() {
-            problems.push(format!("PENDING names {path}, which does not exist"));
-        }
-        if !rules().iter().any(|(id, _)| id == rule) {
-            problems.push(format!("PENDING names the unknown rule {rule}"));
         }
     }
     let (_, markers) = scan();

@@ -13,8 +13,8 @@ use rusqlite::{params, Connection, OptionalExtension};
 
 use crate::calibration::{Sensor, Table};
 use crate::proto::{
-    transfer_request, Batch, DecodeError, Message, Record, SegmentRequest, Station, StationStatus,
-    CALIBRATION, TABLE_IN_FORCE, TRANSFER,
+    transfer_request, Batch, DecodeError, Message, Record, SegmentReply, SegmentRequest, Station,
+    StationStatus, CALIBRATION, TABLE_IN_FORCE, TRANSFER,
 };
 use crate::store::{
     add_count, get_count, get_meta, load_table, open_db, record_from_row, save_table, transfer_in,
@@ -631,8 +631,9 @@ impl CalibrationSender {
         }
         // A reply for another segment (a late reply to an earlier try): send this one
         // again.
-        if reply.data.first() != Some(&self.sensor.code())
-            || reply.data.get(1).map(|&n| n as usize) != Some(self.next + 1)
+        let echoed = SegmentReply::decode(&reply.data).ok();
+        if !echoed
+            .is_some_and(|r| r.sensor == self.sensor && usize::from(r.number) == self.next + 1)
         {
             self.mismatches += 1;
             if self.mismatches > 3 {
@@ -647,7 +648,7 @@ impl CalibrationSender {
         }
         self.mismatches = 0;
         self.next += 1;
-        if reply.data.get(2) == Some(&TABLE_IN_FORCE) {
+        if echoed.is_some_and(|r| r.state == TABLE_IN_FORCE) {
             return Ok(Step::Done);
         }
         if self.next >= self.table.segments().len() {

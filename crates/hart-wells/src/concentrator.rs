@@ -2,15 +2,20 @@
 //! bus, what a reply or a time-out means), slave on its uplink (a request in, a reply
 //! out). The caller moves the bytes and the time; the same core runs on serial ports
 //! and in the virtual-time simulation.
+//!
+//! [`ConcentratorCore`] does no I/O at all: what it needs from its store, or wants
+//! kept there, comes out as a [`StoreOp`] (a poll's records as a [`PollCommit`]),
+//! which its runner carries out and hands back. [`Concentrator`] is that runner over
+//! the SQLite [`Store`].
 
 use tracing::{error, info, warn};
 
 use crate::calibration::{Sensor, Table};
 use crate::proto::{
     decode_transfer_request, Assembled, Diagnosis, Groups, Message, Parameters, Record,
-    SegmentRequest, SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS, NO_VALUE,
-    PARAMETERS, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, RC_TOO_LARGE, READ_VALUES, SEGMENT_TAKEN,
-    STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
+    SegmentReply, SegmentRequest, SensorStatus, Station, TableAssembler, CALIBRATION, DIAGNOSTICS,
+    NO_VALUE, PARAMETERS, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, RC_TOO_LARGE, READ_VALUES,
+    SEGMENT_TAKEN, STATE_NOT_ANSWERING, STATUS_NORMAL, TABLE_IN_FORCE, TRANSFER, VALID_LEVEL,
     VALID_LEVEL_SENSOR_TEMPERATURE, VALID_TEMPERATURE,
 };
 use crate::store::{PollOutcome, Store, StoreError};
@@ -70,10 +75,115 @@ struct Cycle {
     outstanding: bool,
 }
 
-/// The data concentrator.
-pub struct Concentrator {
+/// What the concentrator's store held at start-up: the runner reads it
+/// ([`Restored::load`]) and the core starts from it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Restored {
+    /// The tables downloaded earlier (none: the built-in ones), temperature then level.
+    pub tables: [Option<Table>; 2],
+    /// The sensors' states as last stored.
+    pub sensors: Vec<SensorStatus>,
+    /// The poll interval changed online, in seconds.
+    pub poll_interval_s: Option<i64>,
+    /// The retries changed online.
+    pub retries: Option<i64>,
+    /// The newest stored minute (0: none).
+    pub newest: u32,
+}
+
+impl Restored {
+    /// Reads what a restarted concentrator starts from out of `store`.
+    pub fn load(store: &Store) -> Result<Self, StoreError> {
+        Ok(Restored {
+            tables: [
+                store.calibration(Sensor::Temperature)?,
+                store.calibration(Sensor::Level)?,
+            ],
+            sensors: store.sensors()?,
+            poll_interval_s: store.parameter("poll_interval_s")?,
+            retries: store.parameter("retries")?,
+            newest: store.counts()?.2,
+        })
+    }
+}
+
+/// A store operation the core needs before it can answer on the uplink.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StoreOp {
+    /// Read the newest stored minute (command 1).
+    Latest,
+    /// Read the station status at `minute` with `sensors` (command 14).
+    Status {
+        /// The minute in progress.
+        minute: u32,
+        /// The sensors as the core sees them.
+        sensors: Vec<SensorStatus>,
+    },
+    /// Hand over the next batch after acknowledging `ack` (command 144).
+    Transfer {
+        /// What the collector acknowledged.
+        ack: u32,
+        /// The minute in progress.
+        minute: u32,
+        /// The valid bits of a complete minute.
+        full: u8,
+    },
+    /// Keep a parameter changed online (command 161).
+    SetParameter {
+        /// Its name.
+        key: &'static str,
+        /// Its value.
+        value: i64,
+    },
+    /// Keep a complete calibration table, now in force (command 160).
+    SetCalibration {
+        /// The sensor it is for.
+        sensor: Sensor,
+        /// The table.
+        table: Box<Table>,
+    },
+}
+
+/// What the runner found carrying out a [`StoreOp`].
+#[derive(Debug, Clone)]
+pub enum StoreDone {
+    /// [`StoreOp::Latest`]: the newest minute.
+    Latest(Option<Record>),
+    /// [`StoreOp::Status`]: the status.
+    Status(crate::proto::StationStatus),
+    /// [`StoreOp::Transfer`]: the batch handed over.
+    Transfer(crate::proto::Batch),
+    /// [`StoreOp::SetParameter`] or [`StoreOp::SetCalibration`]: kept.
+    Written,
+}
+
+/// A poll's outcome for the store: its records and the sensors' states, to be kept in
+/// one transaction ([`Store::commit_poll`]); the runner hands the result back with
+/// [`ConcentratorCore::committed`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PollCommit {
+    /// The minutes the poll brought (and those a failed commit left).
+    pub records: Vec<Record>,
+    /// The sensors' states.
+    pub sensors: Vec<SensorStatus>,
+    /// The minute in progress.
+    pub minute: u32,
+}
+
+/// One step of answering on the uplink.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Uplink {
+    /// Send this reply.
+    Reply(Message),
+    /// Carry out this store operation, then hand its result to
+    /// [`ConcentratorCore::resume`]. A reply that acknowledges a change is only made
+    /// after the change is kept.
+    Need(StoreOp),
+}
+
+/// The data concentrator, sans-IO (see the module's documentation).
+pub struct ConcentratorCore {
     cfg: ConcentratorConfig,
-    store: Store,
     tables: [Table; 2],
     sensors: Vec<SensorView>,
     next_poll: Millis,
@@ -96,18 +206,16 @@ fn kind_index(s: Sensor) -> usize {
     }
 }
 
-impl Concentrator {
-    /// A concentrator on `store`, first polling at the first poll time after `now`.
-    pub fn new(cfg: ConcentratorConfig, store: Store, now: Millis) -> Result<Self, StoreError> {
+impl ConcentratorCore {
+    /// A concentrator restarted from `restored`, first polling at the first poll time
+    /// after `now`.
+    pub fn new(cfg: ConcentratorConfig, restored: Restored, now: Millis) -> Self {
+        let [temperature, level] = restored.tables;
         let tables = [
-            store
-                .calibration(Sensor::Temperature)?
-                .unwrap_or_else(|| Table::builtin(Sensor::Temperature)),
-            store
-                .calibration(Sensor::Level)?
-                .unwrap_or_else(|| Table::builtin(Sensor::Level)),
+            temperature.unwrap_or_else(|| Table::builtin(Sensor::Temperature)),
+            level.unwrap_or_else(|| Table::builtin(Sensor::Level)),
         ];
-        let known = store.sensors()?;
+        let known = restored.sensors;
         let sensors = cfg
             .sensors
             .iter()
@@ -124,9 +232,8 @@ impl Concentrator {
                 }
             })
             .collect();
-        let mut c = Concentrator {
+        let mut c = ConcentratorCore {
             cfg,
-            store,
             tables,
             sensors,
             next_poll: 0,
@@ -138,30 +245,25 @@ impl Concentrator {
             uplink_answered: 0,
         };
         // Parameters changed online survive a restart.
-        if let Some(v) = c.store.parameter("poll_interval_s")? {
+        if let Some(v) = restored.poll_interval_s {
             c.cfg.poll_interval = v.clamp(1, 180) as Millis * 1000;
         }
-        if let Some(v) = c.store.parameter("retries")? {
+        if let Some(v) = restored.retries {
             c.cfg.retries = v.clamp(0, 5) as u8;
         }
         c.next_poll = c.poll_time_after(now);
         // Back after a restart with a minute missing: poll at once, while the sensors
         // still hold it (they keep three).
-        let (_, _, newest) = c.store.counts()?;
+        let newest = restored.newest;
         if newest > 0 && newest.saturating_add(1) < crate::minute_of(now) {
             c.next_poll = now;
         }
-        Ok(c)
+        c
     }
 
     /// Its configuration.
     pub fn config(&self) -> &ConcentratorConfig {
         &self.cfg
-    }
-
-    /// Its store.
-    pub fn store(&self) -> &Store {
-        &self.store
     }
 
     /// Its station address on the uplink.
@@ -208,7 +310,7 @@ impl Concentrator {
 
     /// What to send on the bus now, if anything: a poll that is due starts; the
     /// request in progress is sent (again). The caller sends it and reports the
-    /// reply or the time-out with [`Concentrator::bus_result`].
+    /// reply or the time-out with [`ConcentratorCore::bus_result`].
     pub fn bus_request(&mut self, now: Millis) -> Option<Message> {
         if self.cycle.is_none() && self.next_poll > now + 2 * self.cfg.poll_interval + 10_000 {
             // The clock was set back: poll on the new time base instead of waiting
@@ -242,15 +344,11 @@ impl Concentrator {
         Some(Message::request(Station::sensor(addr), c.command, vec![]))
     }
 
-    /// The outcome of the request [`Concentrator::bus_request`] gave: its reply, or
+    /// The outcome of the request [`ConcentratorCore::bus_request`] gave: its reply, or
     /// `None` after the reply time-out, and `now`, the time the request reached the
     /// sensor (its groups are the three minutes before the one in progress then).
-    /// Returns what the poll stored when this completed it.
-    pub fn bus_result(
-        &mut self,
-        now: Millis,
-        reply: Option<&Message>,
-    ) -> Option<Result<PollOutcome, StoreError>> {
+    /// Returns what the poll brought, for the store, when this completed it.
+    pub fn bus_result(&mut self, now: Millis, reply: Option<&Message>) -> Option<PollCommit> {
         let c = self.cycle.as_mut()?;
         if !c.outstanding {
             return None;
@@ -323,7 +421,7 @@ impl Concentrator {
         Some(self.commit(cycle, now))
     }
 
-    fn commit(&mut self, cycle: Cycle, now: Millis) -> Result<PollOutcome, StoreError> {
+    fn commit(&mut self, cycle: Cycle, now: Millis) -> PollCommit {
         // Each sensor's groups are the three minutes before the one in progress when
         // its request reached it (a poll held up across a minute's end still files
         // each sensor's right).
@@ -365,11 +463,23 @@ impl Concentrator {
                 view.latest = Some(x);
             }
         }
-        let mut all = std::mem::take(&mut self.unsaved);
-        all.extend(by_minute.into_values());
-        let statuses: Vec<SensorStatus> = self.sensors.iter().map(|s| s.status).collect();
-        let minute = (now / 60_000) as u32;
-        match self.store.commit_poll(&all, &statuses, minute) {
+        let mut records = std::mem::take(&mut self.unsaved);
+        records.extend(by_minute.into_values());
+        PollCommit {
+            records,
+            sensors: self.sensors.iter().map(|s| s.status).collect(),
+            minute: (now / 60_000) as u32,
+        }
+    }
+
+    /// The store's answer to a [`PollCommit`]: counts the poll, or keeps its records
+    /// in memory to be written with the next one. Returns `result`.
+    pub fn committed(
+        &mut self,
+        commit: PollCommit,
+        result: Result<PollOutcome, StoreError>,
+    ) -> Result<PollOutcome, StoreError> {
+        match result {
             Ok(o) => {
                 self.polls += 1;
                 if o.dropped_unsent > 0 {
@@ -386,6 +496,7 @@ impl Concentrator {
                     well = self.cfg.well,
                     "{e}; the poll is kept in memory and written with the next one"
                 );
+                let mut all = commit.records;
                 all.retain(|r| r.valid != 0);
                 // Keep at most a day in memory.
                 let keep = all.len().saturating_sub(1440);
@@ -396,84 +507,164 @@ impl Concentrator {
         }
     }
 
-    /// The latest values in engineering units: water temperature (°C), level (m),
-    /// the level sensor's temperature (°C), from the newest stored minute.
-    pub fn latest(&self) -> Result<Option<Record>, StoreError> {
-        let (_, _, newest) = self.store.counts()?;
-        self.store.get(newest)
-    }
-
-    /// Answers a request on the uplink (`None`: not for this concentrator, or not a
-    /// request).
-    pub fn uplink(&mut self, msg: &Message, now: Millis) -> Option<Message> {
+    /// Takes a request on the uplink (`None`: not for this concentrator, or not a
+    /// request): the reply, or the store operation it needs first.
+    pub fn uplink(&mut self, msg: &Message, now: Millis) -> Option<Uplink> {
         if msg.reply || msg.station != self.station() {
             return None;
         }
         self.uplink_answered += 1;
         let minute = (now / 60_000) as u32;
         let st = self.station();
-        let reply = |rc: u8, data: Vec<u8>| Message::reply(st, msg.command, [rc, 0], data);
+        let reply =
+            |rc: u8, data: Vec<u8>| Uplink::Reply(Message::reply(st, msg.command, [rc, 0], data));
         Some(match msg.command {
-            READ_VALUES => match self.latest() {
-                Ok(r) => {
-                    let mut d = Vec::new();
-                    if let Some(r) = r {
-                        r.encode(&mut d);
-                    }
-                    reply(0, d)
-                }
-                Err(e) => {
-                    error!("{e}");
-                    reply(RC_STORE_FAILED, vec![])
-                }
-            },
-            DIAGNOSTICS => {
-                let sensors = self.sensors.iter().map(|s| s.status).collect();
-                match self.store.status(minute, sensors) {
-                    Ok(s) => {
-                        let (status, d) = s.encode();
-                        Message::reply(st, DIAGNOSTICS, status, d)
-                    }
-                    Err(e) => {
-                        error!("{e}");
-                        reply(RC_STORE_FAILED, vec![])
-                    }
-                }
-            }
+            READ_VALUES => Uplink::Need(StoreOp::Latest),
+            DIAGNOSTICS => Uplink::Need(StoreOp::Status {
+                minute,
+                sensors: self.sensors.iter().map(|s| s.status).collect(),
+            }),
             TRANSFER => match decode_transfer_request(&msg.data) {
                 Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
-                Ok(ack) => match self.store.transfer(ack, minute, self.full_mask()) {
-                    Ok(b) => reply(0, b.encode()),
-                    Err(e) => {
-                        error!("{e}");
-                        reply(RC_STORE_FAILED, vec![])
-                    }
-                },
+                Ok(ack) => Uplink::Need(StoreOp::Transfer {
+                    ack,
+                    minute,
+                    full: self.full_mask(),
+                }),
             },
             CALIBRATION => match SegmentRequest::decode(&msg.data) {
                 Err((rc, e)) => {
                     warn!(well = self.cfg.well, "{e}");
                     reply(rc, vec![])
                 }
-                Ok(seg) => {
-                    let (rc, state) = self.take_segment(seg);
-                    let d = if rc == 0 {
-                        vec![seg.sensor.code(), seg.number, state]
-                    } else {
-                        vec![]
-                    };
-                    reply(rc, d)
-                }
+                Ok(seg) => match self.assembler.take(seg) {
+                    Assembled::Taken => reply(0, SegmentReply::to(&seg, SEGMENT_TAKEN).encode()),
+                    Assembled::AlreadyInForce => {
+                        reply(0, SegmentReply::to(&seg, TABLE_IN_FORCE).encode())
+                    }
+                    Assembled::Refused(rc, why) => {
+                        warn!(
+                            well = self.cfg.well,
+                            "calibration refused, the old table stays in force: {why}"
+                        );
+                        reply(rc, vec![])
+                    }
+                    Assembled::Table(sensor, table) => {
+                        Uplink::Need(StoreOp::SetCalibration { sensor, table })
+                    }
+                },
             },
             PARAMETERS => match Parameters::decode(&msg.data) {
                 Err(_) => reply(RC_TOO_FEW_BYTES, vec![]),
                 Ok(p) => {
-                    let (rc, d) = self.set_parameters(p, now);
-                    reply(rc, d)
+                    if p.poll_interval_s > 180 || (p.retries > 5 && p.retries != 0xFF) {
+                        warn!(
+                            well = self.cfg.well,
+                            "parameters refused: poll interval {} s (1-180), retries {} (0-5)",
+                            p.poll_interval_s,
+                            p.retries
+                        );
+                        return Some(reply(RC_TOO_LARGE, vec![]));
+                    }
+                    self.parameters_step(msg, p, None)
                 }
             },
             _ => reply(RC_NOT_IMPLEMENTED, vec![]),
         })
+    }
+
+    /// The reply to `msg` with `rc` and `data`.
+    fn reply(&self, msg: &Message, rc: u8, data: Vec<u8>) -> Message {
+        Message::reply(self.station(), msg.command, [rc, 0], data)
+    }
+
+    /// Command 161, after the parameter `done` (if any) was kept: the next one to keep,
+    /// or the reply with the values in force.
+    fn parameters_step(&self, msg: &Message, p: Parameters, done: Option<&str>) -> Uplink {
+        if p.poll_interval_s != 0 && done.is_none() {
+            return Uplink::Need(StoreOp::SetParameter {
+                key: "poll_interval_s",
+                value: p.poll_interval_s as i64,
+            });
+        }
+        if p.retries != 0xFF && done != Some("retries") {
+            return Uplink::Need(StoreOp::SetParameter {
+                key: "retries",
+                value: p.retries as i64,
+            });
+        }
+        Uplink::Reply(self.reply(msg, 0, self.parameters().encode()))
+    }
+
+    /// Takes the result of the store operation [`ConcentratorCore::uplink`] (or an
+    /// earlier `resume`) asked for while answering `msg`: the reply, or the next
+    /// operation.
+    pub fn resume(
+        &mut self,
+        msg: &Message,
+        op: StoreOp,
+        result: Result<StoreDone, StoreError>,
+        now: Millis,
+    ) -> Uplink {
+        let failed = |c: &Self, e: &dyn std::fmt::Display| {
+            error!("{e}");
+            Uplink::Reply(c.reply(msg, RC_STORE_FAILED, vec![]))
+        };
+        let done = match result {
+            Ok(d) => d,
+            Err(e) => {
+                if matches!(op, StoreOp::SetCalibration { .. }) {
+                    error!("{e}; the old table stays in force");
+                    return Uplink::Reply(self.reply(msg, RC_STORE_FAILED, vec![]));
+                }
+                return failed(self, &e);
+            }
+        };
+        match (op, done) {
+            (StoreOp::Latest, StoreDone::Latest(r)) => {
+                let mut d = Vec::new();
+                if let Some(r) = r {
+                    r.encode(&mut d);
+                }
+                Uplink::Reply(self.reply(msg, 0, d))
+            }
+            (StoreOp::Status { .. }, StoreDone::Status(s)) => {
+                let (status, d) = s.encode();
+                Uplink::Reply(Message::reply(self.station(), DIAGNOSTICS, status, d))
+            }
+            (StoreOp::Transfer { .. }, StoreDone::Transfer(b)) => {
+                Uplink::Reply(self.reply(msg, 0, b.encode()))
+            }
+            (StoreOp::SetCalibration { sensor, table }, StoreDone::Written) => {
+                let Ok(seg) = SegmentRequest::decode(&msg.data) else {
+                    return failed(self, &"calibration kept for a request that is not one");
+                };
+                self.assembler.confirm(sensor, seg.segment);
+                info!(
+                    well = self.cfg.well,
+                    "new {} calibration table in force",
+                    sensor.name()
+                );
+                self.tables[kind_index(sensor)] = *table;
+                Uplink::Reply(self.reply(msg, 0, SegmentReply::to(&seg, TABLE_IN_FORCE).encode()))
+            }
+            (StoreOp::SetParameter { key, value }, StoreDone::Written) => {
+                let Ok(p) = Parameters::decode(&msg.data) else {
+                    return failed(self, &"parameter kept for a request that is not one");
+                };
+                if key == "poll_interval_s" {
+                    self.cfg.poll_interval = value as Millis * 1000;
+                    if self.cycle.is_none() {
+                        self.next_poll = self.poll_time_after(now);
+                    }
+                    info!(well = self.cfg.well, "poll interval now {value} s");
+                } else {
+                    self.cfg.retries = value as u8;
+                }
+                self.parameters_step(msg, p, Some(key))
+            }
+            (op, done) => failed(self, &format!("the store answered {op:?} with {done:?}")),
+        }
     }
 
     /// The valid bits of a minute with every quantity this concentrator's working
@@ -497,74 +688,103 @@ impl Concentrator {
             retries: self.cfg.retries,
         }
     }
+}
 
-    /// Command 161: changes what the request changes, keeps it in the store, and
-    /// answers the values in force.
-    fn set_parameters(&mut self, p: Parameters, now: Millis) -> (u8, Vec<u8>) {
-        if p.poll_interval_s > 180 || (p.retries > 5 && p.retries != 0xFF) {
-            warn!(
-                well = self.cfg.well,
-                "parameters refused: poll interval {} s (1-180), retries {} (0-5)",
-                p.poll_interval_s,
-                p.retries
-            );
-            return (RC_TOO_LARGE, vec![]);
-        }
-        if p.poll_interval_s != 0 {
-            if let Err(e) = self
-                .store
-                .set_parameter("poll_interval_s", p.poll_interval_s as i64)
-            {
-                error!("{e}");
-                return (RC_STORE_FAILED, vec![]);
-            }
-            self.cfg.poll_interval = p.poll_interval_s as Millis * 1000;
-            if self.cycle.is_none() {
-                self.next_poll = self.poll_time_after(now);
-            }
-            info!(
-                well = self.cfg.well,
-                "poll interval now {} s", p.poll_interval_s
-            );
-        }
-        if p.retries != 0xFF {
-            if let Err(e) = self.store.set_parameter("retries", p.retries as i64) {
-                error!("{e}");
-                return (RC_STORE_FAILED, vec![]);
-            }
-            self.cfg.retries = p.retries;
-        }
-        (0, self.parameters().encode())
+/// The concentrator on its SQLite [`Store`]: the runner of a [`ConcentratorCore`],
+/// which carries out the store operations the core asks for. A change the core
+/// acknowledges on the uplink (a parameter, a calibration table) is written before
+/// the reply is made, so the reply's sender only ever acknowledges what is kept. The
+/// core's own methods are reached through `Deref`.
+pub struct Concentrator {
+    core: ConcentratorCore,
+    store: Store,
+}
+
+impl std::ops::Deref for Concentrator {
+    type Target = ConcentratorCore;
+    fn deref(&self) -> &ConcentratorCore {
+        &self.core
+    }
+}
+
+impl std::ops::DerefMut for Concentrator {
+    fn deref_mut(&mut self) -> &mut ConcentratorCore {
+        &mut self.core
+    }
+}
+
+impl Concentrator {
+    /// A concentrator on `store`, first polling at the first poll time after `now`.
+    pub fn new(cfg: ConcentratorConfig, store: Store, now: Millis) -> Result<Self, StoreError> {
+        let restored = Restored::load(&store)?;
+        Ok(Concentrator {
+            core: ConcentratorCore::new(cfg, restored, now),
+            store,
+        })
     }
 
-    /// Takes one calibration segment; the response code and the state byte.
-    fn take_segment(&mut self, seg: SegmentRequest) -> (u8, u8) {
-        match self.assembler.take(seg) {
-            Assembled::Taken => (0, SEGMENT_TAKEN),
-            Assembled::AlreadyInForce => (0, TABLE_IN_FORCE),
-            Assembled::Refused(rc, why) => {
-                warn!(
-                    well = self.cfg.well,
-                    "calibration refused, the old table stays in force: {why}"
-                );
-                (rc, 0)
+    /// Its store.
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// The outcome of the request [`ConcentratorCore::bus_request`] gave (see
+    /// [`ConcentratorCore::bus_result`]); returns what the poll stored when this
+    /// completed it.
+    pub fn bus_result(
+        &mut self,
+        now: Millis,
+        reply: Option<&Message>,
+    ) -> Option<Result<PollOutcome, StoreError>> {
+        let commit = self.core.bus_result(now, reply)?;
+        let result = self
+            .store
+            .commit_poll(&commit.records, &commit.sensors, commit.minute);
+        Some(self.core.committed(commit, result))
+    }
+
+    /// The latest values in engineering units: water temperature (°C), level (m),
+    /// the level sensor's temperature (°C), from the newest stored minute.
+    pub fn latest(&self) -> Result<Option<Record>, StoreError> {
+        let (_, _, newest) = self.store.counts()?;
+        self.store.get(newest)
+    }
+
+    /// Answers a request on the uplink (`None`: not for this concentrator, or not a
+    /// request), carrying out what the core needs from the store first.
+    pub fn uplink(&mut self, msg: &Message, now: Millis) -> Option<Message> {
+        let mut step = self.core.uplink(msg, now)?;
+        loop {
+            match step {
+                Uplink::Reply(m) => return Some(m),
+                Uplink::Need(op) => {
+                    let result = self.carry_out(&op);
+                    step = self.core.resume(msg, op, result, now);
+                }
             }
-            Assembled::Table(sensor, t) => match self.store.set_calibration(sensor, &t) {
-                Ok(()) => {
-                    self.assembler.confirm(sensor, seg.segment);
-                    info!(
-                        well = self.cfg.well,
-                        "new {} calibration table in force",
-                        sensor.name()
-                    );
-                    self.tables[kind_index(sensor)] = *t;
-                    (0, TABLE_IN_FORCE)
-                }
-                Err(e) => {
-                    error!("{e}; the old table stays in force");
-                    (RC_STORE_FAILED, 0)
-                }
-            },
+        }
+    }
+
+    /// Carries out one store operation.
+    fn carry_out(&mut self, op: &StoreOp) -> Result<StoreDone, StoreError> {
+        match op {
+            StoreOp::Latest => self.latest().map(StoreDone::Latest),
+            StoreOp::Status { minute, sensors } => self
+                .store
+                .status(*minute, sensors.clone())
+                .map(StoreDone::Status),
+            StoreOp::Transfer { ack, minute, full } => self
+                .store
+                .transfer(*ack, *minute, *full)
+                .map(StoreDone::Transfer),
+            StoreOp::SetParameter { key, value } => self
+                .store
+                .set_parameter(key, *value)
+                .map(|()| StoreDone::Written),
+            StoreOp::SetCalibration { sensor, table } => self
+                .store
+                .set_calibration(*sensor, table)
+                .map(|()| StoreDone::Written),
         }
     }
 }
@@ -577,6 +797,69 @@ mod tests {
     fn conc(d: &tempfile::TempDir, now: Millis) -> Concentrator {
         let store = Store::open(&d.path().join("c.db"), 1, 0, Durability::Process).unwrap();
         Concentrator::new(ConcentratorConfig::reference(1), store, now).unwrap()
+    }
+
+    /// The core polls, answers and takes a calibration with no store at all: what is
+    /// to be kept or read comes out as an effect, and a change is acknowledged only
+    /// once the runner says it is kept.
+    #[test]
+    fn the_core_runs_without_a_store_and_asks_for_what_it_needs() {
+        let t0 = 29_500_000 * 60_000;
+        let mut c =
+            ConcentratorCore::new(ConcentratorConfig::reference(1), Restored::default(), t0);
+        let start = c.next_deadline();
+        let g = Groups {
+            status: 0,
+            width: 1,
+            groups: [[100, 5], [101, 5], [102, 5]],
+        };
+        let (s, data) = g.encode();
+        let r1 = c.bus_request(start).unwrap();
+        assert!(c
+            .bus_result(
+                start + 100,
+                Some(&Message::reply(r1.station, 1, s, data.clone()))
+            )
+            .is_none());
+        let r2 = c.bus_request(start + 200).unwrap();
+        let commit = c
+            .bus_result(start + 300, Some(&Message::reply(r2.station, 1, s, data)))
+            .expect("the poll is complete");
+        assert_eq!(commit.records.len(), 3);
+        assert_eq!(commit.sensors.len(), 2);
+        // A failed commit keeps the records for the next poll.
+        let err = StoreError {
+            path: "nowhere".into(),
+            what: "no store".into(),
+        };
+        assert!(c.committed(commit.clone(), Err(err)).is_err());
+        assert_eq!(c.polls, 0);
+
+        let station = c.station();
+        let read = Message::request(station, READ_VALUES, vec![]);
+        assert_eq!(c.uplink(&read, start), Some(Uplink::Need(StoreOp::Latest)));
+
+        let p = Parameters {
+            poll_interval_s: 60,
+            retries: 0xFF,
+        };
+        let set = Message::request(station, PARAMETERS, p.encode());
+        let Some(Uplink::Need(op)) = c.uplink(&set, start) else {
+            panic!("a parameter change is kept before it is acknowledged");
+        };
+        assert_eq!(
+            op,
+            StoreOp::SetParameter {
+                key: "poll_interval_s",
+                value: 60
+            }
+        );
+        assert_eq!(c.config().poll_interval, 180_000, "not yet in force");
+        let Uplink::Reply(m) = c.resume(&set, op, Ok(StoreDone::Written), start) else {
+            panic!("one parameter to keep");
+        };
+        assert_eq!(m.status, Some([0, 0]));
+        assert_eq!(c.config().poll_interval, 60_000);
     }
 
     #[test]

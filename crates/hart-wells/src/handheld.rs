@@ -10,8 +10,9 @@ use tracing::{info, warn};
 
 use crate::archive::Archive;
 use crate::proto::{
-    decode_transfer_request, Assembled, Message, Role, SegmentRequest, TableAssembler, CALIBRATION,
-    RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, SEGMENT_TAKEN, TABLE_IN_FORCE, TRANSFER,
+    decode_transfer_request, Assembled, Message, Role, SegmentReply, SegmentRequest,
+    TableAssembler, CALIBRATION, RC_NOT_IMPLEMENTED, RC_TOO_FEW_BYTES, SEGMENT_TAKEN,
+    TABLE_IN_FORCE, TRANSFER,
 };
 use crate::Millis;
 
@@ -60,11 +61,9 @@ impl HandheldStation {
                     reply(rc, vec![])
                 }
                 Ok(seg) => match self.assemblers.entry(well).or_default().take(seg) {
-                    Assembled::Taken => {
-                        reply(0, vec![seg.sensor.code(), seg.number, SEGMENT_TAKEN])
-                    }
+                    Assembled::Taken => reply(0, SegmentReply::to(&seg, SEGMENT_TAKEN).encode()),
                     Assembled::AlreadyInForce => {
-                        reply(0, vec![seg.sensor.code(), seg.number, TABLE_IN_FORCE])
+                        reply(0, SegmentReply::to(&seg, TABLE_IN_FORCE).encode())
                     }
                     Assembled::Refused(rc, why) => {
                         warn!("calibration for well {well} refused: {why}");
@@ -81,7 +80,7 @@ impl HandheldStation {
                                     "{} calibration table for well {well} kept for the next visit",
                                     sensor.name()
                                 );
-                                reply(0, vec![seg.sensor.code(), seg.number, TABLE_IN_FORCE])
+                                reply(0, SegmentReply::to(&seg, TABLE_IN_FORCE).encode())
                             }
                             Err(e) => {
                                 warn!("{e}");

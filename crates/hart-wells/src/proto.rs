@@ -785,6 +785,58 @@ pub const SEGMENT_TAKEN: u8 = 0;
 /// Command-160 reply state: the table is complete and in force.
 pub const TABLE_IN_FORCE: u8 = 1;
 
+/// A command-160 reply: the segment's sensor and number echoed, and what the station
+/// did with it ([`SEGMENT_TAKEN`] or [`TABLE_IN_FORCE`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SegmentReply {
+    /// The sensor the table is for.
+    pub sensor: Sensor,
+    /// Segment number, 1-10.
+    pub number: u8,
+    /// [`SEGMENT_TAKEN`] or [`TABLE_IN_FORCE`].
+    pub state: u8,
+}
+
+/// Bytes of a command-160 reply.
+pub const SEGMENT_REPLY_LEN: usize = 3;
+
+impl SegmentReply {
+    /// The reply to `request`, with `state`.
+    pub fn to(request: &SegmentRequest, state: u8) -> Self {
+        SegmentReply {
+            sensor: request.sensor,
+            number: request.number,
+            state,
+        }
+    }
+
+    /// The reply data.
+    pub fn encode(&self) -> Vec<u8> {
+        vec![self.sensor.code(), self.number, self.state]
+    }
+
+    /// Decodes the reply data.
+    pub fn decode(d: &[u8]) -> Result<Self, DecodeError> {
+        const WHAT: &str = "command 160 reply";
+        let [code, number, state, ..] = *d else {
+            return Err(DecodeError::Length {
+                what: WHAT,
+                expected: SEGMENT_REPLY_LEN,
+                got: d.len(),
+            });
+        };
+        let sensor = Sensor::from_code(code).ok_or_else(|| DecodeError::Field {
+            what: WHAT,
+            problem: format!("sensor code {code} (0 temperature, 1 level)"),
+        })?;
+        Ok(SegmentReply {
+            sensor,
+            number,
+            state,
+        })
+    }
+}
+
 /// Puts a table together from command-160 segments: segment 1 starts a table, each
 /// next segment must follow, a repeated segment (its reply was lost) is taken again,
 /// and the tenth makes the table if it checks out.
