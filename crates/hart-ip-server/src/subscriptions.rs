@@ -6,17 +6,8 @@ use hart_proto::wire::{Reader, Wire, Writer};
 
 use crate::Shared;
 
-/// Publish-message subscription flags (command 533).
-pub mod subscription {
-    /// Process data (burst messages).
-    pub const PROCESS_DATA: u16 = 0x0001;
-    /// Event notifications.
-    pub const EVENT_NOTIFICATION: u16 = 0x0002;
-    /// Device status.
-    pub const DEVICE_STATUS: u16 = 0x0004;
-    /// Device configuration.
-    pub const DEVICE_CONFIGURATION: u16 = 0x0008;
-}
+/// Publish-message subscription flags (command 533), from hart-proto's table.
+pub use hart_proto::command::subscription;
 
 /// A session's publish subscriptions: `None` until the client writes one with command
 /// 533 (every burst message is published to it then, as HART-IP clients that predate
