@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 
 use hart_history::{Agg, Query, Store, Var};
 use hart_poller::{Engine, Quality};
-use hart_sparkplug::metrics::{Value, DEVICE_METRICS};
-use hart_sparkplug::Sample;
+use hart_sparkplug_edge::metrics::{Value, DEVICE_METRICS};
+use hart_sparkplug_edge::Sample;
 
 /// The historian at `db` as the source of an outage's samples.
 pub struct HistoryBackfill {
@@ -45,7 +45,7 @@ fn metric_of(var: Var) -> Option<usize> {
     DEVICE_METRICS.iter().position(|m| m.name == name)
 }
 
-impl hart_sparkplug::Backfill for HistoryBackfill {
+impl hart_sparkplug_edge::Backfill for HistoryBackfill {
     fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String> {
         let mut store = Store::open(&self.db, false).map_err(|e| e.to_string())?;
         let (from_t, to_t) = (

@@ -125,7 +125,7 @@ fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error>
     }
     if broker.tls {
         o.set_transport(Transport::Tls(
-            hart_sparkplug::client::tls_config(config.ca_file.as_deref())
+            hart_sparkplug::mqtt::tls_config(config.ca_file.as_deref())
                 .map_err(|e| Error::Config(e.to_string()))?,
         ));
     } else if config.ca_file.is_some() {

@@ -25,11 +25,11 @@ use std::collections::HashMap;
 use std::time::{Duration, SystemTime};
 
 use hart_history::{widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT};
-use hart_sparkplug::edge::{millis, NAMESPACE};
 use hart_sparkplug::metrics;
 use hart_sparkplug::proto::datatype as dt;
 use hart_sparkplug::proto::payload::{metric, property_value, Metric};
 use hart_sparkplug::proto::Payload;
+use hart_sparkplug::{millis, NAMESPACE};
 use prost::Message as _;
 
 /// The shortest time between two rebirth requests to one edge node.

@@ -13,10 +13,12 @@ use rumqttc::{
     Packet, QoS, TlsConfiguration, Transport,
 };
 
-use crate::config::{Broker, MqttConfig};
-use crate::driver::{Driver, Resume};
+use hart_sparkplug::config::{Broker, MqttConfig};
+use hart_sparkplug::driver::{Driver, Resume};
+use hart_sparkplug::mqtt::tls_config;
+use hart_sparkplug::Error;
+
 use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
-use crate::Error;
 
 /// How long to wait before subscribing again to a refused subscription.
 pub const RESUBSCRIBE_AFTER: Duration = Duration::from_secs(5);
@@ -187,7 +189,7 @@ impl Template {
         options.set_keep_alive(Duration::from_secs(10));
         // Commands are small (edge::MAX_COMMAND_BYTES); a longer message is taken
         // once and dropped (driver.rs).
-        options.set_max_packet_size(1 << 20, crate::driver::MAX_OUTGOING);
+        options.set_max_packet_size(1 << 20, hart_sparkplug::driver::MAX_OUTGOING);
         if let Some((u, p)) = &self.credentials {
             options.set_credentials(u.clone(), p.clone());
         }
@@ -197,61 +199,6 @@ impl Template {
         options
     }
 }
-
-/// The TLS configuration of `mqtts://`: OpenSSL (through native-tls), TLS 1.2 or
-/// newer, the broker's certificate checked against the CA file's certificates only, or
-/// against the system's certificate authorities without one.
-pub fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
-    use native_tls::{Certificate, Protocol, TlsConnector};
-    let mut builder = TlsConnector::builder();
-    builder.min_protocol_version(Some(Protocol::Tlsv12));
-    match ca_file {
-        Some(path) => {
-            let pem =
-                std::fs::read(path).map_err(|e| Error::File(path.to_path_buf(), e.to_string()))?;
-            let certs = Certificate::stack_from_pem(&pem).map_err(|e| {
-                Error::File(
-                    path.to_path_buf(),
-                    format!("not a PEM certificate file: {e}"),
-                )
-            })?;
-            if certs.is_empty() {
-                return Err(Error::File(
-                    path.to_path_buf(),
-                    "no certificate in it (PEM, -----BEGIN CERTIFICATE-----)".into(),
-                ));
-            }
-            // Only the operator's CA: the system's authorities do not vouch for a
-            // plant's broker.
-            builder.disable_built_in_roots(true);
-            for c in certs {
-                builder.add_root_certificate(c);
-            }
-        }
-        None => {
-            if !SYSTEM_CA_BUNDLES
-                .iter()
-                .any(|f| std::fs::metadata(f).is_ok_and(|m| m.len() > 0))
-            {
-                return Err(Error::Config(
-                    "mqtts:// without ca_file, and no system certificate authorities were found; give [mqtt] ca_file".into(),
-                ));
-            }
-        }
-    }
-    let connector = builder
-        .build()
-        .map_err(|e| Error::Config(format!("TLS: {e}")))?;
-    Ok(TlsConfiguration::NativeConnector(connector))
-}
-
-/// Where Linux distributions keep the system's certificate authorities (Debian's
-/// bundle first), which OpenSSL reads when no CA file is given.
-const SYSTEM_CA_BUNDLES: [&str; 3] = [
-    "/etc/ssl/certs/ca-certificates.crt",
-    "/etc/pki/tls/certs/ca-bundle.crt",
-    "/etc/ssl/cert.pem",
-];
 
 fn last_will(m: Message) -> LastWill {
     LastWill::new(m.topic, m.payload, qos(m.qos), m.retain)
