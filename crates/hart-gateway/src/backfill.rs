@@ -31,18 +31,10 @@ impl HistoryBackfill {
     }
 }
 
-/// The metric of each stored variable ([`DEVICE_METRICS`] by name).
+/// The metric of each stored variable (hart-sparkplug's one table,
+/// [`hart_sparkplug_edge::metrics::STORED`]).
 fn metric_of(var: Var) -> Option<usize> {
-    let name = match var {
-        Var::Pv => "PV",
-        Var::Sv => "SV",
-        Var::Tv => "TV",
-        Var::Qv => "QV",
-        Var::LoopCurrent => "LoopCurrent",
-        Var::PercentRange => "PercentRange",
-        Var::DeviceStatus => "Status/DeviceStatus",
-    };
-    DEVICE_METRICS.iter().position(|m| m.name == name)
+    hart_sparkplug_edge::metrics::stored_metric(var.code())
 }
 
 impl hart_sparkplug_edge::Backfill for HistoryBackfill {

@@ -158,18 +158,10 @@ pub struct Decoder {
     counters: Counters,
 }
 
-/// The historian's variable a device metric is.
+/// The historian's variable a device metric is (hart-sparkplug's one table,
+/// [`metrics::STORED`]).
 fn var_of(name: &str) -> Option<Var> {
-    Some(match name {
-        "PV" => Var::Pv,
-        "SV" => Var::Sv,
-        "TV" => Var::Tv,
-        "QV" => Var::Qv,
-        "LoopCurrent" => Var::LoopCurrent,
-        "PercentRange" => Var::PercentRange,
-        "Status/DeviceStatus" => Var::DeviceStatus,
-        _ => return None,
-    })
+    Var::from_code(i64::from(metrics::stored_code(name)?))
 }
 
 /// A metric's value as a number, when it is one.

@@ -103,6 +103,35 @@ pub const DEVICE_METRICS: &[MetricDef] = &[
     m("Properties/Position", dt::UINT32),
 ];
 
+/// The device metrics the historian stores, by the historian's variable code
+/// (`hart_history::Var::code`: 0 PV, 1 SV, 2 TV, 3 QV, 4 loop current, 5 percent of
+/// range, 6 device status): the one table between stored variables and Sparkplug
+/// metrics, read by the gateway's backfill (historian to metric) and the ingest's
+/// decoder (metric to historian).
+pub const STORED: [&str; 7] = [
+    "PV",
+    "SV",
+    "TV",
+    "QV",
+    "LoopCurrent",
+    "PercentRange",
+    "Status/DeviceStatus",
+];
+
+/// The historian's variable code of the device metric called `name`, if it stores it.
+pub fn stored_code(name: &str) -> Option<i16> {
+    STORED
+        .iter()
+        .position(|n| *n == name)
+        .and_then(|i| i16::try_from(i).ok())
+}
+
+/// The index in [`DEVICE_METRICS`] of the metric of the historian's variable `code`.
+pub fn stored_metric(code: i16) -> Option<usize> {
+    let name = STORED.get(usize::try_from(code).ok()?)?;
+    index_of(name)
+}
+
 /// Index of `PV` .. `QV` in [`DEVICE_METRICS`].
 const VARIABLES: usize = 0;
 /// Index of `Config/UpperRange` and `Config/LowerRange`.
@@ -232,5 +261,19 @@ mod tests {
         assert_eq!(index_of("Config/UpperRange"), Some(RANGE));
         assert_eq!(index_of("Config/FixedCurrent"), Some(FIXED_CURRENT));
         assert_eq!(index_of("Config/Damping"), Some(12));
+    }
+
+    #[test]
+    fn every_stored_variable_is_a_device_metric() {
+        for (code, name) in STORED.iter().enumerate() {
+            let code = i16::try_from(code).unwrap();
+            assert_eq!(stored_code(name), Some(code));
+            assert_eq!(
+                stored_metric(code).map(|i| DEVICE_METRICS[i].name),
+                Some(*name)
+            );
+        }
+        assert_eq!(stored_code("Config/Damping"), None);
+        assert_eq!(stored_metric(7), None);
     }
 }
