@@ -9,9 +9,9 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use hart_poller::{DeviceImage, Quality, Variable};
 use hart_proto::wire::{Reader, Wire};
-use hart_sparkplug::edge::{EdgeNode, Output, Settings};
-use hart_sparkplug::proto::payload::{metric::Value, Metric};
-use hart_sparkplug::proto::Payload;
+use hart_sparkplug_edge::edge::{EdgeNode, Output, Settings};
+use hart_sparkplug_edge::proto::payload::{metric::Value, Metric};
+use hart_sparkplug_edge::proto::Payload;
 use libfuzzer_sys::fuzz_target;
 use prost::Message as _;
 
@@ -46,7 +46,7 @@ fn node() -> EdgeNode {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let _ = hart_sparkplug::command::decode(data);
+    let _ = hart_sparkplug_edge::command::decode(data);
     let mut node = node();
     let now = SystemTime::now();
     let _ = node.received("spBv1.0/G/NCMD/E", data, now);

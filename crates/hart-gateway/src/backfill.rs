@@ -6,8 +6,8 @@ use std::collections::BTreeMap;
 
 use hart_history::{Agg, Query, Store, Var};
 use hart_poller::{Engine, Quality};
-use hart_sparkplug::metrics::{Value, DEVICE_METRICS};
-use hart_sparkplug::Sample;
+use hart_sparkplug_edge::metrics::{Value, DEVICE_METRICS};
+use hart_sparkplug_edge::Sample;
 
 /// The historian at `db` as the source of an outage's samples.
 pub struct HistoryBackfill {
@@ -31,21 +31,13 @@ impl HistoryBackfill {
     }
 }
 
-/// The metric of each stored variable ([`DEVICE_METRICS`] by name).
+/// The metric of each stored variable (hart-sparkplug's one table,
+/// [`hart_sparkplug_edge::metrics::STORED`]).
 fn metric_of(var: Var) -> Option<usize> {
-    let name = match var {
-        Var::Pv => "PV",
-        Var::Sv => "SV",
-        Var::Tv => "TV",
-        Var::Qv => "QV",
-        Var::LoopCurrent => "LoopCurrent",
-        Var::PercentRange => "PercentRange",
-        Var::DeviceStatus => "Status/DeviceStatus",
-    };
-    DEVICE_METRICS.iter().position(|m| m.name == name)
+    hart_sparkplug_edge::metrics::stored_metric(var.code())
 }
 
-impl hart_sparkplug::Backfill for HistoryBackfill {
+impl hart_sparkplug_edge::Backfill for HistoryBackfill {
     fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String> {
         let mut store = Store::open(&self.db, false).map_err(|e| e.to_string())?;
         let (from_t, to_t) = (

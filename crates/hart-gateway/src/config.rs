@@ -69,7 +69,7 @@ pub struct GatewayConfig {
     /// The historian, if any.
     pub history: Option<hart_history::HistoryConfig>,
     /// The MQTT Sparkplug B publisher, if any.
-    pub mqtt: Option<hart_sparkplug::MqttConfig>,
+    pub mqtt: Option<hart_sparkplug_edge::MqttConfig>,
     /// The web dashboard, if any.
     pub web: Option<hart_web::WebConfig>,
     /// The console view, when no front end is asked for.
@@ -553,16 +553,16 @@ fn opcua_config(
 fn mqtt_config(
     file: &GatewayFile,
     opts: &ServeOptions,
-) -> Result<Option<hart_sparkplug::MqttConfig>, Error> {
+) -> Result<Option<hart_sparkplug_edge::MqttConfig>, Error> {
     let mut config = match (&opts.mqtt, &file.mqtt) {
-        (Some(url), Some(section)) => hart_sparkplug::MqttConfig {
+        (Some(url), Some(section)) => hart_sparkplug_edge::MqttConfig {
             url: url.clone(),
             ..section.clone()
         },
-        (Some(url), None) => hart_sparkplug::MqttConfig::new(
+        (Some(url), None) => hart_sparkplug_edge::MqttConfig::new(
             url,
-            hart_sparkplug::DEFAULT_GROUP,
-            &hart_sparkplug::default_edge_node(),
+            hart_sparkplug_edge::DEFAULT_GROUP,
+            &hart_sparkplug_edge::default_edge_node(),
         ),
         (None, Some(section)) => section.clone(),
         (None, None) => {

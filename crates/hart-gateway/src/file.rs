@@ -42,7 +42,7 @@ pub struct GatewayFile {
     pub history: Option<hart_history::HistoryConfig>,
     /// The MQTT Sparkplug B publisher (`[mqtt]`).
     #[serde(default)]
-    pub mqtt: Option<hart_sparkplug::MqttConfig>,
+    pub mqtt: Option<hart_sparkplug_edge::MqttConfig>,
     /// The web dashboard (`[web]`).
     #[serde(default)]
     pub web: Option<WebSection>,

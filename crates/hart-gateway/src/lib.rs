@@ -49,8 +49,8 @@ pub struct Gateway {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     hart_ip: Vec<hart_ip_server::Server>,
     opcua: Option<hart_opcua::OpcUaServer>,
-    mqtt: Option<hart_sparkplug::Handle>,
-    history: Option<hart_history::Handle>,
+    mqtt: Option<hart_sparkplug_edge::Handle>,
+    history: Option<hart_recorder::Handle>,
     web: Option<hart_web::WebServer>,
     modbus_tcp: Option<SocketAddr>,
     /// The runtime of the serial front ends with reply deadlines, when one runs.
@@ -294,7 +294,7 @@ impl Gateway {
                 humantime::format_duration(h.sample_period)
             );
             let db = h.db.clone();
-            let handle = hart_history::run(engine.clone(), h).await.map_err(|e| {
+            let handle = hart_recorder::run(engine.clone(), h).await.map_err(|e| {
                 let message = format!("--history {db}: {e}");
                 if e.exit_code() == 2 {
                     Error::config(message)
@@ -308,7 +308,7 @@ impl Gateway {
         if let Some(m) = config.mqtt {
             let backfill = history_db.map(|db| {
                 std::sync::Arc::new(backfill::HistoryBackfill::new(db, engine.clone()))
-                    as std::sync::Arc<dyn hart_sparkplug::Backfill>
+                    as std::sync::Arc<dyn hart_sparkplug_edge::Backfill>
             });
             let what = format!(
                 "mqtt: {} as spBv1.0/{}/+/{}{}{}",
@@ -324,11 +324,11 @@ impl Gateway {
                     ""
                 }
             );
-            let handle = hart_sparkplug::run(engine.clone(), m, backfill)
+            let handle = hart_sparkplug_edge::run(engine.clone(), m, backfill)
                 .await
                 .map_err(|e| match e {
-                    hart_sparkplug::Error::Config(m) => Error::config(format!("--mqtt: {m}")),
-                    e @ hart_sparkplug::Error::File(..) => Error::io(format!("--mqtt: {e}")),
+                    hart_sparkplug_edge::Error::Config(m) => Error::config(format!("--mqtt: {m}")),
+                    e @ hart_sparkplug_edge::Error::File(..) => Error::io(format!("--mqtt: {e}")),
                 })?;
             self.started.push(what);
             self.mqtt = Some(handle);
@@ -375,7 +375,7 @@ impl Gateway {
     }
 
     /// The MQTT publisher's state (connected, births out, backlog), if it runs.
-    pub fn mqtt_status(&self) -> Option<hart_sparkplug::Status> {
+    pub fn mqtt_status(&self) -> Option<hart_sparkplug_edge::Status> {
         self.mqtt.as_ref().map(|m| m.status())
     }
 

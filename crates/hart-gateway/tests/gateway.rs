@@ -155,7 +155,7 @@ fn an_address_in_use_is_an_io_error() {
 /// metric (PV with its quality), in time order.
 #[test]
 fn an_outage_is_read_back_from_the_historian() {
-    use hart_sparkplug::Backfill as _;
+    use hart_sparkplug_edge::Backfill as _;
     let dir = std::env::temp_dir().join(format!("hart-gateway-backfill-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -182,7 +182,7 @@ fn an_outage_is_read_back_from_the_historian() {
         let samples = source
             .samples(ms(start), ms(std::time::SystemTime::now()) + 1)
             .unwrap();
-        let pv = hart_sparkplug::metrics::DEVICE_METRICS
+        let pv = hart_sparkplug_edge::metrics::DEVICE_METRICS
             .iter()
             .position(|m| m.name == "PV")
             .unwrap();

@@ -1,7 +1,8 @@
 //! # hart-history
 //!
-//! The gateway's historian. The polling engine's image changes (every change, plus a
-//! sample of every device at a configurable period) become [`Sample`]s: one device
+//! The historian's store, without the polling engine (hart-recorder feeds it the
+//! engine's image changes, hart-ingest the Sparkplug B data of many gateways): a
+//! [`Sample`] is one device
 //! (unique ID, tag, loop), one variable (PV, SV, TV, QV, loop current, percent of
 //! range, device status), a value, its units code, the image's quality and the time.
 //! A [`Writer`] thread stores them in batches (one transaction per batch, every
@@ -19,7 +20,6 @@
 mod backend;
 mod config;
 mod error;
-mod feed;
 mod output;
 mod postgres_store;
 mod sample;
@@ -36,12 +36,10 @@ pub mod pgtest;
 pub use backend::{Agg, DeviceSummary, Point, Query, SCHEMA_VERSION};
 pub use config::{parse_size, FileLost, HistoryConfig};
 pub use error::Error;
-pub use feed::{run, Handle, Recorder};
-pub use output::{format_devices, format_points, Format};
+pub use output::{format_devices, format_points, quality_name, Format};
 pub use postgres_store::PgStore;
 pub use sample::{
-    from_micros, micros, samples_of, widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES,
-    UNITS_PERCENT,
+    from_micros, micros, widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT,
 };
 pub use sqlite_store::SqliteStore;
 pub use store::{Store, StoreKind};

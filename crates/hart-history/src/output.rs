@@ -44,10 +44,24 @@ fn value_text(v: Option<f64>) -> String {
     v.map_or_else(String::new, |v| v.to_string())
 }
 
-/// The name of a quality code (hart_poller::Quality::code), or the code.
-fn quality_name(code: u8) -> String {
-    hart_poller::Quality::from_code(u16::from(code))
-        .map_or_else(|| code.to_string(), |q| q.name().to_string())
+/// The names of the engine's quality codes (`hart_poller::Quality::name`, by
+/// `Quality::code`), as stored in the `quality` column; hart-recorder's tests check
+/// that they are the engine's.
+const QUALITY_NAMES: [&str; 7] = [
+    "good",
+    "stale",
+    "no reply",
+    "device malfunction",
+    "configuration changed",
+    "waiting for first data",
+    "loop disturbed",
+];
+
+/// The name of a stored quality code (`hart_poller::Quality::code`), or the code.
+pub fn quality_name(code: u8) -> String {
+    QUALITY_NAMES
+        .get(usize::from(code))
+        .map_or_else(|| code.to_string(), |n| (*n).to_string())
 }
 
 fn units_text(u: Option<u8>) -> String {

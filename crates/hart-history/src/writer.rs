@@ -244,8 +244,10 @@ struct Task {
     pending: VecDeque<Sample>,
     /// When the next commit is due.
     due: Instant,
-    /// After a failure: the wait before the next try.
-    backoff: Option<Duration>,
+    /// After a failure: the wait before the next try (the one back-off,
+    /// hart-clock's: 0.5 s doubling to [`MAX_BACKOFF`]); no failure since the last
+    /// success while its count is 0.
+    backoff: hart_clock::Backoff,
     /// A failure that wants a new connection first.
     reconnect: bool,
     /// The last try failed (cleared, with a log line, by the next success).
@@ -269,7 +271,7 @@ impl Task {
             config,
             shared,
             pending: VecDeque::new(),
-            backoff: None,
+            backoff: hart_clock::Backoff::new(Duration::from_millis(500), MAX_BACKOFF),
             reconnect: false,
             failing: false,
             dropping: false,
@@ -296,7 +298,7 @@ impl Task {
                             Err(_) => break,
                         }
                     }
-                    if self.pending.len() >= self.config.max_batch && self.backoff.is_none() {
+                    if self.pending.len() >= self.config.max_batch && self.backoff.failures() == 0 {
                         self.due = Instant::now();
                     }
                 }
@@ -358,7 +360,7 @@ impl Task {
         if let Some(why) = &self.stopped {
             return Err(Error::Io(why.clone()));
         }
-        self.backoff = None;
+        self.backoff.reset();
         while !self.pending.is_empty() {
             self.write_chunk()?;
         }
@@ -456,7 +458,7 @@ impl Task {
                 s.batches.fetch_add(1, Ordering::Relaxed);
                 s.backlog
                     .store(self.pending.len() as u64, Ordering::Relaxed);
-                self.backoff = None;
+                self.backoff.reset();
                 if std::mem::take(&mut self.failing) || self.dropping {
                     tracing::info!(
                         "history: writing to {} again ({} samples still waiting)",
@@ -479,9 +481,7 @@ impl Task {
         self.shared.failures.fetch_add(1, Ordering::Relaxed);
         self.failing = true;
         self.reconnect = e.needs_reconnect();
-        let backoff = self
-            .backoff
-            .map_or(Duration::from_millis(500), |b| (b * 2).min(MAX_BACKOFF));
+        let backoff = self.backoff.failed(Instant::now());
         let mut last = self
             .shared
             .last_error
@@ -496,7 +496,6 @@ impl Task {
             );
         }
         *last = Some(msg);
-        self.backoff = Some(backoff);
         self.due = Instant::now() + backoff;
     }
 
@@ -508,7 +507,7 @@ impl Task {
         if self.check_file().is_err() || self.reconnect {
             return;
         }
-        if self.backoff.is_some() {
+        if self.backoff.failures() > 0 {
             return;
         }
         let now = Instant::now();

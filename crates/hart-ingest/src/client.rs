@@ -8,13 +8,24 @@
 use std::time::{Duration, SystemTime};
 
 use hart_history::{Writer, WriterConfig};
+use hart_sparkplug::mqtt::{Session, Voice};
 use hart_sparkplug::Broker;
-use rumqttc::{
-    AsyncClient, ConnectionError, Event, MqttOptions, Outgoing, Packet, Publish, QoS, Transport,
-};
+use rumqttc::{AsyncClient, Event, MqttOptions, Outgoing, Packet, Publish, QoS, Transport};
 
 use crate::decoder::{Counters, Decoder};
 use crate::Error;
+
+/// How the ingest's connection lines read (its command line's options).
+const VOICE: Voice = Voice {
+    prefix: "ingest",
+    address: "--mqtt",
+    credentials: "--username and --password-file",
+    ca_file: "--ca-file",
+    refused: "check its configuration, that it keeps persistent sessions, and the client ID",
+    lost: "connecting again (the broker keeps the session's messages)",
+    kept: "",
+    next_broker: "the next broker",
+};
 
 /// How often the samples taken are committed and their messages acknowledged.
 pub const COMMIT_EVERY: Duration = Duration::from_millis(250);
@@ -125,7 +136,7 @@ fn options(config: &IngestConfig, broker: &Broker) -> Result<MqttOptions, Error>
     }
     if broker.tls {
         o.set_transport(Transport::Tls(
-            hart_sparkplug::client::tls_config(config.ca_file.as_deref())
+            hart_sparkplug::mqtt::tls_config(config.ca_file.as_deref())
                 .map_err(|e| Error::Config(e.to_string()))?,
         ));
     } else if config.ca_file.is_some() {
@@ -186,8 +197,10 @@ pub async fn run(
     decoder.restore(&kept, SystemTime::now());
     let store = std::sync::Arc::new(std::sync::Mutex::new(store));
     let mut births: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut current = 0;
     let (client, eventloop) = AsyncClient::new(options(&config, &brokers[0])?, 256);
+    // The brokers tried in turn, the back-off, resubscription: the one MQTT client
+    // logic of hart-sparkplug, shared with the publisher.
+    let mut session = Session::new(brokers, VOICE);
     // Polled on a task of its own: a select! below must never cancel it mid-connect.
     let mut driver = hart_sparkplug::driver::Driver::spawn(eventloop);
     // Samples decoded and not yet handed to the writer, and the messages they came
@@ -199,15 +212,11 @@ pub async fn run(
     // Connections made: a commit's acknowledgements belong to the connection its
     // messages came on.
     let mut connection: u64 = 0;
-    let mut failures: u32 = 0;
-    let mut connected = false;
     let mut commit = tokio::time::interval(COMMIT_EVERY);
     commit.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut commit_failing = false;
     // A setting that failed while running (the password file gone): the run ends.
     let mut failed: Option<Error> = None;
-    // After a refused subscription (a cluster electing leaders refuses for a while).
-    let mut resubscribe_at: Option<tokio::time::Instant> = None;
     let mut refusals_logged = hart_access::pool::LogLimit::default();
     loop {
         // While MAX_UNCOMMITTED messages wait for a commit the historian cannot make,
@@ -221,10 +230,9 @@ pub async fn run(
                     break;
                 }
                 Some(Ok(Event::Incoming(Packet::ConnAck(ack)))) => {
-                    connected = true;
+                    session.connected();
                     connection += 1;
-                    failures = 0;
-                    let b = &brokers[current];
+                    let b = session.broker();
                     tracing::info!(
                         "ingest: connected to {}:{} as {} ({} session); subscribing to {} at QoS 1",
                         b.host, b.port, config.client_id(),
@@ -237,11 +245,10 @@ pub async fn run(
                 }
                 Some(Ok(Event::Incoming(Packet::SubAck(s)))) => {
                     if s.return_codes.iter().any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) {
-                        tracing::warn!(
-                            "ingest: the broker refused the subscription to {}: nothing arrives meanwhile; asking again in 5 s; check its access rules",
-                            decoder.filter()
+                        session.refused(
+                            &format!("the subscription to {}", decoder.filter()),
+                            "nothing arrives meanwhile",
                         );
-                        resubscribe_at = Some(tokio::time::Instant::now() + Duration::from_secs(5));
                     } else {
                         tracing::info!("ingest: subscribed to {}", decoder.filter());
                     }
@@ -280,25 +287,15 @@ pub async fn run(
                 }
                 Some(Ok(_)) => {}
                 Some(Err(e)) => {
-                    let why = explain(&e, &brokers[current]);
-                    if connected {
-                        tracing::warn!("ingest: connection lost: {why}; connecting again (the broker keeps the session's messages)");
-                    } else if failures == 0 || failures.is_power_of_two() {
-                        tracing::warn!("ingest: cannot connect: {why} (attempt {})", failures + 1);
-                    }
-                    connected = false;
-                    resubscribe_at = None;
-                    failures = failures.saturating_add(1);
+                    let lost = session.lost(&e);
                     // Acknowledgements of the lost connection mean nothing in the next:
                     // the broker sends those messages again (their samples, taken
                     // already, are written all the same: the historian stores a sample
                     // once).
                     uncommitted.clear();
-                    let mut delay = Duration::from_millis(250u64 << failures.min(7)).min(Duration::from_secs(15));
                     let mut next = None;
-                    if brokers.len() > 1 {
-                        current = (current + 1) % brokers.len();
-                        match options(&config, &brokers[current]) {
+                    if lost.rotated {
+                        match options(&config, session.broker()) {
                             Ok(o) => next = Some(o),
                             // Ended below, where the database connection may close.
                             Err(e) => {
@@ -306,13 +303,9 @@ pub async fn run(
                                 break;
                             }
                         }
-                        tracing::info!("ingest: trying the next broker, {}:{}", brokers[current].host, brokers[current].port);
-                        if current != 0 {
-                            delay = Duration::from_millis(100);
-                        }
                     }
                     // A persistent session: rumqttc keeps what it must send again.
-                    driver.resume(hart_sparkplug::driver::Resume { options: next, clear: false, after: delay });
+                    driver.resume(hart_sparkplug::driver::Resume { options: next, clear: false, after: lost.after });
                 }
             },
             done = async { (&mut committing.as_mut().expect("guarded").task).await }, if committing.is_some() => {
@@ -320,8 +313,7 @@ pub async fn run(
                 commit_failing = c.finished(done, &client, &mut uncommitted, &mut births, connection, commit_failing);
             }
             _ = commit.tick() => {
-                if connected && resubscribe_at.is_some_and(|t| t <= tokio::time::Instant::now()) {
-                    resubscribe_at = None;
+                if session.resubscribe_due() {
                     let _ = client.try_subscribe(decoder.filter(), QoS::AtLeastOnce);
                 }
                 if committing.is_none() && !(uncommitted.is_empty() && taken.is_empty()) {
@@ -362,7 +354,7 @@ pub async fn run(
             commit_failing,
         );
     }
-    if connected {
+    if session.is_connected() {
         let _ = client.try_disconnect();
         let _ = tokio::time::timeout(Duration::from_secs(3), async {
             loop {
@@ -498,21 +490,5 @@ impl Committing {
                 true
             }
         }
-    }
-}
-
-fn explain(e: &ConnectionError, broker: &Broker) -> String {
-    let at = format!("{}:{}", broker.host, broker.port);
-    match e {
-        ConnectionError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused => format!(
-            "nothing accepts connections at {at} ({io}); check that the broker runs and the host and port of --mqtt"
-        ),
-        ConnectionError::ConnectionRefused(c) => format!(
-            "the broker at {at} refused the connection ({c:?}); check its configuration, that it keeps persistent sessions, and the client ID"
-        ),
-        ConnectionError::NetworkTimeout => {
-            format!("no answer from {at} in time; check the network and the address of --mqtt")
-        }
-        other => format!("connection to {at}: {other}"),
     }
 }

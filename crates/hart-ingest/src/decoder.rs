@@ -25,11 +25,11 @@ use std::collections::HashMap;
 use std::time::{Duration, SystemTime};
 
 use hart_history::{widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT};
-use hart_sparkplug::edge::{millis, NAMESPACE};
 use hart_sparkplug::metrics;
 use hart_sparkplug::proto::datatype as dt;
 use hart_sparkplug::proto::payload::{metric, property_value, Metric};
 use hart_sparkplug::proto::Payload;
+use hart_sparkplug::{millis, NAMESPACE};
 use prost::Message as _;
 
 /// The shortest time between two rebirth requests to one edge node.
@@ -158,18 +158,10 @@ pub struct Decoder {
     counters: Counters,
 }
 
-/// The historian's variable a device metric is.
+/// The historian's variable a device metric is (hart-sparkplug's one table,
+/// [`metrics::STORED`]).
 fn var_of(name: &str) -> Option<Var> {
-    Some(match name {
-        "PV" => Var::Pv,
-        "SV" => Var::Sv,
-        "TV" => Var::Tv,
-        "QV" => Var::Qv,
-        "LoopCurrent" => Var::LoopCurrent,
-        "PercentRange" => Var::PercentRange,
-        "Status/DeviceStatus" => Var::DeviceStatus,
-        _ => return None,
-    })
+    Var::from_code(i64::from(metrics::stored_code(name)?))
 }
 
 /// A metric's value as a number, when it is one.

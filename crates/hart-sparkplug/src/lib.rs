@@ -1,28 +1,33 @@
 //! # hart-sparkplug
 //!
-//! The MQTT Sparkplug B front end of hartkit's gateway: an edge node that publishes
-//! every HART device of the polling engine as a Sparkplug device (DBIRTH with every
-//! metric, DDATA on change by alias, DDEATH when it stops answering), keeps samples
-//! while the broker or the primary host application is away and sends them
-//! afterwards marked historical, answers `Node Control/Rebirth`, and carries DCMD
-//! writes to the devices through the engine's one write path (allow-list, read-only,
-//! audit).
+//! Sparkplug B without the polling engine: what both hartkit's edge node
+//! (hart-sparkplug-edge, the gateway's publisher) and its host application
+//! (hart-ingest, the historian's subscriber) need.
 //!
-//! The protocol logic is the sans-IO [`edge::EdgeNode`]: events and time in,
-//! messages out. [`run`] connects it to a broker with `rumqttc`. Topics, metric names
-//! and a walk-through with mosquitto are in docs/mqtt.md.
+//! - [`proto`]: the Sparkplug B payload (protobuf through prost) and data types;
+//! - [`metrics`]: the one metric table (a HART device's metrics: names, data types,
+//!   aliases, units properties, and which of them the historian stores);
+//! - [`command`]: NCMD and DCMD payloads decoded (untrusted bytes, typed errors);
+//! - [`config`]: the `[mqtt]` settings and the broker list of a URL;
+//! - [`mqtt`] and [`driver`]: the one MQTT client module (broker rotation, back-off,
+//!   resubscription after a refusal, connection messages, TLS) on `rumqttc`.
+//!
+//! Topics, metric names and a walk-through with mosquitto are in docs/mqtt.md.
 
-pub mod client;
 pub mod command;
 pub mod config;
 pub mod driver;
-pub mod edge;
 pub mod metrics;
+pub mod mqtt;
 pub mod proto;
 
-pub use client::{run, Backfill, Handle, Status, BACKFILL_LOW_WATER, BACKFILL_PAGE};
 pub use config::{default_edge_node, Broker, MqttConfig, DEFAULT_BACKLOG, DEFAULT_GROUP};
-pub use edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
+
+/// The Sparkplug B topic namespace.
+pub const NAMESPACE: &str = "spBv1.0";
+
+/// Milliseconds since the Unix epoch (0 before it): Sparkplug's time stamps.
+pub use hart_clock::epoch::millis;
 
 /// Why the publisher could not start.
 #[derive(Debug, Clone, PartialEq, Eq)]

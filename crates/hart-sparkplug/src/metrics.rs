@@ -1,8 +1,6 @@
-//! The metrics of a HART device and of the edge node: names, data types, aliases and
-//! values from the engine's [`DeviceImage`]. The list is the contract with Sparkplug
+//! The metrics of a HART device and of the edge node: names, data types and aliases
+//! (their values from the engine's image are made by hart-sparkplug-edge). The list is the contract with Sparkplug
 //! host applications; docs/mqtt.md has it as a table.
-
-use hart_poller::{DeviceImage, Quality};
 
 use crate::proto::datatype as dt;
 use crate::proto::payload::{metric, Metric, PropertySet, PropertyValue};
@@ -105,6 +103,35 @@ pub const DEVICE_METRICS: &[MetricDef] = &[
     m("Properties/Position", dt::UINT32),
 ];
 
+/// The device metrics the historian stores, by the historian's variable code
+/// (`hart_history::Var::code`: 0 PV, 1 SV, 2 TV, 3 QV, 4 loop current, 5 percent of
+/// range, 6 device status): the one table between stored variables and Sparkplug
+/// metrics, read by the gateway's backfill (historian to metric) and the ingest's
+/// decoder (metric to historian).
+pub const STORED: [&str; 7] = [
+    "PV",
+    "SV",
+    "TV",
+    "QV",
+    "LoopCurrent",
+    "PercentRange",
+    "Status/DeviceStatus",
+];
+
+/// The historian's variable code of the device metric called `name`, if it stores it.
+pub fn stored_code(name: &str) -> Option<i16> {
+    STORED
+        .iter()
+        .position(|n| *n == name)
+        .and_then(|i| i16::try_from(i).ok())
+}
+
+/// The index in [`DEVICE_METRICS`] of the metric of the historian's variable `code`.
+pub fn stored_metric(code: i16) -> Option<usize> {
+    let name = STORED.get(usize::try_from(code).ok()?)?;
+    index_of(name)
+}
+
 /// Index of `PV` .. `QV` in [`DEVICE_METRICS`].
 const VARIABLES: usize = 0;
 /// Index of `Config/UpperRange` and `Config/LowerRange`.
@@ -142,58 +169,6 @@ pub fn from_alias(alias: u64) -> Option<(usize, usize)> {
 /// The index of the device metric called `name`.
 pub fn index_of(name: &str) -> Option<usize> {
     DEVICE_METRICS.iter().position(|d| d.name == name)
-}
-
-fn nonblank(s: &Option<String>) -> Option<String> {
-    s.as_deref()
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(str::to_string)
-}
-
-/// Every device metric's value, in [`DEVICE_METRICS`] order.
-pub fn values(d: &DeviceImage, quality: Quality) -> Vec<Value> {
-    let f = |v: Option<f32>| v.map_or(Value::Null, Value::Float);
-    let s = |v: Option<String>| v.map_or(Value::Null, Value::Text);
-    let mut out = Vec::with_capacity(DEVICE_METRICS.len());
-    for v in &d.variables {
-        out.push(f(v.map(|v| v.value)));
-    }
-    out.push(f(d.loop_current));
-    out.push(f(d.percent_range));
-    out.push(Value::UInt(u32::from(d.device_status)));
-    out.push(Value::UInt(u32::from(d.extended_status)));
-    out.push(Value::Text(quality.name().to_string()));
-    out.push(Value::UInt(u32::from(quality.code())));
-    out.push(f(d.range.map(|r| r.upper)));
-    out.push(f(d.range.map(|r| r.lower)));
-    out.push(f(d.range.map(|r| r.damping)));
-    out.push(f(d.fixed_current));
-    let info = d.info.as_ref();
-    out.push(s(info.and_then(|i| nonblank(&i.tag))));
-    out.push(s(info.and_then(|i| nonblank(&i.long_tag))));
-    out.push(s(info.and_then(|i| nonblank(&i.descriptor))));
-    out.push(s(info.map(|i| i.unique_id().to_string())));
-    out.push(Value::Text(d.loop_name.clone()));
-    out.push(
-        d.polling_address
-            .map_or(Value::Null, |p| Value::UInt(u32::from(p))),
-    );
-    out.push(Value::UInt(u32::try_from(d.position).unwrap_or(u32::MAX)));
-    debug_assert_eq!(out.len(), DEVICE_METRICS.len());
-    out
-}
-
-/// The units codes the births carry as properties: PV..QV's, then the range's.
-/// A change of any of them makes a new DBIRTH (properties belong to births).
-pub fn units(d: &DeviceImage) -> [Option<u8>; 5] {
-    [
-        d.variables[0].map(|v| v.units),
-        d.variables[1].map(|v| v.units),
-        d.variables[2].map(|v| v.units),
-        d.variables[3].map(|v| v.units),
-        d.range.map(|r| r.units),
-    ]
 }
 
 /// The `engUnit` (symbol) and `hartUnitCode` properties of a units code.
@@ -286,5 +261,19 @@ mod tests {
         assert_eq!(index_of("Config/UpperRange"), Some(RANGE));
         assert_eq!(index_of("Config/FixedCurrent"), Some(FIXED_CURRENT));
         assert_eq!(index_of("Config/Damping"), Some(12));
+    }
+
+    #[test]
+    fn every_stored_variable_is_a_device_metric() {
+        for (code, name) in STORED.iter().enumerate() {
+            let code = i16::try_from(code).unwrap();
+            assert_eq!(stored_code(name), Some(code));
+            assert_eq!(
+                stored_metric(code).map(|i| DEVICE_METRICS[i].name),
+                Some(*name)
+            );
+        }
+        assert_eq!(stored_code("Config/Damping"), None);
+        assert_eq!(stored_metric(7), None);
     }
 }

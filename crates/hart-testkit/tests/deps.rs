@@ -49,9 +49,11 @@ fn the_wheel_builds_no_front_end() {
         ("hart-opcua", "the OPC UA front end"),
         ("hart-modbus", "the Modbus front end"),
         ("hart-profibus", "the PROFIBUS front end"),
-        ("hart-sparkplug", "the MQTT publisher"),
+        ("hart-sparkplug", "the Sparkplug B codec and MQTT client"),
+        ("hart-sparkplug-edge", "the MQTT publisher"),
         ("hart-ingest", "the MQTT ingest"),
         ("hart-history", "the historian"),
+        ("hart-recorder", "the historian's recorder"),
         ("hart-wells", "the well network"),
         ("hart-conform", "the conformance tester"),
         ("async-opcua", "OPC UA"),
@@ -92,6 +94,37 @@ fn profibus_does_not_link_modbus() {
     );
     // What it takes instead is there (the check above is not vacuous).
     for needed in ["hart-values", "hart-serial", "hart-poller"] {
+        assert!(linked.iter().any(|l| l == needed), "{needed} is missing");
+    }
+}
+
+/// The ingest (a Sparkplug B host application storing into the historian) is built on
+/// the codec and the store alone: hart-sparkplug and hart-history keep the polling
+/// engine's adapters (hart-sparkplug-edge, hart-recorder) apart, so the ingest never
+/// compiles the engine or the host's transports.
+#[test]
+fn the_ingest_does_not_link_the_polling_engine() {
+    let linked = normal_dependencies("hart-ingest");
+    let forbidden = [
+        ("hart-poller", "the polling engine"),
+        ("hart-host", "the HART master and its transports"),
+        ("hart-sparkplug-edge", "the gateway's edge node"),
+        ("hart-recorder", "the gateway's recorder"),
+    ];
+    let found: Vec<String> = forbidden
+        .iter()
+        .filter(|(name, _)| linked.iter().any(|l| l == name))
+        .map(|(name, what)| format!("{name} ({what})"))
+        .collect();
+    assert!(
+        found.is_empty(),
+        "hart-ingest now links {}: take what it needs from hart-sparkplug (codec, metric \
+         table, MQTT client) or hart-history (store) and keep engine code in \
+         hart-sparkplug-edge or hart-recorder; `cargo tree -p hart-ingest -i NAME` shows the \
+         path",
+        found.join(", ")
+    );
+    for needed in ["hart-sparkplug", "hart-history", "rumqttc"] {
         assert!(linked.iter().any(|l| l == needed), "{needed} is missing");
     }
 }

@@ -9,17 +9,31 @@ use std::time::{Duration, SystemTime};
 
 use hart_poller::Engine;
 use rumqttc::{
-    AsyncClient, ConnectReturnCode, ConnectionError, Event, LastWill, MqttOptions, Outgoing,
-    Packet, QoS, TlsConfiguration, Transport,
+    AsyncClient, ConnectionError, Event, LastWill, MqttOptions, Outgoing, Packet, QoS,
+    TlsConfiguration, Transport,
 };
 
-use crate::config::{Broker, MqttConfig};
-use crate::driver::{Driver, Resume};
+use hart_sparkplug::config::{Broker, MqttConfig};
+use hart_sparkplug::driver::{Driver, Resume};
+use hart_sparkplug::mqtt::{tls_config, Session, Voice};
+use hart_sparkplug::Error;
+
 use crate::edge::{EdgeNode, Message, Output, Sample, Settings, WriteRequest};
-use crate::Error;
 
 /// How long to wait before subscribing again to a refused subscription.
-pub const RESUBSCRIBE_AFTER: Duration = Duration::from_secs(5);
+pub use hart_sparkplug::mqtt::RESUBSCRIBE_AFTER;
+
+/// How the publisher's connection lines read (the `[mqtt]` section's settings).
+const VOICE: Voice = Voice {
+    prefix: "mqtt",
+    address: "--mqtt",
+    credentials: "[mqtt] username and password_file",
+    ca_file: "[mqtt] ca_file",
+    refused: "check its configuration and the client ID",
+    lost: "connecting again, samples are kept meanwhile",
+    kept: "; samples are kept meanwhile",
+    next_broker: "the next broker of the cluster",
+};
 
 /// Image changes the publisher holds at most before the engine drops the oldest (and
 /// logs it): minutes of a busy gateway's polls.
@@ -129,9 +143,9 @@ pub async fn run(
             .map(|u| (u, password.unwrap_or_default())),
         tls,
     };
-    let broker = brokers[0].clone();
+    let session = Session::new(brokers, VOICE);
     let will = last_will(core.will(SystemTime::now()));
-    let mut options = template.options(&broker);
+    let mut options = template.options(session.broker());
     options.set_last_will(will.clone());
     let (client, eventloop) = AsyncClient::new(options, 1024);
     // One page read back at a time: the channel never holds more than one.
@@ -153,17 +167,12 @@ pub async fn run(
         backfill_run: None,
         backfill_runs: 0,
         url: config.url.clone(),
-        broker,
-        brokers,
-        next_broker: 0,
+        session,
         template,
         outbox: VecDeque::new(),
         inflight: VecDeque::new(),
         unacked: VecDeque::new(),
         subscriptions: Vec::new(),
-        resubscribe_at: None,
-        connected: false,
-        failures: 0,
         status: status.clone(),
         last_error: None,
     };
@@ -187,7 +196,7 @@ impl Template {
         options.set_keep_alive(Duration::from_secs(10));
         // Commands are small (edge::MAX_COMMAND_BYTES); a longer message is taken
         // once and dropped (driver.rs).
-        options.set_max_packet_size(1 << 20, crate::driver::MAX_OUTGOING);
+        options.set_max_packet_size(1 << 20, hart_sparkplug::driver::MAX_OUTGOING);
         if let Some((u, p)) = &self.credentials {
             options.set_credentials(u.clone(), p.clone());
         }
@@ -198,61 +207,6 @@ impl Template {
     }
 }
 
-/// The TLS configuration of `mqtts://`: OpenSSL (through native-tls), TLS 1.2 or
-/// newer, the broker's certificate checked against the CA file's certificates only, or
-/// against the system's certificate authorities without one.
-pub fn tls_config(ca_file: Option<&std::path::Path>) -> Result<TlsConfiguration, Error> {
-    use native_tls::{Certificate, Protocol, TlsConnector};
-    let mut builder = TlsConnector::builder();
-    builder.min_protocol_version(Some(Protocol::Tlsv12));
-    match ca_file {
-        Some(path) => {
-            let pem =
-                std::fs::read(path).map_err(|e| Error::File(path.to_path_buf(), e.to_string()))?;
-            let certs = Certificate::stack_from_pem(&pem).map_err(|e| {
-                Error::File(
-                    path.to_path_buf(),
-                    format!("not a PEM certificate file: {e}"),
-                )
-            })?;
-            if certs.is_empty() {
-                return Err(Error::File(
-                    path.to_path_buf(),
-                    "no certificate in it (PEM, -----BEGIN CERTIFICATE-----)".into(),
-                ));
-            }
-            // Only the operator's CA: the system's authorities do not vouch for a
-            // plant's broker.
-            builder.disable_built_in_roots(true);
-            for c in certs {
-                builder.add_root_certificate(c);
-            }
-        }
-        None => {
-            if !SYSTEM_CA_BUNDLES
-                .iter()
-                .any(|f| std::fs::metadata(f).is_ok_and(|m| m.len() > 0))
-            {
-                return Err(Error::Config(
-                    "mqtts:// without ca_file, and no system certificate authorities were found; give [mqtt] ca_file".into(),
-                ));
-            }
-        }
-    }
-    let connector = builder
-        .build()
-        .map_err(|e| Error::Config(format!("TLS: {e}")))?;
-    Ok(TlsConfiguration::NativeConnector(connector))
-}
-
-/// Where Linux distributions keep the system's certificate authorities (Debian's
-/// bundle first), which OpenSSL reads when no CA file is given.
-const SYSTEM_CA_BUNDLES: [&str; 3] = [
-    "/etc/ssl/certs/ca-certificates.crt",
-    "/etc/pki/tls/certs/ca-bundle.crt",
-    "/etc/ssl/cert.pem",
-];
-
 fn last_will(m: Message) -> LastWill {
     LastWill::new(m.topic, m.payload, qos(m.qos), m.retain)
 }
@@ -262,32 +216,6 @@ fn qos(q: u8) -> QoS {
         QoS::AtMostOnce
     } else {
         QoS::AtLeastOnce
-    }
-}
-
-/// Why the broker connection failed, and what to check.
-fn explain(e: &ConnectionError, broker: &Broker) -> String {
-    let at = format!("{}:{}", broker.host, broker.port);
-    match e {
-        ConnectionError::ConnectionRefused(
-            ConnectReturnCode::BadUserNamePassword | ConnectReturnCode::NotAuthorized,
-        ) => format!(
-            "the broker at {at} refused the credentials ({e}); check [mqtt] username and password_file"
-        ),
-        ConnectionError::ConnectionRefused(c) => {
-            format!("the broker at {at} refused the connection ({c:?}); check its configuration and the client ID")
-        }
-        ConnectionError::Io(io) if io.kind() == std::io::ErrorKind::ConnectionRefused => format!(
-            "nothing accepts connections at {at} ({io}); check that the broker runs and the host and port of --mqtt"
-        ),
-        ConnectionError::Tls(t) => format!(
-            "TLS with {at} failed ({t}); check [mqtt] ca_file and that the broker's certificate names the host {}",
-            broker.host
-        ),
-        ConnectionError::NetworkTimeout => {
-            format!("no answer from {at} in time; check the network and the address of --mqtt")
-        }
-        other => format!("connection to {at}: {other}"),
     }
 }
 
@@ -353,12 +281,9 @@ struct Publisher {
     /// Read-backs started (each run's `id`).
     backfill_runs: u64,
     url: String,
-    /// The broker of the current (or next) connection.
-    broker: Broker,
-    /// Every broker of the URL (a cluster's nodes), tried in turn.
-    brokers: Vec<Broker>,
-    /// Index in `brokers` of `broker`.
-    next_broker: usize,
+    /// The brokers of the URL tried in turn, the back-off, resubscription
+    /// (hart-sparkplug's one MQTT client logic).
+    session: Session,
     template: Template,
     /// What the edge node asked that the client's queue has not taken yet.
     outbox: VecDeque<Output>,
@@ -372,11 +297,6 @@ struct Publisher {
     /// The subscriptions of this session (NCMD, DCMD, STATE), to ask again when the
     /// broker refused one.
     subscriptions: Vec<(String, u8)>,
-    /// When to subscribe again after a refusal (a cluster electing leaders refuses
-    /// for a while).
-    resubscribe_at: Option<tokio::time::Instant>,
-    connected: bool,
-    failures: u32,
     status: Arc<Mutex<Status>>,
     last_error: Option<String>,
 }
@@ -439,13 +359,9 @@ impl Publisher {
 
     /// Subscribes again to what the broker refused, once the wait is over.
     fn resubscribe_if_due(&mut self) {
-        let due = self
-            .resubscribe_at
-            .is_some_and(|t| t <= tokio::time::Instant::now());
-        if !self.connected || !due {
+        if !self.session.resubscribe_due() {
             return;
         }
-        self.resubscribe_at = None;
         for (topic, q) in &self.subscriptions {
             let _ = self.client.try_subscribe(topic.clone(), qos(*q));
         }
@@ -454,7 +370,7 @@ impl Publisher {
     fn publish_status(&self) {
         let mut s = self.status.lock().unwrap_or_else(|e| e.into_inner());
         *s = Status {
-            connected: self.connected,
+            connected: self.session.is_connected(),
             live: self.core.is_live(),
             bd_seq: self.core.bd_seq(),
             backlog: self.core.backlog_len(),
@@ -506,10 +422,8 @@ impl Publisher {
     fn event(&mut self, ev: Event) {
         match ev {
             Event::Incoming(Packet::ConnAck(_)) => {
-                self.connected = true;
+                self.session.connected();
                 self.subscriptions.clear();
-                self.resubscribe_at = None;
-                self.failures = 0;
                 self.last_error = None;
                 tracing::info!(
                     "mqtt: connected to {} as edge node {}/{} (bdSeq {})",
@@ -538,13 +452,10 @@ impl Publisher {
                     .iter()
                     .any(|c| matches!(c, rumqttc::SubscribeReasonCode::Failure)) =>
             {
-                tracing::warn!(
-                    "mqtt: the broker refused a subscription (NCMD, DCMD or STATE): commands \
-                     will not arrive meanwhile; asking again in {} s; check the broker's access \
-                     rules for this user",
-                    RESUBSCRIBE_AFTER.as_secs()
+                self.session.refused(
+                    "a subscription (NCMD, DCMD or STATE)",
+                    "commands will not arrive meanwhile",
                 );
-                self.resubscribe_at = Some(tokio::time::Instant::now() + RESUBSCRIBE_AFTER);
             }
             Event::Outgoing(Outgoing::Publish(pkid)) => {
                 let samples = self.inflight.pop_front().unwrap_or_default();
@@ -578,34 +489,9 @@ impl Publisher {
     /// event loop goes on (the next CONNECT's will, the next broker of a cluster, the
     /// wait before trying).
     fn lost(&mut self, e: &ConnectionError) -> Resume {
-        let why = explain(e, &self.broker);
-        if self.connected {
-            tracing::warn!(
-                "mqtt: connection lost: {why}; connecting again, samples are kept meanwhile"
-            );
-        } else if self.failures == 0 || self.failures.is_power_of_two() {
-            tracing::warn!(
-                "mqtt: cannot connect: {why} (attempt {}; samples are kept meanwhile)",
-                self.failures + 1
-            );
-        }
-        self.failures = self.failures.saturating_add(1);
-        self.forget_session(Some(why));
-        let mut after =
-            Duration::from_millis(250u64 << self.failures.min(7)).min(Duration::from_secs(15));
-        if self.brokers.len() > 1 {
-            // A cluster: the next node at once, the backoff only after a full round.
-            self.next_broker = (self.next_broker + 1) % self.brokers.len();
-            self.broker = self.brokers[self.next_broker].clone();
-            tracing::info!(
-                "mqtt: trying the next broker of the cluster, {}:{}",
-                self.broker.host,
-                self.broker.port
-            );
-            if self.next_broker != 0 {
-                after = Duration::from_millis(100);
-            }
-        }
+        let lost = self.session.lost(e);
+        self.forget_session(Some(lost.why));
+        let after = lost.after;
         Resume {
             options: Some(self.options()),
             clear: true,
@@ -616,7 +502,7 @@ impl Publisher {
     /// The options of the next CONNECT: the broker tried next, with the will of the
     /// session to come.
     fn options(&self) -> rumqttc::MqttOptions {
-        let mut options = self.template.options(&self.broker);
+        let mut options = self.template.options(self.session.broker());
         options.set_last_will(self.will.clone());
         options
     }
@@ -628,7 +514,7 @@ impl Publisher {
         if why.is_some() {
             self.last_error = why;
         }
-        self.connected = false;
+        self.session.closed();
         let mut unsent: Vec<Sample> = self.unacked.drain(..).flat_map(|(_, s)| s).collect();
         unsent.extend(self.inflight.drain(..).flatten());
         for o in self.outbox.drain(..) {
@@ -706,7 +592,7 @@ impl Publisher {
         let Some(run) = self.backfill_run.as_mut() else {
             return;
         };
-        if run.reading.is_some() || !room || !self.connected || !self.core.is_live() {
+        if run.reading.is_some() || !room || !self.session.is_connected() || !self.core.is_live() {
             return;
         }
         let (from, end) = (run.from, run.to.min(run.from.saturating_add(run.window)));
@@ -847,7 +733,7 @@ async fn dcmd_writer(
 
 impl Publisher {
     async fn shutdown(&mut self) {
-        if !self.connected {
+        if !self.session.is_connected() {
             return;
         }
         self.outbox.clear();

@@ -5,10 +5,10 @@
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use hart_poller::{DeviceImage, Quality, Variable, WriteOp};
-use hart_sparkplug::edge::{millis, EdgeNode, Message, Output, Sample, Settings};
-use hart_sparkplug::metrics::{device_alias, index_of};
-use hart_sparkplug::proto::payload::{metric::Value as V, Metric};
-use hart_sparkplug::proto::Payload;
+use hart_sparkplug_edge::edge::{millis, EdgeNode, Message, Output, Sample, Settings};
+use hart_sparkplug_edge::metrics::{device_alias, index_of};
+use hart_sparkplug_edge::proto::payload::{metric::Value as V, Metric};
+use hart_sparkplug_edge::proto::Payload;
 use prost::Message as _;
 
 fn t(ms: u64) -> SystemTime {
@@ -609,7 +609,7 @@ fn a_full_backlog_spills_to_the_historian_and_is_read_back() {
     let pv = |i: u64| Sample {
         position: 0,
         at: millis(t(i)),
-        metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+        metrics: vec![(0, hart_sparkplug_edge::metrics::Value::Float(i as f32))],
     };
     let out = node.backfilled(vec![pv(9), pv(4), pv(10), pv(5)], t(21));
     let msgs = publishes(&out);
@@ -673,7 +673,7 @@ fn a_device_dead_during_the_outage_gets_its_data_before_its_death() {
     let sample = |position: usize, i: u64| Sample {
         position,
         at: millis(t(i)),
-        metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+        metrics: vec![(0, hart_sparkplug_edge::metrics::Value::Float(i as f32))],
     };
     let out = node.backfilled(vec![sample(1, 3), sample(1, 4), sample(1, 5)], t(22));
     let msgs = publishes(&out);
@@ -707,7 +707,7 @@ fn nothing_the_historian_holds_is_dropped_and_an_unfinished_read_back_is_asked_a
         .map(|i| Sample {
             position: 0,
             at: millis(t(i)),
-            metrics: vec![(0, hart_sparkplug::metrics::Value::Float(i as f32))],
+            metrics: vec![(0, hart_sparkplug_edge::metrics::Value::Float(i as f32))],
         })
         .collect();
     node.disconnected(unsent);
@@ -744,7 +744,9 @@ fn writes(out: &[Output]) -> usize {
 /// be and commands beyond the rate; values out of range never become a write.
 #[test]
 fn retained_oversized_flooded_and_out_of_range_commands_are_refused() {
-    use hart_sparkplug::edge::{Delivery, COMMANDS_PER_SECOND, COMMAND_BURST, MAX_COMMAND_BYTES};
+    use hart_sparkplug_edge::edge::{
+        Delivery, COMMANDS_PER_SECOND, COMMAND_BURST, MAX_COMMAND_BYTES,
+    };
     let mut node = EdgeNode::new(settings());
     connected(&mut node, t(0));
     node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));
@@ -802,7 +804,7 @@ fn retained_oversized_flooded_and_out_of_range_commands_are_refused() {
 /// answered by one rebirth when it ends ([`EdgeNode::tick`]).
 #[test]
 fn a_flood_of_rebirth_requests_costs_two_rebirths() {
-    use hart_sparkplug::edge::REBIRTH_INTERVAL_MS;
+    use hart_sparkplug_edge::edge::REBIRTH_INTERVAL_MS;
     let mut node = EdgeNode::new(settings());
     connected(&mut node, t(0));
     node.device(&device(0, 1, None, 0.0), Quality::Good, t(0), t(0));

@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use hart_poller::{Engine, EngineConfig, Line, LoopSpec, MemoryLoop};
-use hart_sparkplug::MqttConfig;
+use hart_sparkplug_edge::MqttConfig;
 use serde_json::{json, Value};
 
 struct Tools {
@@ -336,7 +336,7 @@ async fn births_data_aliases_rebirth_writes_and_bad_commands() {
                 ..Default::default()
             })
             .await;
-            let handle = hart_sparkplug::run(engine.clone(), config(&broker.url(), "gw1"), None)
+            let handle = hart_sparkplug_edge::run(engine.clone(), config(&broker.url(), "gw1"), None)
                 .await
                 .unwrap();
             let identified = engine.image().snapshot().iter().filter(|d| d.info.is_some()).count();
@@ -442,7 +442,7 @@ async fn births_data_aliases_rebirth_writes_and_bad_commands() {
             // the new value comes back as data.
             sub.send(json!({"topic": format!("spBv1.0/Plant/DCMD/gw1/{device}"), "metrics": [
                 {"name": "Config/Damping", "datatype": 9, "float_value": 2.5}]}));
-            let damping_alias = pv_alias + hart_sparkplug::metrics::index_of("Config/Damping").unwrap() as u64;
+            let damping_alias = pv_alias + hart_sparkplug_edge::metrics::index_of("Config/Damping").unwrap() as u64;
             sub.wait("the new damping", |l| {
                 of_node(l, "gw1").iter().flat_map(|v| metrics(v)).any(|m| {
                     m.get("alias").is_some_and(|a| num(a) == damping_alias) && m["float_value"] == 2.5
@@ -467,7 +467,7 @@ async fn child_publisher() {
     local
         .run_until(async {
             let engine = engine().await;
-            let handle = hart_sparkplug::run(engine, config(&url, "gw-kill"), None)
+            let handle = hart_sparkplug_edge::run(engine, config(&url, "gw-kill"), None)
                 .await
                 .unwrap();
             loop {
@@ -592,9 +592,10 @@ async fn broker_restart_every_sample_arrives_once_in_order() {
     local
         .run_until(async {
             let engine = engine().await;
-            let handle = hart_sparkplug::run(engine, config(&broker.url(), "gw-restart"), None)
-                .await
-                .unwrap();
+            let handle =
+                hart_sparkplug_edge::run(engine, config(&broker.url(), "gw-restart"), None)
+                    .await
+                    .unwrap();
             sub.wait("data", |l| data(l, "gw-restart").len() >= 5).await;
             broker.stop();
             let stopped = Instant::now();
@@ -681,7 +682,7 @@ async fn primary_host_offline_and_online() {
             let engine = engine().await;
             let mut c = config(&broker.url(), "gw-host");
             c.primary_host = Some("scada".into());
-            let handle = hart_sparkplug::run(engine, c, None).await.unwrap();
+            let handle = hart_sparkplug_edge::run(engine, c, None).await.unwrap();
             sub.wait("births and data", |l| data(l, "gw-host").len() >= 5)
                 .await;
             sub.send(state(false, now()));
@@ -745,7 +746,7 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
             let engine = engine().await;
             // Nothing listens.
             let port = free_port();
-            let h = hart_sparkplug::run(
+            let h = hart_sparkplug_edge::run(
                 engine.clone(),
                 config(&format!("mqtt://127.0.0.1:{port}"), "gw-none"),
                 None,
@@ -786,7 +787,9 @@ async fn refused_connections_are_logged_and_polling_goes_on() {
             let mut c = config(&broker.url(), "gw-auth");
             c.username = Some("gw".into());
             c.password_file = Some(dir.path().join("wrong"));
-            let h = hart_sparkplug::run(engine.clone(), c, None).await.unwrap();
+            let h = hart_sparkplug_edge::run(engine.clone(), c, None)
+                .await
+                .unwrap();
             let deadline = Instant::now() + Duration::from_secs(10);
             while h.status().last_error.is_none() {
                 assert!(Instant::now() < deadline);
@@ -916,7 +919,7 @@ async fn births_over_tls_with_a_ca_file() {
             let engine = engine().await;
             let mut trusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls");
             trusted.ca_file = Some(ca.clone());
-            let handle = hart_sparkplug::run(engine.clone(), trusted, None)
+            let handle = hart_sparkplug_edge::run(engine.clone(), trusted, None)
                 .await
                 .unwrap();
             sub.wait("NBIRTH and DBIRTHs over TLS", |l| {
@@ -933,7 +936,7 @@ async fn births_over_tls_with_a_ca_file() {
             let (other_ca, _, _) = certificates(other.path()).unwrap();
             let mut untrusted = config(&format!("mqtts://127.0.0.1:{tls_port}"), "gw-tls2");
             untrusted.ca_file = Some(other_ca);
-            let handle = hart_sparkplug::run(engine.clone(), untrusted, None)
+            let handle = hart_sparkplug_edge::run(engine.clone(), untrusted, None)
                 .await
                 .unwrap();
             tokio::time::sleep(Duration::from_secs(2)).await;
@@ -956,12 +959,12 @@ async fn births_over_tls_with_a_ca_file() {
 /// sample of the device's whole values, read back by time range; counts the pages asked.
 #[derive(Debug, Default)]
 struct TestHistorian {
-    samples: Mutex<Vec<hart_sparkplug::Sample>>,
+    samples: Mutex<Vec<hart_sparkplug_edge::Sample>>,
     pages: Mutex<Vec<(u64, u64, usize)>>,
 }
 
-impl hart_sparkplug::Backfill for TestHistorian {
-    fn samples(&self, from: u64, to: u64) -> Result<Vec<hart_sparkplug::Sample>, String> {
+impl hart_sparkplug_edge::Backfill for TestHistorian {
+    fn samples(&self, from: u64, to: u64) -> Result<Vec<hart_sparkplug_edge::Sample>, String> {
         let out: Vec<_> = self
             .samples
             .lock()
@@ -1019,7 +1022,7 @@ async fn a_device_dead_during_an_outage_has_its_data_before_its_death() {
                         .duration_since(std::time::UNIX_EPOCH)
                         .unwrap()
                         .as_millis() as u64;
-                    let metrics = hart_sparkplug::metrics::values(&c.device, c.quality)
+                    let metrics = hart_sparkplug_edge::image::values(&c.device, c.quality)
                         .into_iter()
                         .enumerate()
                         .collect();
@@ -1027,7 +1030,7 @@ async fn a_device_dead_during_an_outage_has_its_data_before_its_death() {
                     // historian reads back (the later commit of the same millisecond).
                     let mut kept = h.samples.lock().unwrap();
                     kept.retain(|s| !(s.position == c.device.position && s.at == at));
-                    kept.push(hart_sparkplug::Sample {
+                    kept.push(hart_sparkplug_edge::Sample {
                         position: c.device.position,
                         at,
                         metrics,
@@ -1037,10 +1040,10 @@ async fn a_device_dead_during_an_outage_has_its_data_before_its_death() {
             let node = "gw-dead";
             let mut cfg = config(&broker.url(), node);
             cfg.backlog = 20;
-            let handle = hart_sparkplug::run(
+            let handle = hart_sparkplug_edge::run(
                 engine.clone(),
                 cfg,
-                Some(historian.clone() as Arc<dyn hart_sparkplug::Backfill>),
+                Some(historian.clone() as Arc<dyn hart_sparkplug_edge::Backfill>),
             )
             .await
             .unwrap();
@@ -1142,7 +1145,7 @@ async fn retained_oversized_and_flooded_commands_never_repeat_a_write() {
                 ..Default::default()
             })
             .await;
-            let handle = hart_sparkplug::run(engine.clone(), config(&broker.url(), "gw5"), None)
+            let handle = hart_sparkplug_edge::run(engine.clone(), config(&broker.url(), "gw5"), None)
                 .await
                 .unwrap();
             let identified = engine.image().snapshot().iter().filter(|d| d.info.is_some()).count();

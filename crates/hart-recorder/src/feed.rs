@@ -7,7 +7,9 @@ use std::time::SystemTime;
 
 use hart_poller::{DeviceImage, Engine, Quality};
 
-use crate::{samples_of, Error, HistoryConfig, Sample, Stats, Var, Writer, WriterConfig};
+use hart_history::{Error, HistoryConfig, Sample, Stats, StoreKind, Var, Writer, WriterConfig};
+
+use crate::samples::samples_of;
 
 /// Changes the feed holds not yet handed to the writer at most (the engine drops and
 /// counts the oldest beyond it).
@@ -117,7 +119,7 @@ impl Handle {
 /// `sample_period`, through a writer thread committing every `batch`.
 pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error> {
     config.validate()?;
-    if config.max_size.is_some() && crate::StoreKind::of(&config.db) == crate::StoreKind::Postgres {
+    if config.max_size.is_some() && StoreKind::of(&config.db) == StoreKind::Postgres {
         tracing::warn!(
             "history: [history] max_size applies to SQLite only; PostgreSQL keeps what retention keeps"
         );
@@ -130,7 +132,7 @@ pub async fn run(engine: Engine, config: HistoryConfig) -> Result<Handle, Error>
     tracing::info!(
         "history: storing every change and a sample every {} in {} (batches every {})",
         humantime::format_duration(config.sample_period),
-        crate::store::StoreKind::of(&config.db).name_of(&config.db),
+        StoreKind::of(&config.db).name_of(&config.db),
         humantime::format_duration(config.batch)
     );
     let writer = Arc::new(writer);

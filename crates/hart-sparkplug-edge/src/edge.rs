@@ -26,17 +26,13 @@ use std::time::SystemTime;
 use hart_poller::{DeviceImage, Quality, WriteOp};
 use prost::Message as _;
 
-use crate::command::{self, CommandMetric, CommandValue};
-use crate::metrics::{self, Value, Writable, DEVICE_METRICS};
-use crate::proto::datatype as dt;
-use crate::proto::payload::{metric, Metric};
-use crate::proto::Payload;
+use hart_sparkplug::command::{self, CommandMetric, CommandValue};
+use hart_sparkplug::metrics::{self, Value, Writable, DEVICE_METRICS};
+use hart_sparkplug::proto::datatype as dt;
+use hart_sparkplug::proto::payload::{metric, Metric};
+use hart_sparkplug::proto::Payload;
 
-/// The Sparkplug B topic namespace.
-pub const NAMESPACE: &str = "spBv1.0";
-
-/// Milliseconds since the Unix epoch (0 before it): Sparkplug's time stamps.
-pub use hart_clock::epoch::millis;
+pub use hart_sparkplug::{millis, NAMESPACE};
 
 /// What the edge node needs to know.
 #[derive(Debug, Clone)]
@@ -451,8 +447,8 @@ impl EdgeNode {
             return vec![];
         }
         let position = image.position;
-        let values = metrics::values(image, quality);
-        let units = metrics::units(image);
+        let values = crate::image::values(image, quality);
+        let units = crate::image::units(image);
         let alive = !matches!(quality, Quality::NoReply | Quality::WaitingForData);
         let at = millis(at);
         if !self.devices.contains_key(&position) {
