@@ -4,30 +4,30 @@
 
 use std::collections::BTreeMap;
 
-use hart_history::{Agg, Query, Store, Var};
+use hart_history::{Agg, Query, Readers, Var};
 use hart_poller::{Engine, Quality};
 use hart_sparkplug_edge::metrics::{Value, DEVICE_METRICS};
 use hart_sparkplug_edge::Sample;
 
-/// The historian at `db` as the source of an outage's samples.
+/// The historian as the source of an outage's samples.
 pub struct HistoryBackfill {
-    db: String,
+    readers: Readers,
     engine: Engine,
 }
 
 impl std::fmt::Debug for HistoryBackfill {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("HistoryBackfill")
-            .field("db", &self.db)
+            .field("readers", &self.readers)
             .finish_non_exhaustive()
     }
 }
 
 impl HistoryBackfill {
-    /// Reads from the historian `db` (the gateway's `--history`) for the devices of
-    /// `engine`.
-    pub fn new(db: String, engine: Engine) -> Self {
-        HistoryBackfill { db, engine }
+    /// Reads from the historian (the gateway's `--history`, through the handle its
+    /// readers share) for the devices of `engine`.
+    pub fn new(readers: Readers, engine: Engine) -> Self {
+        HistoryBackfill { readers, engine }
     }
 }
 
@@ -39,7 +39,20 @@ fn metric_of(var: Var) -> Option<usize> {
 
 impl hart_sparkplug_edge::Backfill for HistoryBackfill {
     fn samples(&self, from: u64, to: u64) -> Result<Vec<Sample>, String> {
-        let mut store = Store::open(&self.db, false).map_err(|e| e.to_string())?;
+        self.readers
+            .read(|store| self.samples_from(store, from, to))
+            .map_err(|e| e.to_string())
+    }
+}
+
+impl HistoryBackfill {
+    /// [`hart_sparkplug_edge::Backfill::samples`] with a connection of the pool.
+    fn samples_from(
+        &self,
+        store: &mut hart_history::Store,
+        from: u64,
+        to: u64,
+    ) -> Result<Vec<Sample>, hart_history::Error> {
         let (from_t, to_t) = (
             hart_clock::epoch::from_millis(from),
             hart_clock::epoch::from_millis(to),
@@ -71,7 +84,7 @@ impl hart_sparkplug_edge::Backfill for HistoryBackfill {
                     Ok(p) => p,
                     // A device the historian has not stored (yet): nothing to send.
                     Err(hart_history::Error::NoSuchDevice(_)) => break,
-                    Err(e) => return Err(e.to_string()),
+                    Err(e) => return Err(e),
                 };
                 for p in points {
                     let value = match (var, p.value) {

@@ -207,9 +207,13 @@ impl GatewayConfig {
             .as_deref()
             .map(|b| socket_addr("--modbus", b, 502))
             .transpose()?;
-        // The dashboard's trends read the historian's database.
+        // The dashboard's trends read the historian's database, through the handle the
+        // gateway's other readers share (the MQTT publisher's backfill).
         if let (Some(w), Some(h)) = (web.as_mut(), history.as_ref()) {
-            w.history_db = Some(h.db.clone());
+            w.history = Some(hart_history::Readers::new(
+                h.db.clone(),
+                hart_history::DEFAULT_READERS,
+            ));
         }
         Ok(GatewayConfig {
             engine: EngineConfig {

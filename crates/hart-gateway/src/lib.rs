@@ -286,7 +286,16 @@ impl Gateway {
         }
         // With a historian, the MQTT publisher's full backlog leaves the rest of an
         // outage to it.
-        let history_db = config.history.as_ref().map(|h| h.db.clone());
+        // One handle on it for every reader: the dashboard's when it runs, else its own.
+        let readers = config
+            .web
+            .as_ref()
+            .and_then(|w| w.history.clone())
+            .or_else(|| {
+                config.history.as_ref().map(|h| {
+                    hart_history::Readers::new(h.db.clone(), hart_history::DEFAULT_READERS)
+                })
+            });
         if let Some(h) = config.history {
             let what = format!(
                 "history: {} (every change, and every device each {})",
@@ -306,8 +315,8 @@ impl Gateway {
             self.history = Some(handle);
         }
         if let Some(m) = config.mqtt {
-            let backfill = history_db.map(|db| {
-                std::sync::Arc::new(backfill::HistoryBackfill::new(db, engine.clone()))
+            let backfill = readers.map(|readers| {
+                std::sync::Arc::new(backfill::HistoryBackfill::new(readers, engine.clone()))
                     as std::sync::Arc<dyn hart_sparkplug_edge::Backfill>
             });
             let what = format!(

@@ -178,7 +178,10 @@ fn an_outage_is_read_back_from_the_historian() {
         let ms = |t: std::time::SystemTime| {
             t.duration_since(std::time::UNIX_EPOCH).unwrap().as_millis() as u64
         };
-        let source = hart_gateway::backfill::HistoryBackfill::new(db.clone(), engine.clone());
+        let source = hart_gateway::backfill::HistoryBackfill::new(
+            hart_history::Readers::new(db.clone(), hart_history::DEFAULT_READERS),
+            engine.clone(),
+        );
         let samples = source
             .samples(ms(start), ms(std::time::SystemTime::now()) + 1)
             .unwrap();
@@ -249,7 +252,7 @@ fn the_web_dashboard_starts_from_options_and_the_file() {
         .unwrap();
         let web = config.web.unwrap();
         assert_eq!(web.memory_window, Duration::from_secs(7200));
-        assert!(web.history_db.unwrap().ends_with("h.sqlite"));
+        assert!(web.history.unwrap().db().ends_with("h.sqlite"));
         assert_eq!(web.limits, hart_web::limits::Limits::default());
         assert!(web.hosts.is_empty());
         // Its names and connection limits, from [web] and --web-host.

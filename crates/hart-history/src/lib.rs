@@ -22,6 +22,7 @@ mod config;
 mod error;
 mod output;
 mod postgres_store;
+mod readers;
 mod sample;
 mod sqlite_store;
 mod store;
@@ -38,6 +39,7 @@ pub use config::{parse_size, FileLost, HistoryConfig};
 pub use error::Error;
 pub use output::{format_devices, format_points, quality_name, Format};
 pub use postgres_store::PgStore;
+pub use readers::{Readers, DEFAULT_READERS};
 pub use sample::{
     from_micros, micros, widen, DeviceKey, Sample, Var, UNITS_MILLIAMPERES, UNITS_PERCENT,
 };

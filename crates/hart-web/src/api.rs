@@ -734,7 +734,7 @@ async fn history(state: &AppState, position: usize, window: Duration) -> Value {
         .with(position, |d| d.unique_id().map(|u| u.to_string()))
         .flatten();
     let mut error = None;
-    if let (Some(db), Some(uid)) = (state.config.history_db.clone(), uid) {
+    if let (Some(readers), Some(uid)) = (state.config.history.clone(), uid) {
         let every = (window / 300).max(Duration::from_secs(1));
         let q = move |var| hart_history::Query {
             device: uid.clone(),
@@ -746,8 +746,7 @@ async fn history(state: &AppState, position: usize, window: Duration) -> Value {
         };
         let (qp, qc) = (q(hart_history::Var::Pv), q(hart_history::Var::LoopCurrent));
         let read = tokio::task::spawn_blocking(move || {
-            let mut store = hart_history::Store::open(&db, false)?;
-            Ok::<_, hart_history::Error>((store.query(&qp)?, store.query(&qc)?))
+            readers.read(|store| Ok((store.query(&qp)?, store.query(&qc)?)))
         })
         .await;
         match read {

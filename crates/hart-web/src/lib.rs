@@ -61,8 +61,9 @@ pub struct WebConfig {
     pub admin_password_file: Option<PathBuf>,
     /// HTTPS with this certificate chain and private key (PEM files).
     pub tls: Option<TlsFiles>,
-    /// The historian's database, for trends over longer windows than memory keeps.
-    pub history_db: Option<String>,
+    /// The historian, for trends over longer windows than memory keeps: a handle the
+    /// gateway shares with its other readers ([`hart_history::Readers`]).
+    pub history: Option<hart_history::Readers>,
     /// How much of each device's PV and loop current is kept in memory for trends.
     pub memory_window: Duration,
     /// How long a login lasts without use.
@@ -103,7 +104,7 @@ impl WebConfig {
             bind,
             admin_password_file: None,
             tls: None,
-            history_db: None,
+            history: None,
             memory_window: Duration::from_secs(3600),
             session_idle: Duration::from_secs(3600),
             psk_logins: vec![],

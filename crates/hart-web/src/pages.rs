@@ -171,7 +171,7 @@ pub(crate) async fn device(
                 if *w == window { " selected" } else { "" }
             ))
             .collect::<String>(),
-        if state.config.history_db.is_some() {
+        if state.config.history.is_some() {
             "from the historian"
         } else {
             "from memory (the last hour; run a historian with --history for more)"
