@@ -125,12 +125,20 @@ mod tests {
         let db = dir.join("h.db");
         drop(Store::open(db.to_str().unwrap(), true).unwrap());
         let readers = Readers::new(db.to_str().unwrap(), 2);
-        assert_eq!(readers.open_connections(), 0, "nothing opened before a read");
+        assert_eq!(
+            readers.open_connections(),
+            0,
+            "nothing opened before a read"
+        );
         for _ in 0..5 {
             let devices = readers.read(|s| s.devices()).unwrap();
             assert!(devices.is_empty());
         }
-        assert_eq!(readers.open_connections(), 1, "one connection served five reads");
+        assert_eq!(
+            readers.open_connections(),
+            1,
+            "one connection served five reads"
+        );
         // Readers at once never open more than the limit.
         let threads: Vec<_> = (0..6)
             .map(|_| {
@@ -155,7 +163,10 @@ mod tests {
     fn a_database_that_is_not_there_is_the_reads_error_and_takes_no_place() {
         let readers = Readers::new("/nonexistent/folder/h.db", 1);
         assert!(readers.read(|s| s.devices()).is_err());
-        assert!(readers.read(|s| s.devices()).is_err(), "the place was given back");
+        assert!(
+            readers.read(|s| s.devices()).is_err(),
+            "the place was given back"
+        );
         assert_eq!(readers.open_connections(), 0);
     }
 }
