@@ -77,23 +77,25 @@ impl Readers {
     /// than `size` are open, or the next one returned. The connection goes back to the
     /// pool afterwards unless `read` failed with an error that needs a new connection.
     pub fn read<R>(&self, read: impl FnOnce(&mut Store) -> Result<R, Error>) -> Result<R, Error> {
-        let mut store = {
+        // The place taken in the pool is given back however this call ends: the
+        // connection returned to the idle list, or (an error that needs a new one, a
+        // failed open, a panic in `read`) the place freed for the next caller.
+        let mut place = Place {
+            inner: &self.inner,
+            store: None,
+        };
+        {
             let mut state = self.lock();
             loop {
                 if let Some(s) = state.idle.pop() {
-                    break s;
+                    place.store = Some(s);
+                    break;
                 }
                 if state.open < self.inner.size {
                     state.open += 1;
                     drop(state);
-                    match Store::open(&self.inner.db, false) {
-                        Ok(s) => break s,
-                        Err(e) => {
-                            self.lock().open -= 1;
-                            self.inner.returned.notify_one();
-                            return Err(e);
-                        }
-                    }
+                    place.store = Some(Store::open(&self.inner.db, false)?);
+                    break;
                 }
                 state = self
                     .inner
@@ -101,16 +103,34 @@ impl Readers {
                     .wait(state)
                     .unwrap_or_else(|e| e.into_inner());
             }
-        };
-        let result = read(&mut store);
-        let mut state = self.lock();
-        match &result {
-            Err(e) if e.needs_reconnect() => state.open -= 1,
-            _ => state.idle.push(store),
+        }
+        let store = place.store.as_mut().expect("set above");
+        let result = read(store);
+        if let Err(e) = &result {
+            if e.needs_reconnect() {
+                place.store = None;
+            }
+        }
+        result
+    }
+}
+
+/// One place in a [`Readers`] pool, held for the length of a read; dropping it hands
+/// the connection back (when it has one) or frees the place.
+struct Place<'a> {
+    inner: &'a Inner,
+    store: Option<Store>,
+}
+
+impl Drop for Place<'_> {
+    fn drop(&mut self) {
+        let mut state = self.inner.state.lock().unwrap_or_else(|e| e.into_inner());
+        match self.store.take() {
+            Some(s) if !std::thread::panicking() => state.idle.push(s),
+            _ => state.open = state.open.saturating_sub(1),
         }
         drop(state);
         self.inner.returned.notify_one();
-        result
     }
 }
 
@@ -157,6 +177,23 @@ mod tests {
         }
         assert!(readers.open_connections() <= 2);
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_reader_that_panics_gives_its_place_back() {
+        let readers = Readers::new("/nonexistent/folder/h.db", 1);
+        // A place taken by hand, then a panic while it is held.
+        let r = readers.clone();
+        let _ = std::thread::spawn(move || {
+            r.lock().open += 1;
+            let _place = Place {
+                inner: &r.inner,
+                store: None,
+            };
+            panic!("a reader failed");
+        })
+        .join();
+        assert_eq!(readers.open_connections(), 0, "the place was given back");
     }
 
     #[test]
